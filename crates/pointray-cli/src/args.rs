@@ -1,0 +1,219 @@
+//! Command-line arguments (clap derive).
+
+use std::path::PathBuf;
+
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+#[derive(Parser, Debug)]
+#[command(name = "pointray", version, about = "Ray tracing of point clouds rendered directly as splats")]
+#[command(after_help = "Examples:
+  pointray render -o demo.png                         the built-in demo scene
+  pointray render bunny.ply -o bunny.png --width 800 --height 800
+  pointray render dragon.ply -o d.png --distance 4 --crop-to-model --stats d.json
+  pointray prepare scan.ply -o scan_prepared.ply      compute normals and radii once
+  pointray info scan.ply")]
+pub struct Cli {
+    /// More log output (-v: debug, -vv: trace).
+    #[arg(short, long, action = clap::ArgAction::Count, global = true)]
+    pub verbose: u8,
+    /// Only errors; no progress bars.
+    #[arg(short, long, global = true)]
+    pub quiet: bool,
+    #[command(subcommand)]
+    pub command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+pub enum Command {
+    /// Render a point cloud (or the built-in demo scene) to a PNG.
+    #[command(after_help = "Examples:
+  pointray render -o demo.png
+  pointray render bun_zipper.ply -o bunny.png --surface sj --spp 4
+  pointray render dragon.ply -o d.png --view-dir 0.4,0.3,1 --distance 16 --crop-to-model --stats s.json
+  pointray render scan.ply -o s.png --eye 0,0.1,0.4 --look-at 0,0.1,0 --fov 40")]
+    Render(RenderArgs),
+    /// Compute what a cloud lacks (normals, orientation, radii), sort it, and write a binary PLY.
+    #[command(after_help = "Example:
+  pointray prepare bun_zipper.ply -o bunny_prepared.ply")]
+    Prepare(PrepareArgs),
+    /// Describe a point-cloud file: format, elements, properties, bounds.
+    #[command(after_help = "Example:
+  pointray info dragon.ply")]
+    Info(InfoArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct PreprocessArgs {
+    /// Neighbours for PCA normals.
+    #[arg(long, default_value_t = pointray::preprocess::PreprocessConfig::standard().k_normals)]
+    pub k_normals: usize,
+    /// Neighbours for the splat radius.
+    #[arg(long, default_value_t = pointray::preprocess::PreprocessConfig::standard().k_radius)]
+    pub k_radius: usize,
+    /// Scale applied to the computed radii.
+    #[arg(long, default_value_t = pointray::preprocess::PreprocessConfig::standard().radius_scale)]
+    pub radius_scale: f32,
+    /// Recompute normals and radii even when the file has them.
+    #[arg(long)]
+    pub recompute: bool,
+}
+
+#[derive(Args, Debug)]
+pub struct RenderArgs {
+    /// PLY or XYZ file; none renders the built-in demo scene.
+    pub input: Option<PathBuf>,
+    /// Output PNG (written atomically).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    #[arg(long, default_value_t = 1024)]
+    pub width: u32,
+    #[arg(long, default_value_t = 1024)]
+    pub height: u32,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    #[arg(long, value_enum, default_value_t = AccelArg::Bvh)]
+    pub accel: AccelArg,
+    /// How the disks a ray crosses become a surface point.
+    #[arg(long, value_enum, default_value_t = SurfaceArg::Sj)]
+    pub surface: SurfaceArg,
+    /// SJ interpolation window, in radii of the first disk hit.
+    #[arg(long, default_value_t = 1.0)]
+    pub sj_window: f32,
+    /// Samples per pixel (jittered, anti-aliasing).
+    #[arg(long, default_value_t = 1)]
+    pub spp: u32,
+    /// Seed of the per-pixel random numbers (and of the demo scene's points).
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+
+    /// Camera position (then --look-at is needed).
+    #[arg(long, value_parser = parse_vec3, requires = "look_at")]
+    pub eye: Option<glam::Vec3>,
+    #[arg(long, value_parser = parse_vec3, requires = "eye")]
+    pub look_at: Option<glam::Vec3>,
+    /// Camera up vector.
+    #[arg(long, value_parser = parse_vec3, default_value = "0,1,0")]
+    pub up: glam::Vec3,
+    /// Vertical field of view, degrees.
+    #[arg(long, default_value_t = 60.0)]
+    pub fov: f32,
+    /// Direction from the model's centre to the camera, when no --eye [default: 0.4,0.3,1;
+    /// the demo has its own].
+    #[arg(long, value_parser = parse_vec3, conflicts_with = "eye")]
+    pub view_dir: Option<glam::Vec3>,
+    /// Camera distance from the model's centre, in bounding-box diagonals, when no --eye
+    /// [default: 1; the demo has its own].
+    #[arg(long, conflicts_with = "eye")]
+    pub distance: Option<f32>,
+    /// Render only this pixel rectangle of the frame: X0,Y0,X1,Y1 (X1, Y1 exclusive).
+    #[arg(long, value_parser = parse_region, conflicts_with = "crop_to_model")]
+    pub region: Option<pointray::camera::Region>,
+    /// Render only the pixels inside the model's projected bounding box.
+    #[arg(long)]
+    pub crop_to_model: bool,
+
+    /// Directional light: direction towards the light (default: from the camera, raised).
+    #[arg(long, value_parser = parse_vec3, conflicts_with = "light_pos")]
+    pub light_dir: Option<glam::Vec3>,
+    /// Point light position instead.
+    #[arg(long, value_parser = parse_vec3)]
+    pub light_pos: Option<glam::Vec3>,
+    #[arg(long, default_value_t = 1.0)]
+    pub light_intensity: f32,
+    /// No shadow rays.
+    #[arg(long)]
+    pub no_shadows: bool,
+    /// Shadow-ray start offset, in splat radii.
+    #[arg(long, default_value_t = 1.0)]
+    pub shadow_offset: f32,
+
+    /// Write statistics (timings, rays, traversal work, memory) as JSON.
+    #[arg(long)]
+    pub stats: Option<PathBuf>,
+    /// Timed frames after one untimed warm-up frame (benchmarking; median and min reported).
+    #[arg(long, default_value_t = 0)]
+    pub bench_frames: u32,
+    /// Points in the demo scene.
+    #[arg(long, default_value_t = 300_000)]
+    pub demo_points: usize,
+    #[command(flatten)]
+    pub preprocess: PreprocessArgs,
+}
+
+#[derive(Args, Debug)]
+pub struct PrepareArgs {
+    pub input: PathBuf,
+    #[arg(short, long)]
+    pub output: PathBuf,
+    #[command(flatten)]
+    pub preprocess: PreprocessArgs,
+}
+
+#[derive(Args, Debug)]
+pub struct InfoArgs {
+    pub input: PathBuf,
+}
+
+#[derive(Copy, Clone, Debug, ValueEnum)]
+pub enum AccelArg {
+    Bvh,
+    Brute,
+}
+
+#[derive(Copy, Clone, Debug, ValueEnum)]
+pub enum SurfaceArg {
+    Sj,
+    FirstHit,
+}
+
+fn parse_floats<const N: usize>(s: &str) -> Result<[f32; N], String> {
+    let parts: Vec<&str> = s.split(',').map(str::trim).collect();
+    if parts.len() != N {
+        return Err(format!("expected {N} comma-separated numbers, got {:?}", s));
+    }
+    let mut out = [0.0; N];
+    for (o, p) in out.iter_mut().zip(parts) {
+        *o = p.parse::<f32>().map_err(|_| format!("{p:?} is not a number"))?;
+        if !o.is_finite() {
+            return Err(format!("{p:?} is not finite"));
+        }
+    }
+    Ok(out)
+}
+
+fn parse_vec3(s: &str) -> Result<glam::Vec3, String> {
+    parse_floats::<3>(s).map(glam::Vec3::from)
+}
+
+fn parse_region(s: &str) -> Result<pointray::camera::Region, String> {
+    let v = parse_floats::<4>(s)?;
+    if v.iter().any(|x| *x < 0.0 || x.fract() != 0.0) {
+        return Err("region bounds must be non-negative integers".into());
+    }
+    let [x0, y0, x1, y1] = v.map(|x| x as u32);
+    if x1 <= x0 || y1 <= y0 {
+        return Err(format!("empty region {x0},{y0},{x1},{y1}: need X0 < X1 and Y0 < Y1"));
+    }
+    Ok(pointray::camera::Region { x0, y0, x1, y1 })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_vectors_and_regions() {
+        assert_eq!(parse_vec3("0.4, 0.3,1").unwrap(), glam::Vec3::new(0.4, 0.3, 1.0));
+        assert!(parse_vec3("1,2").is_err());
+        assert!(parse_vec3("1,x,2").is_err());
+        assert!(parse_region("10,10,5,20").is_err());
+        assert_eq!(parse_region("1,2,3,4").unwrap(), pointray::camera::Region { x0: 1, y0: 2, x1: 3, y1: 4 });
+    }
+
+    #[test]
+    fn clap_definition_is_consistent() {
+        use clap::CommandFactory;
+        Cli::command().debug_assert();
+    }
+}

@@ -1,0 +1,42 @@
+//! `pointray info`: what a file holds.
+
+use std::io::{self, Write};
+
+use crate::args::InfoArgs;
+
+pub fn run(a: &InfoArgs) -> anyhow::Result<()> {
+    let (loaded, seconds) = super::load(&a.input)?;
+    let (info, cloud) = (&loaded.info, &loaded.cloud);
+    let mut out = io::stdout().lock();
+    writeln!(out, "file:        {}", a.input.display())?;
+    writeln!(out, "format:      {}", info.format)?;
+    writeln!(out, "size:        {} bytes (read in {:.3} s)", info.file_bytes, seconds)?;
+    for (name, count) in &info.elements {
+        writeln!(out, "element:     {name} {count}")?;
+    }
+    writeln!(out, "properties:  {}", info.vertex_properties.join(", "))?;
+    for c in &info.comments {
+        writeln!(out, "comment:     {c}")?;
+    }
+    writeln!(out, "points:      {}", cloud.len())?;
+    let has = |b: bool| if b { "yes" } else { "no" };
+    writeln!(out, "normals:     {}", has(cloud.normals.is_some()))?;
+    writeln!(out, "radii:       {}", has(cloud.radii.is_some()))?;
+    writeln!(out, "colours:     {}", has(cloud.colors.is_some()))?;
+    let non_finite = cloud.positions.iter().filter(|p| !p.is_finite()).count();
+    if non_finite > 0 {
+        writeln!(out, "non-finite:  {non_finite} points (dropped when rendering)")?;
+    }
+    let finite: Vec<_> = cloud.positions.iter().copied().filter(|p| p.is_finite()).collect();
+    let b = pointray::math::Aabb::from_points(finite);
+    if !b.is_empty() {
+        let o = cloud.origin;
+        let lo = o + b.min.as_dvec3();
+        let hi = o + b.max.as_dvec3();
+        writeln!(out, "bounds min:  {:.6} {:.6} {:.6}", lo.x, lo.y, lo.z)?;
+        writeln!(out, "bounds max:  {:.6} {:.6} {:.6}", hi.x, hi.y, hi.z)?;
+        writeln!(out, "diagonal:    {:.6}", b.diagonal())?;
+    }
+    out.flush()?;
+    Ok(())
+}

@@ -1,0 +1,265 @@
+//! `pointray render`: load (or make the demo), preprocess, build, render, write PNG + stats.
+
+use std::time::Instant;
+
+use anyhow::Context;
+
+use pointray::accel::{Accel, BruteForce, Bvh, BvhParams};
+use pointray::camera::{Camera, Region};
+use pointray::film::Film;
+use pointray::render::{RenderConfig, render};
+use pointray::shading::{Light, Material};
+use pointray::splat::scheme::{SurfaceKind, SurfaceScheme};
+use pointray::splat::{Splat, splats_from_cloud};
+use pointray::stats::RenderStats;
+use serde::Serialize;
+
+use crate::args::{AccelArg, RenderArgs, SurfaceArg};
+
+/// The accelerators the CLI can build; the render loop is monomorphised for each.
+enum AnyAccel {
+    Bvh(Bvh),
+    Brute(BruteForce),
+}
+
+impl AnyAccel {
+    fn build(kind: AccelArg, splats: Vec<Splat>) -> Self {
+        match kind {
+            AccelArg::Bvh => AnyAccel::Bvh(Bvh::build(splats, &BvhParams::standard())),
+            AccelArg::Brute => AnyAccel::Brute(BruteForce::new(splats)),
+        }
+    }
+
+    fn memory_bytes(&self) -> usize {
+        match self {
+            AnyAccel::Bvh(a) => a.memory_bytes(),
+            AnyAccel::Brute(a) => a.memory_bytes(),
+        }
+    }
+
+    fn name(&self) -> &'static str {
+        match self {
+            AnyAccel::Bvh(a) => a.name(),
+            AnyAccel::Brute(a) => a.name(),
+        }
+    }
+
+    fn render(&self, camera: &Camera, config: &RenderConfig, progress: &(dyn Fn(u64) + Sync)) -> (Film, RenderStats) {
+        match self {
+            AnyAccel::Bvh(a) => render(a, camera, config, progress),
+            AnyAccel::Brute(a) => render(a, camera, config, progress),
+        }
+    }
+}
+
+/// What `--stats` writes.
+#[derive(Serialize)]
+struct StatsReport {
+    input: String,
+    points: usize,
+    width: u32,
+    height: u32,
+    region: Region,
+    threads: usize,
+    accel: &'static str,
+    surface: &'static str,
+    samples_per_pixel: u32,
+    load_seconds: f64,
+    preprocess_seconds: PreprocessSeconds,
+    preprocess: pointray::preprocess::PreprocessStats,
+    build_seconds: f64,
+    render_seconds: f64,
+    render_seconds_min: f64,
+    timed_frames: u32,
+    rays: u64,
+    primary_rays: u64,
+    shadow_rays: u64,
+    mrays_per_second: f64,
+    primary_mrays_per_second: f64,
+    hit_fraction: f64,
+    nodes_visited_per_ray: f64,
+    splat_tests_per_ray: f64,
+    blended_splats_per_hit: f64,
+    accel_bytes: usize,
+    bytes_per_splat: f64,
+    splat_bytes: usize,
+    mean_radius: f64,
+    bounds_diagonal: f32,
+    camera_distance: Option<f32>,
+    counters: RenderStats,
+}
+
+#[derive(Serialize)]
+struct PreprocessSeconds {
+    total: f64,
+    sort: f64,
+    knn: f64,
+    normals: f64,
+    orient: f64,
+    radii: f64,
+}
+
+pub fn run(a: &RenderArgs, quiet: bool) -> anyhow::Result<()> {
+    anyhow::ensure!(a.width > 0 && a.height > 0, "--width and --height must be positive");
+    anyhow::ensure!(a.fov > 0.0 && a.fov < 180.0, "--fov must be between 0 and 180 degrees");
+    anyhow::ensure!(a.distance.is_none_or(|d| d > 0.0 && d.is_finite()), "--distance must be positive");
+    anyhow::ensure!(a.spp >= 1, "--spp must be at least 1");
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads.unwrap_or(0)).build()?;
+    pool.install(|| run_in_pool(a, quiet, pool.current_num_threads()))
+}
+
+fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()> {
+    // 1. The cloud.
+    let (mut cloud, input_name, load_seconds) = match &a.input {
+        Some(path) => {
+            let (loaded, secs) = super::load(path)?;
+            (loaded.cloud, path.display().to_string(), secs)
+        }
+        None => (pointray::demo::demo_cloud(a.demo_points, a.seed), "demo".to_string(), 0.0),
+    };
+    let pre = super::prepare_cloud(&mut cloud, &a.preprocess, quiet)
+        .with_context(|| format!("{input_name}: preprocessing"))?;
+    let bounds = cloud.bounds();
+
+    // 2. The accelerator.
+    let splats = splats_from_cloud(&cloud);
+    let mean_radius = splats.iter().map(|s| f64::from(s.radius)).sum::<f64>() / splats.len() as f64;
+    let t = Instant::now();
+    let spinner = crate::progress::spinner("build", quiet);
+    let accel = AnyAccel::build(a.accel, splats);
+    spinner.finish_and_clear();
+    let build_seconds = t.elapsed().as_secs_f64();
+    tracing::info!("built {} over {} splats in {build_seconds:.3} s", accel.name(), cloud.len());
+
+    // 3. Camera, light, region.
+    let (default_view, default_distance) = match a.input {
+        Some(_) => (glam::Vec3::new(0.4, 0.3, 1.0), 1.0),
+        None => (glam::Vec3::from(pointray::demo::DEMO_VIEW.0), pointray::demo::DEMO_VIEW.1),
+    };
+    let distance = a.distance.unwrap_or(default_distance);
+    let camera = match (a.eye, a.look_at) {
+        (Some(eye), Some(target)) => Camera::look_at(eye, target, a.up, a.fov, a.width, a.height),
+        _ => Camera::orbit(&bounds, a.view_dir.unwrap_or(default_view), a.up, distance, a.fov, a.width, a.height),
+    };
+    let light = match (a.light_pos, a.light_dir) {
+        (Some(position), _) => Light::Point { position, intensity: a.light_intensity },
+        (None, Some(direction)) => Light::Directional { direction, intensity: a.light_intensity },
+        (None, None) if a.input.is_none() => pointray::demo::demo_light(),
+        // A headlight raised and shifted right, as in the Embree bench.
+        (None, None) => Light::Directional {
+            direction: -camera.forward() + 0.6 * camera.up() + 0.4 * camera.right(),
+            intensity: a.light_intensity,
+        },
+    };
+    let region = if a.crop_to_model {
+        camera.region_of(&bounds)
+    } else {
+        a.region.map_or(Region::full(a.width, a.height), |r| r.clamp_to(a.width, a.height))
+    };
+    anyhow::ensure!(region.pixel_count() > 0, "--region {:?} lies outside the {}x{} frame", a.region, a.width, a.height);
+    let scheme = SurfaceScheme {
+        window: a.sj_window,
+        ..SurfaceScheme::of_kind(match a.surface {
+            SurfaceArg::Sj => SurfaceKind::Sj,
+            SurfaceArg::FirstHit => SurfaceKind::FirstHit,
+        })
+    };
+    let config = RenderConfig {
+        scheme,
+        light,
+        material: Material::standard(),
+        shadows: !a.no_shadows,
+        shadow_offset: a.shadow_offset,
+        background: [0.010, 0.011, 0.019],
+        region,
+        samples: a.spp,
+        seed: a.seed,
+    };
+
+    // 4. Render: one frame for the image, then any timed benchmark frames.
+    let bar = crate::progress::bar(region.pixel_count(), "render", quiet);
+    let t = Instant::now();
+    let (film, stats) = accel.render(&camera, &config, &|n| bar.inc(n));
+    let first_seconds = t.elapsed().as_secs_f64();
+    bar.finish_and_clear();
+    let mut times = Vec::new();
+    for _ in 0..a.bench_frames {
+        let t = Instant::now();
+        let _ = accel.render(&camera, &config, &|_| {});
+        times.push(t.elapsed().as_secs_f64());
+    }
+    times.sort_by(f64::total_cmp);
+    let (render_seconds, render_seconds_min) = match times.len() {
+        0 => (first_seconds, first_seconds),
+        n => (times[n / 2], times[0]),
+    };
+
+    pointray_io::image::write_png(&a.output, film.width, film.height, &film.to_srgb8())?;
+    let mrays = stats.rays as f64 / render_seconds / 1e6;
+    if !quiet {
+        eprintln!(
+            "{}: {} points, {} {}x{} px, {:.3} s ({:.2} Mrays/s), hits {:.1}%, wrote {}",
+            input_name,
+            cloud.len(),
+            accel.name(),
+            region.width(),
+            region.height(),
+            render_seconds,
+            mrays,
+            stats.hit_fraction() * 100.0,
+            a.output.display()
+        );
+    }
+
+    if let Some(path) = &a.stats {
+        let report = StatsReport {
+            input: input_name,
+            points: cloud.len(),
+            width: a.width,
+            height: a.height,
+            region,
+            threads,
+            accel: accel.name(),
+            surface: scheme.kind.name(),
+            samples_per_pixel: a.spp,
+            load_seconds,
+            preprocess_seconds: PreprocessSeconds {
+                total: pre.sort_seconds + pre.knn_seconds + pre.normals_seconds + pre.orient_seconds + pre.radii_seconds,
+                sort: pre.sort_seconds,
+                knn: pre.knn_seconds,
+                normals: pre.normals_seconds,
+                orient: pre.orient_seconds,
+                radii: pre.radii_seconds,
+            },
+            preprocess: pre,
+            build_seconds,
+            render_seconds,
+            render_seconds_min,
+            timed_frames: a.bench_frames,
+            rays: stats.rays,
+            primary_rays: stats.primary_rays,
+            shadow_rays: stats.shadow_rays,
+            mrays_per_second: mrays,
+            primary_mrays_per_second: stats.primary_rays as f64 / render_seconds / 1e6,
+            hit_fraction: stats.hit_fraction(),
+            nodes_visited_per_ray: stats.nodes_visited_per_ray(),
+            splat_tests_per_ray: stats.splat_tests_per_ray(),
+            blended_splats_per_hit: if stats.primary_hits == 0 {
+                0.0
+            } else {
+                stats.blended_splats as f64 / stats.primary_hits as f64
+            },
+            accel_bytes: accel.memory_bytes(),
+            bytes_per_splat: accel.memory_bytes() as f64 / cloud.len() as f64,
+            splat_bytes: cloud.len() * size_of::<Splat>(),
+            mean_radius,
+            bounds_diagonal: bounds.diagonal(),
+            camera_distance: a.eye.is_none().then(|| distance * bounds.diagonal()),
+            counters: stats,
+        };
+        let json = serde_json::to_string_pretty(&report)?;
+        pointray_io::atomic_write(path, |w| w.write_all(json.as_bytes()))?;
+    }
+    Ok(())
+}
+

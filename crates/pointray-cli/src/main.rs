@@ -1,0 +1,47 @@
+//! `pointray`: the command line. Argument parsing, logging and progress live here; the work is
+//! in the `pointray` and `pointray-io` libraries.
+
+mod args;
+mod commands;
+mod progress;
+
+use std::io::{self, Write};
+use std::process::ExitCode;
+
+use clap::Parser;
+
+use args::{Cli, Command};
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    init_logging(&cli);
+    let result = match &cli.command {
+        Command::Render(a) => commands::render::run(a, cli.quiet),
+        Command::Prepare(a) => commands::prepare::run(a, cli.quiet),
+        Command::Info(a) => commands::info::run(a),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        // Piped into `head`: the reader left, which is not an error (ripgrep does the same).
+        Err(e) if is_broken_pipe(&e) => ExitCode::SUCCESS,
+        Err(e) => {
+            let _ = writeln!(io::stderr(), "pointray: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn is_broken_pipe(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| c.downcast_ref::<io::Error>().is_some_and(|e| e.kind() == io::ErrorKind::BrokenPipe))
+}
+
+fn init_logging(cli: &Cli) {
+    let level = match (cli.quiet, cli.verbose) {
+        (true, _) => tracing::Level::ERROR,
+        (false, 0) => tracing::Level::WARN,
+        (false, 1) => tracing::Level::INFO,
+        (false, 2) => tracing::Level::DEBUG,
+        _ => tracing::Level::TRACE,
+    };
+    tracing_subscriber::fmt().with_max_level(level).with_writer(io::stderr).with_target(false).init();
+}

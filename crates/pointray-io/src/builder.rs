@@ -1,0 +1,118 @@
+//! Collects per-point values in file order and turns them into a recentred `PointCloud`.
+
+use glam::{DVec3, Vec3};
+use pointray::PointCloud;
+
+/// Which optional attributes the file provides.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Attributes {
+    pub normals: bool,
+    pub radii: bool,
+    pub colors: bool,
+}
+
+pub(crate) struct CloudBuilder {
+    world: Vec<DVec3>,
+    normals: Option<Vec<Vec3>>,
+    radii: Option<Vec<f32>>,
+    colors: Option<Vec<[f32; 3]>>,
+}
+
+/// One point as read from a file; attributes the file lacks are ignored.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct PointRecord {
+    pub position: DVec3,
+    pub normal: Vec3,
+    pub radius: f32,
+    pub color: [f32; 3],
+}
+
+impl CloudBuilder {
+    /// `capacity` must already be validated against the file size by the caller.
+    pub(crate) fn new(capacity: usize, attributes: Attributes) -> Self {
+        Self {
+            world: Vec::with_capacity(capacity),
+            normals: attributes.normals.then(|| Vec::with_capacity(capacity)),
+            radii: attributes.radii.then(|| Vec::with_capacity(capacity)),
+            colors: attributes.colors.then(|| Vec::with_capacity(capacity)),
+        }
+    }
+
+    pub(crate) fn push(&mut self, point: &PointRecord) {
+        self.world.push(point.position);
+        if let Some(normals) = &mut self.normals {
+            normals.push(point.normal);
+        }
+        if let Some(radii) = &mut self.radii {
+            radii.push(point.radius);
+        }
+        if let Some(colors) = &mut self.colors {
+            colors.push(point.color);
+        }
+    }
+
+    pub(crate) fn len(&self) -> usize {
+        self.world.len()
+    }
+
+    /// Recentres on the bounding-box centre of the finite points. Non-finite coordinates are
+    /// kept as they are (they become non-finite local positions) so the core decides what to
+    /// do with them; they must not drag the origin to infinity.
+    pub(crate) fn finish(self) -> PointCloud {
+        let all_finite = self.world.iter().all(|p| p.is_finite());
+        let mut cloud = if all_finite {
+            PointCloud::from_world_positions(&self.world)
+        } else {
+            let origin = finite_bounds_centre(&self.world);
+            let positions = self.world.iter().map(|p| (*p - origin).as_vec3()).collect();
+            PointCloud {
+                positions,
+                origin,
+                ..PointCloud::default()
+            }
+        };
+        cloud.normals = self.normals;
+        cloud.radii = self.radii;
+        cloud.colors = self.colors;
+        cloud
+    }
+}
+
+fn finite_bounds_centre(world: &[DVec3]) -> DVec3 {
+    let mut finite = world.iter().filter(|p| p.is_finite()).peekable();
+    if finite.peek().is_none() {
+        return DVec3::ZERO;
+    }
+    let (lo, hi) = finite.fold(
+        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    );
+    (lo + hi) * 0.5
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn non_finite_points_do_not_move_the_origin() {
+        let mut builder = CloudBuilder::new(4, Attributes::default());
+        let points = [
+            DVec3::new(1000.0, 0.0, 0.0),
+            DVec3::new(f64::INFINITY, 0.0, 0.0),
+            DVec3::new(1002.0, 2.0, 0.0),
+            DVec3::new(5.0, 5.0, f64::NAN),
+        ];
+        for position in points {
+            builder.push(&PointRecord {
+                position,
+                ..Default::default()
+            });
+        }
+        let cloud = builder.finish();
+        assert_eq!(cloud.origin, DVec3::new(1001.0, 1.0, 0.0));
+        assert_eq!(cloud.len(), 4);
+        assert!(cloud.positions[1].x.is_infinite());
+        assert!(cloud.positions[3].z.is_nan());
+    }
+}

@@ -1,0 +1,113 @@
+//! File formats for pointray: point clouds in (PLY, XYZ text), rendered images out (PNG).
+//!
+//! Everything is read into memory first and parsed from the byte slice; every error names
+//! the file and, where there is one, the line or byte offset (see [`IoError`]). No input
+//! makes a reader panic or allocate more than the file could describe.
+
+pub mod error;
+pub mod image;
+pub mod ply;
+pub mod xyz;
+
+mod builder;
+mod text;
+
+use std::io::Write;
+use std::path::Path;
+
+pub use error::IoError;
+pub use image::write_png;
+pub use ply::{read_ply, write_ply};
+pub use xyz::read_xyz;
+
+/// A cloud and what its file said about itself.
+#[derive(Clone, Debug)]
+pub struct LoadedCloud {
+    pub cloud: pointray::PointCloud,
+    pub info: FileInfo,
+}
+
+/// The file's description of itself, for `info`-style reporting.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct FileInfo {
+    /// e.g. `"PLY binary_little_endian 1.0"`, `"PLY ascii 1.0"`, `"XYZ text"`.
+    pub format: String,
+    /// Element names and counts in file order; `[("point", n)]` for XYZ.
+    pub elements: Vec<(String, usize)>,
+    /// Vertex property declarations as in the header, e.g. `"float x"`,
+    /// `"list uchar int vertex_indices"`; bare column names for XYZ.
+    pub vertex_properties: Vec<String>,
+    /// PLY `comment` texts and whole `obj_info` lines; whole-line `#` comments for XYZ.
+    pub comments: Vec<String>,
+    pub file_bytes: u64,
+}
+
+/// Extensions taken as XYZ text even when the first line would not tell.
+const XYZ_EXTENSIONS: [&str; 7] = ["xyz", "txt", "pts", "csv", "asc", "xyzn", "xyzrgb"];
+
+/// Reads a PLY or XYZ file, recognised by content: a file starting with the `ply` line is
+/// PLY; otherwise XYZ when the extension says so or the first data line is all numbers.
+pub fn read_cloud(path: &Path) -> Result<LoadedCloud, IoError> {
+    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    if bytes.is_empty() {
+        return Err(IoError::invalid(path, "file is empty"));
+    }
+    if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
+        return ply::parse(path, &bytes);
+    }
+    let extension = path
+        .extension()
+        .and_then(|e| e.to_str())
+        .map(str::to_ascii_lowercase);
+    if extension.as_deref() == Some("ply") {
+        return Err(IoError::invalid(
+            path,
+            "not a PLY file: it does not start with the line 'ply'",
+        ));
+    }
+    if extension
+        .as_deref()
+        .is_some_and(|e| XYZ_EXTENSIONS.contains(&e))
+        || xyz::looks_like_xyz(&bytes)
+    {
+        return xyz::parse(path, &bytes);
+    }
+    Err(IoError::invalid(
+        path,
+        "unrecognised format: neither PLY (no 'ply' first line) nor XYZ text",
+    ))
+}
+
+/// Writes `path` all or nothing: the closure writes (buffered) into a temporary file in the
+/// same directory, which replaces `path` only after the closure succeeded and the data is
+/// flushed and synced. On any failure the temporary file is removed and `path` is untouched,
+/// so a crash or a full disk never leaves a half-written image or cloud behind.
+pub fn atomic_write(
+    path: &Path,
+    write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
+) -> Result<(), IoError> {
+    let io_error = |e: std::io::Error| IoError::io(path, e);
+    let directory = match path.parent() {
+        Some(parent) if !parent.as_os_str().is_empty() => parent,
+        _ => Path::new("."),
+    };
+    let file_name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let prefix = format!(".{file_name}.");
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(&prefix).suffix(".tmp");
+    // The default 0600 would survive the rename; ask for what `File::create` gives.
+    #[cfg(unix)]
+    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+    let mut temp = builder.tempfile_in(directory).map_err(io_error)?;
+    {
+        let mut buffered = std::io::BufWriter::new(temp.as_file_mut());
+        write(&mut buffered).map_err(io_error)?;
+        buffered.flush().map_err(io_error)?;
+    }
+    temp.as_file().sync_all().map_err(io_error)?;
+    temp.persist(path).map_err(|e| io_error(e.error))?;
+    Ok(())
+}

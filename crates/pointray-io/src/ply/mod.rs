@@ -1,0 +1,158 @@
+//! PLY 1.0, our own reader and writer: ascii, binary_little_endian and binary_big_endian.
+//!
+//! Reading keeps only the `vertex` element: `x y z` (required), normals (`nx ny nz` or
+//! `normal_x normal_y normal_z`), `radius`, colours (`red green blue`, `diffuse_red ...` or
+//! `r g b`; integer types divided by their maximum, floats clamped to `[0, 1]`). Other vertex
+//! properties, list properties and other elements are stepped over. Coordinates are read as
+//! `f64` and recentred (see [`pointray::PointCloud`]). Non-finite coordinates are kept, not
+//! refused: the core drops them, and a reader that fails on one NaN is no help.
+
+mod ascii;
+mod binary;
+mod header;
+mod vertex;
+
+use std::path::Path;
+
+use glam::DVec3;
+use pointray::PointCloud;
+
+use crate::text::Lines;
+use crate::{FileInfo, IoError, LoadedCloud, atomic_write};
+use binary::{Body, ByteOrder};
+use header::{Encoding, Header, parse_header};
+use vertex::VertexLayout;
+
+/// Reads a PLY file whatever its extension.
+pub fn read_ply(path: &Path) -> Result<LoadedCloud, IoError> {
+    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    parse(path, &bytes)
+}
+
+/// Parses a whole PLY file already in memory.
+pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
+    let header = parse_header(path, bytes)?;
+    let vertex_index = header
+        .elements
+        .iter()
+        .position(|e| e.name == "vertex")
+        .ok_or_else(|| IoError::invalid(path, "no 'vertex' element in the header"))?;
+    let vertex = &header.elements[vertex_index];
+    let layout = VertexLayout::new(path, vertex)?;
+    let builder = match header.encoding {
+        Encoding::Ascii => {
+            let body = bytes.get(header.body_start..).unwrap_or_default();
+            let mut lines = Lines::new(body, header.body_first_line);
+            ascii::read_vertices(path, &mut lines, &header.elements, vertex_index, &layout)?
+        }
+        Encoding::BinaryLittleEndian | Encoding::BinaryBigEndian => {
+            let order = match header.encoding {
+                Encoding::BinaryBigEndian => ByteOrder::Big,
+                _ => ByteOrder::Little,
+            };
+            let body = Body { path, bytes, order };
+            body.read_vertices(header.body_start, &header.elements, vertex_index, &layout)?
+        }
+    };
+    tracing::debug!(path = %path.display(), points = builder.len(), format = %header.format_name(), "read PLY");
+    let info = file_info(&header, vertex_index, bytes.len());
+    Ok(LoadedCloud {
+        cloud: builder.finish(),
+        info,
+    })
+}
+
+fn file_info(header: &Header, vertex_index: usize, file_bytes: usize) -> FileInfo {
+    let vertex_properties = header
+        .elements
+        .get(vertex_index)
+        .map(|v| v.properties.iter().map(|p| p.declaration.clone()).collect())
+        .unwrap_or_default();
+    FileInfo {
+        format: header.format_name(),
+        elements: header
+            .elements
+            .iter()
+            .map(|e| (e.name.clone(), e.count))
+            .collect(),
+        vertex_properties,
+        comments: header.comments.clone(),
+        file_bytes: file_bytes as u64,
+    }
+}
+
+/// Writes a binary little-endian PLY with `x y z`, then `nx ny nz`, `radius` and
+/// `red green blue` (uchar) when the cloud has them.
+///
+/// Coordinates are world coordinates (`origin + position`): `double` when the origin is not
+/// zero, so a far-away scan loses nothing, else `float`. The file appears only when complete
+/// (see [`atomic_write`]).
+pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<(), IoError> {
+    cloud.check_lengths().map_err(|message| {
+        IoError::invalid(
+            path,
+            format!("cannot write an inconsistent cloud: {message}"),
+        )
+    })?;
+    let world_doubles = cloud.origin != DVec3::ZERO;
+    let header = write_header(cloud, world_doubles);
+    atomic_write(path, |out| {
+        out.write_all(header.as_bytes())?;
+        let mut record = Vec::with_capacity(64);
+        for index in 0..cloud.len() {
+            record.clear();
+            encode_vertex(cloud, index, world_doubles, &mut record);
+            out.write_all(&record)?;
+        }
+        Ok(())
+    })
+}
+
+fn write_header(cloud: &PointCloud, world_doubles: bool) -> String {
+    let mut header =
+        String::from("ply\nformat binary_little_endian 1.0\ncomment written by pointray-io\n");
+    header += &format!("element vertex {}\n", cloud.len());
+    let coordinate_type = if world_doubles { "double" } else { "float" };
+    for axis in ["x", "y", "z"] {
+        header += &format!("property {coordinate_type} {axis}\n");
+    }
+    if cloud.normals.is_some() {
+        header += "property float nx\nproperty float ny\nproperty float nz\n";
+    }
+    if cloud.radii.is_some() {
+        header += "property float radius\n";
+    }
+    if cloud.colors.is_some() {
+        header += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+    }
+    header += "end_header\n";
+    header
+}
+
+fn encode_vertex(cloud: &PointCloud, index: usize, world_doubles: bool, record: &mut Vec<u8>) {
+    let Some(position) = cloud.positions.get(index) else {
+        return;
+    };
+    if world_doubles {
+        let world = cloud.origin + position.as_dvec3();
+        for value in world.to_array() {
+            record.extend_from_slice(&value.to_le_bytes());
+        }
+    } else {
+        for value in position.to_array() {
+            record.extend_from_slice(&value.to_le_bytes());
+        }
+    }
+    if let Some(normal) = cloud.normals.as_ref().and_then(|n| n.get(index)) {
+        for value in normal.to_array() {
+            record.extend_from_slice(&value.to_le_bytes());
+        }
+    }
+    if let Some(radius) = cloud.radii.as_ref().and_then(|r| r.get(index)) {
+        record.extend_from_slice(&radius.to_le_bytes());
+    }
+    if let Some(color) = cloud.colors.as_ref().and_then(|c| c.get(index)) {
+        // `as u8` saturates and maps NaN to 0.
+        record.extend(color.map(|channel| (channel.clamp(0.0, 1.0) * 255.0).round() as u8));
+    }
+}

@@ -1,0 +1,251 @@
+//! XYZ text: one point per line, `x y z [nx ny nz] [r g b]`.
+//!
+//! Rules, chosen to be predictable rather than clever:
+//! - values are separated by whitespace and/or commas; `#` starts a comment (whole-line
+//!   comments are kept in [`FileInfo::comments`]); blank lines are skipped;
+//! - a first data line holding a single integer is a point count (the `.pts` convention)
+//!   and is skipped;
+//! - the first data line fixes the column count for the whole file: 3 = position,
+//!   9 = position + normal + colour, 6 = position + colour if each of its last three values
+//!   is an integer literal in `0..=255` and the triple is not unit length, else
+//!   position + normal;
+//! - colours are `0..=255` if any colour value in the file exceeds 1, else `0..=1`;
+//!   clamped to `[0, 1]` either way;
+//! - non-finite coordinates (`nan`, `inf`) are kept, as for PLY.
+
+use std::path::Path;
+
+use glam::{DVec3, Vec3};
+
+use crate::builder::{Attributes, CloudBuilder, PointRecord};
+use crate::text::{Lines, as_text};
+use crate::{FileInfo, IoError, LoadedCloud};
+
+/// Reads an XYZ file whatever its extension.
+pub fn read_xyz(path: &Path) -> Result<LoadedCloud, IoError> {
+    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    parse(path, &bytes)
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Columns {
+    Position,
+    PositionNormal,
+    PositionColor,
+    PositionNormalColor,
+}
+
+impl Columns {
+    fn count(self) -> usize {
+        match self {
+            Self::Position => 3,
+            Self::PositionNormal | Self::PositionColor => 6,
+            Self::PositionNormalColor => 9,
+        }
+    }
+
+    fn attributes(self) -> Attributes {
+        Attributes {
+            normals: matches!(self, Self::PositionNormal | Self::PositionNormalColor),
+            radii: false,
+            colors: matches!(self, Self::PositionColor | Self::PositionNormalColor),
+        }
+    }
+
+    fn property_names(self) -> Vec<String> {
+        let attributes = self.attributes();
+        let mut names = vec!["x", "y", "z"];
+        if attributes.normals {
+            names.extend(["nx", "ny", "nz"]);
+        }
+        if attributes.colors {
+            names.extend(["red", "green", "blue"]);
+        }
+        names.into_iter().map(String::from).collect()
+    }
+
+    /// Decides from the first data line; see the module doc.
+    fn from_first_line(tokens: &[&str]) -> Result<Self, String> {
+        match tokens.len() {
+            3 => Ok(Self::Position),
+            6 if looks_like_rgb(&tokens[3..]) => Ok(Self::PositionColor),
+            6 => Ok(Self::PositionNormal),
+            9 => Ok(Self::PositionNormalColor),
+            n => Err(format!(
+                "expected 3, 6 or 9 values (x y z [nx ny nz] [r g b]), found {n}"
+            )),
+        }
+    }
+}
+
+fn looks_like_rgb(tokens: &[&str]) -> bool {
+    let channels: Option<Vec<u8>> = tokens.iter().map(|t| t.parse::<u8>().ok()).collect();
+    match channels {
+        Some(channels) => channels.iter().map(|&c| f64::from(c).powi(2)).sum::<f64>() != 1.0,
+        None => false,
+    }
+}
+
+fn split_values(text: &str) -> Vec<&str> {
+    text.split(|c: char| c == ',' || c.is_ascii_whitespace())
+        .filter(|t| !t.is_empty())
+        .collect()
+}
+
+/// The data part of a line (before any `#`), or `None` for blank and comment-only lines.
+fn data_part(text: &str) -> Option<&str> {
+    let data = text.split('#').next().unwrap_or("").trim();
+    (!data.is_empty()).then_some(data)
+}
+
+/// Whether the content plausibly is XYZ text: the first data line is all numbers, at least
+/// three of them (or a lone `.pts` point count).
+pub(crate) fn looks_like_xyz(bytes: &[u8]) -> bool {
+    for (_, line) in Lines::new(bytes, 1) {
+        let Some(text) = as_text(line) else {
+            return false;
+        };
+        let Some(data) = data_part(text) else {
+            continue;
+        };
+        let values = split_values(data);
+        let numeric = values.iter().all(|v| v.parse::<f64>().is_ok());
+        let pts_count = values.len() == 1 && values[0].parse::<u64>().is_ok();
+        return numeric && (values.len() >= 3 || pts_count);
+    }
+    false
+}
+
+pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
+    let mut columns: Option<Columns> = None;
+    let mut builder = CloudBuilder::new(0, Attributes::default());
+    let mut comments = Vec::new();
+    let mut max_color = 0.0f32;
+    let mut seen_data = false;
+
+    for (number, line) in Lines::new(bytes, 1) {
+        let error = |message: String| IoError::at_line(path, number, message);
+        let text = as_text(line).ok_or_else(|| error("line is not text".into()))?;
+        if let Some(comment) = text.trim_start().strip_prefix('#') {
+            comments.push(comment.trim().to_string());
+            continue;
+        }
+        let Some(data) = data_part(text) else {
+            continue;
+        };
+        let values = split_values(data);
+        let first_data_line = !seen_data;
+        seen_data = true;
+        if first_data_line && values.len() == 1 && values[0].parse::<u64>().is_ok() {
+            continue; // `.pts` point count
+        }
+        let layout = match columns {
+            Some(layout) => layout,
+            None => {
+                let layout = Columns::from_first_line(&values).map_err(error)?;
+                builder =
+                    CloudBuilder::new(bytes.len() / (layout.count() * 6), layout.attributes());
+                *columns.insert(layout)
+            }
+        };
+        if values.len() != layout.count() {
+            return Err(error(format!(
+                "expected {} values, found {}",
+                layout.count(),
+                values.len()
+            )));
+        }
+        let record = parse_point(&values, layout).map_err(error)?;
+        max_color = record.color.iter().fold(max_color, |m, &c| m.max(c));
+        builder.push(&record);
+    }
+
+    let layout = columns.unwrap_or(Columns::Position);
+    let mut cloud = builder.finish();
+    if let Some(colors) = &mut cloud.colors {
+        let divisor = if max_color > 1.0 { 255.0 } else { 1.0 };
+        for color in colors.iter_mut() {
+            *color = color.map(|c| {
+                if c.is_nan() {
+                    0.0
+                } else {
+                    (c / divisor).clamp(0.0, 1.0)
+                }
+            });
+        }
+    }
+    let info = FileInfo {
+        format: "XYZ text".into(),
+        elements: vec![("point".into(), cloud.len())],
+        vertex_properties: layout.property_names(),
+        comments,
+        file_bytes: bytes.len() as u64,
+    };
+    Ok(LoadedCloud { cloud, info })
+}
+
+/// Colours are left raw here; the caller scales them once the whole file is seen.
+fn parse_point(values: &[&str], layout: Columns) -> Result<PointRecord, String> {
+    let mut numbers = [0.0f64; 9];
+    for (column, (slot, token)) in numbers.iter_mut().zip(values).enumerate() {
+        *slot = token.parse::<f64>().map_err(|_| {
+            format!(
+                "bad value '{}' in column {}",
+                token.chars().take(40).collect::<String>(),
+                column + 1
+            )
+        })?;
+    }
+    let triple = |start: usize| [numbers[start], numbers[start + 1], numbers[start + 2]];
+    let as_vec3 = |[x, y, z]: [f64; 3]| Vec3::new(x as f32, y as f32, z as f32);
+    let mut record = PointRecord {
+        position: DVec3::from_array(triple(0)),
+        ..PointRecord::default()
+    };
+    match layout {
+        Columns::Position => {}
+        Columns::PositionNormal => record.normal = as_vec3(triple(3)),
+        Columns::PositionColor => record.color = as_vec3(triple(3)).to_array(),
+        Columns::PositionNormalColor => {
+            record.normal = as_vec3(triple(3));
+            record.color = as_vec3(triple(6)).to_array();
+        }
+    }
+    Ok(record)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn six_columns_are_colour_only_for_byte_triples_that_are_not_unit_vectors() {
+        assert_eq!(
+            Columns::from_first_line(&["0", "0", "0", "255", "128", "0"]),
+            Ok(Columns::PositionColor)
+        );
+        assert_eq!(
+            Columns::from_first_line(&["0", "0", "0", "0", "0", "1"]),
+            Ok(Columns::PositionNormal)
+        );
+        assert_eq!(
+            Columns::from_first_line(&["0", "0", "0", "0.5", "0.5", "0.7"]),
+            Ok(Columns::PositionNormal)
+        );
+        assert_eq!(
+            Columns::from_first_line(&["0", "0", "0", "256", "0", "0"]),
+            Ok(Columns::PositionNormal)
+        );
+        assert!(Columns::from_first_line(&["0", "0", "0", "1"]).is_err());
+    }
+
+    #[test]
+    fn sniffing_accepts_numbers_and_rejects_words() {
+        assert!(looks_like_xyz(b"# scan\n\n1 2 3\n"));
+        assert!(looks_like_xyz(b"1,2,3,4,5,6\n"));
+        assert!(looks_like_xyz(b"1200\n1 2 3\n"));
+        assert!(!looks_like_xyz(b"hello world 3\n"));
+        assert!(!looks_like_xyz(b"1 2\n"));
+        assert!(!looks_like_xyz(b""));
+    }
+}

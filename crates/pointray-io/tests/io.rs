@@ -1,0 +1,910 @@
+//! Integration tests of pointray-io: round trips, hand-written PLY in every encoding,
+//! malformed input, XYZ, atomic writes and PNG. All data is synthetic, in temp dirs.
+
+use std::path::{Path, PathBuf};
+
+use glam::{DVec3, Vec3};
+use pointray::PointCloud;
+use pointray_io::{FileInfo, IoError, atomic_write, read_cloud, write_ply, write_png};
+
+// ---------------------------------------------------------------- hand-written PLY
+
+#[derive(Clone, Copy)]
+enum Ty {
+    I8,
+    U8,
+    I16,
+    U16,
+    I32,
+    U32,
+    F32,
+    F64,
+}
+
+impl Ty {
+    fn name(self) -> &'static str {
+        match self {
+            Ty::I8 => "char",
+            Ty::U8 => "uchar",
+            Ty::I16 => "short",
+            Ty::U16 => "ushort",
+            Ty::I32 => "int",
+            Ty::U32 => "uint32",
+            Ty::F32 => "float",
+            Ty::F64 => "float64",
+        }
+    }
+
+    fn encode(self, value: f64, big_endian: bool, out: &mut Vec<u8>) {
+        macro_rules! put {
+            ($t:ty) => {{
+                let v = value as $t;
+                out.extend_from_slice(&if big_endian {
+                    v.to_be_bytes()
+                } else {
+                    v.to_le_bytes()
+                });
+            }};
+        }
+        match self {
+            Ty::I8 => put!(i8),
+            Ty::U8 => put!(u8),
+            Ty::I16 => put!(i16),
+            Ty::U16 => put!(u16),
+            Ty::I32 => put!(i32),
+            Ty::U32 => put!(u32),
+            Ty::F32 => put!(f32),
+            Ty::F64 => put!(f64),
+        }
+    }
+}
+
+enum Prop {
+    Scalar(Ty, &'static str),
+    List(Ty, Ty, &'static str),
+}
+
+enum Val {
+    S(f64),
+    L(Vec<f64>),
+}
+
+struct Elem {
+    name: &'static str,
+    props: Vec<Prop>,
+    records: Vec<Vec<Val>>,
+}
+
+#[derive(Clone, Copy, PartialEq)]
+enum Enc {
+    Ascii,
+    Le,
+    Be,
+}
+
+fn encode_ply(encoding: Enc, elements: &[Elem]) -> Vec<u8> {
+    let format = match encoding {
+        Enc::Ascii => "ascii",
+        Enc::Le => "binary_little_endian",
+        Enc::Be => "binary_big_endian",
+    };
+    let mut out =
+        format!("ply\nformat {format} 1.0\ncomment hand written\nobj_info test 1\n").into_bytes();
+    for element in elements {
+        out.extend(format!("element {} {}\n", element.name, element.records.len()).bytes());
+        for prop in &element.props {
+            let line = match prop {
+                Prop::Scalar(ty, name) => format!("property {} {name}\n", ty.name()),
+                Prop::List(count, item, name) => {
+                    format!("property list {} {} {name}\n", count.name(), item.name())
+                }
+            };
+            out.extend(line.bytes());
+        }
+    }
+    out.extend(b"end_header\n");
+    for element in elements {
+        for record in &element.records {
+            if encoding == Enc::Ascii {
+                let mut words = Vec::new();
+                for value in record {
+                    match value {
+                        Val::S(v) => words.push(v.to_string()),
+                        Val::L(items) => {
+                            words.push(items.len().to_string());
+                            words.extend(items.iter().map(f64::to_string));
+                        }
+                    }
+                }
+                out.extend(words.join(" ").bytes());
+                out.extend(b"\r\n");
+                continue;
+            }
+            let big_endian = encoding == Enc::Be;
+            for (prop, value) in element.props.iter().zip(record) {
+                match (prop, value) {
+                    (Prop::Scalar(ty, _), Val::S(v)) => ty.encode(*v, big_endian, &mut out),
+                    (Prop::List(count, item, _), Val::L(items)) => {
+                        count.encode(items.len() as f64, big_endian, &mut out);
+                        for v in items {
+                            item.encode(*v, big_endian, &mut out);
+                        }
+                    }
+                    _ => panic!("record does not match its properties"),
+                }
+            }
+        }
+    }
+    out
+}
+
+fn face_element(name: &'static str, count: Ty, index: Ty, faces: usize) -> Elem {
+    Elem {
+        name,
+        props: vec![
+            Prop::List(count, index, "vertex_indices"),
+            Prop::Scalar(Ty::I16, "flags"),
+        ],
+        records: (0..faces)
+            .map(|i| vec![Val::L(vec![0.0, 1.0, (i % 3) as f64]), Val::S(-(i as f64))])
+            .collect(),
+    }
+}
+
+/// Three points with every kind of attribute in mixed types, wrapped in unrelated elements.
+fn mixed_elements() -> Vec<Elem> {
+    // (position, normal, radius, colour)
+    type Point = ([f64; 3], [f64; 3], f64, [f64; 3]);
+    let points: [Point; 3] = [
+        (
+            [1.5, -2.25, 7.0],
+            [0.0, 0.0, 1.0],
+            0.125,
+            [255.0, 0.0, 128.0],
+        ),
+        ([1000.0, 0.5, -3.0], [0.6, 0.8, 0.0], 0.5, [0.0, 255.0, 1.0]),
+        ([-0.75, 3.0, 0.0], [1.0, 0.0, 0.0], 2.0, [17.0, 34.0, 51.0]),
+    ];
+    let vertex = Elem {
+        name: "vertex",
+        props: vec![
+            Prop::Scalar(Ty::F64, "x"),
+            Prop::Scalar(Ty::I8, "confidence"),
+            Prop::Scalar(Ty::F32, "y"),
+            Prop::List(Ty::U16, Ty::U32, "tags"),
+            Prop::Scalar(Ty::I32, "z"),
+            Prop::Scalar(Ty::F32, "nx"),
+            Prop::Scalar(Ty::F64, "ny"),
+            Prop::Scalar(Ty::F32, "nz"),
+            Prop::Scalar(Ty::U32, "intensity"),
+            Prop::Scalar(Ty::F64, "radius"),
+            Prop::Scalar(Ty::U8, "red"),
+            Prop::Scalar(Ty::U8, "green"),
+            Prop::Scalar(Ty::U8, "blue"),
+            Prop::Scalar(Ty::U16, "alpha"),
+        ],
+        records: points
+            .iter()
+            .enumerate()
+            .map(|(i, (p, n, r, c))| {
+                vec![
+                    Val::S(p[0]),
+                    Val::S(-(i as f64)),
+                    Val::S(p[1]),
+                    Val::L((0..i).map(|t| t as f64 * 1000.0).collect()),
+                    Val::S(p[2]),
+                    Val::S(n[0]),
+                    Val::S(n[1]),
+                    Val::S(n[2]),
+                    Val::S(4_000_000_000.0),
+                    Val::S(*r),
+                    Val::S(c[0]),
+                    Val::S(c[1]),
+                    Val::S(c[2]),
+                    Val::S(65535.0),
+                ]
+            })
+            .collect(),
+    };
+    let range_grid = Elem {
+        name: "range_grid",
+        props: vec![Prop::List(Ty::U8, Ty::I32, "vertex_indices")],
+        records: vec![Val::L(vec![]), Val::L(vec![2.0]), Val::L(vec![])]
+            .into_iter()
+            .map(|v| vec![v])
+            .collect(),
+    };
+    vec![
+        face_element("face", Ty::U8, Ty::I32, 4),
+        range_grid,
+        vertex,
+        face_element("face", Ty::I32, Ty::U32, 2),
+        Elem {
+            name: "empty_thing",
+            props: vec![],
+            records: vec![],
+        },
+    ]
+}
+
+// ---------------------------------------------------------------- helpers
+
+fn temp_dir() -> tempfile::TempDir {
+    tempfile::tempdir().expect("temp dir")
+}
+
+fn write_file(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
+    let path = dir.join(name);
+    std::fs::write(&path, bytes).expect("write test file");
+    path
+}
+
+fn world_positions(cloud: &PointCloud) -> Vec<DVec3> {
+    cloud
+        .positions
+        .iter()
+        .map(|p| cloud.origin + p.as_dvec3())
+        .collect()
+}
+
+fn assert_close(a: DVec3, b: DVec3, tolerance: f64) {
+    assert!((a - b).abs().max_element() <= tolerance, "{a} vs {b}");
+}
+
+fn expect_error(path: &Path, fragment: &str) -> String {
+    let message = match read_cloud(path) {
+        Ok(loaded) => panic!(
+            "{} unexpectedly read {} points",
+            path.display(),
+            loaded.cloud.len()
+        ),
+        Err(error) => error.to_string(),
+    };
+    let file_name = path.file_name().unwrap().to_string_lossy();
+    assert!(
+        message.contains(&*file_name),
+        "{message:?} does not name {file_name}"
+    );
+    assert!(message.contains(fragment), "{message:?} lacks {fragment:?}");
+    message
+}
+
+fn sample_cloud(n: usize, offset: DVec3) -> (Vec<DVec3>, PointCloud) {
+    let world: Vec<DVec3> = (0..n)
+        .map(|i| {
+            let t = i as f64;
+            offset + DVec3::new((t * 0.37).sin() * 3.0, (t * 0.11).cos() * 2.0, t * 0.01)
+        })
+        .collect();
+    (world.clone(), PointCloud::from_world_positions(&world))
+}
+
+// ---------------------------------------------------------------- round trips
+
+#[test]
+fn round_trip_positions_only() {
+    let dir = temp_dir();
+    let (world, cloud) = sample_cloud(100, DVec3::ZERO);
+    let cloud = PointCloud {
+        origin: DVec3::ZERO,
+        positions: world.iter().map(|p| p.as_vec3()).collect(),
+        ..cloud
+    };
+    let path = dir.path().join("plain.ply");
+    write_ply(&path, &cloud).unwrap();
+    let loaded = read_cloud(&path).unwrap();
+    assert_eq!(loaded.info.format, "PLY binary_little_endian 1.0");
+    assert_eq!(
+        loaded.info.vertex_properties,
+        vec!["float x", "float y", "float z"]
+    );
+    assert_eq!(
+        loaded.info.file_bytes,
+        std::fs::metadata(&path).unwrap().len()
+    );
+    assert!(
+        loaded.cloud.normals.is_none()
+            && loaded.cloud.radii.is_none()
+            && loaded.cloud.colors.is_none()
+    );
+    for (read, truth) in world_positions(&loaded.cloud).iter().zip(&world) {
+        assert_close(*read, *truth, 1e-5);
+    }
+}
+
+#[test]
+fn round_trip_with_all_attributes() {
+    let dir = temp_dir();
+    let (world, mut cloud) = sample_cloud(50, DVec3::new(1.0, 2.0, 3.0));
+    let normals: Vec<Vec3> = (0..50)
+        .map(|i| Vec3::new(i as f32, 1.0, -2.0).normalize())
+        .collect();
+    let radii: Vec<f32> = (0..50).map(|i| 0.01 * (i + 1) as f32).collect();
+    let colors: Vec<[f32; 3]> = (0..50)
+        .map(|i| [i as f32 / 49.0, 1.0 - i as f32 / 49.0, 0.5])
+        .collect();
+    cloud.normals = Some(normals.clone());
+    cloud.radii = Some(radii.clone());
+    cloud.colors = Some(colors.clone());
+    let path = dir.path().join("full.ply");
+    write_ply(&path, &cloud).unwrap();
+    let loaded = read_cloud(&path).unwrap().cloud;
+    assert_eq!(loaded.len(), 50);
+    for (read, truth) in world_positions(&loaded).iter().zip(&world) {
+        assert_close(*read, *truth, 1e-5);
+    }
+    assert_eq!(loaded.normals.unwrap(), normals);
+    assert_eq!(loaded.radii.unwrap(), radii);
+    for (read, truth) in loaded.colors.unwrap().iter().zip(&colors) {
+        for (a, b) in read.iter().zip(truth) {
+            assert!((a - b).abs() <= 0.5 / 255.0 + 1e-6, "{read:?} vs {truth:?}");
+        }
+    }
+}
+
+#[test]
+fn round_trip_keeps_a_far_away_origin() {
+    let dir = temp_dir();
+    let far = DVec3::new(636_001.76, 5_112_345.25, 212.5);
+    let (world, cloud) = sample_cloud(200, far);
+    let path = dir.path().join("far.ply");
+    write_ply(&path, &cloud).unwrap();
+    let loaded = read_cloud(&path).unwrap();
+    assert!(
+        loaded
+            .info
+            .vertex_properties
+            .contains(&"double x".to_string())
+    );
+    assert!((loaded.cloud.origin - far).length() < 10.0);
+    for (read, truth) in world_positions(&loaded.cloud).iter().zip(&world) {
+        assert_close(*read, *truth, 1e-3);
+    }
+}
+
+#[test]
+fn writing_an_inconsistent_cloud_is_refused() {
+    let dir = temp_dir();
+    let mut cloud = PointCloud::from_positions(vec![Vec3::ZERO; 3]);
+    cloud.radii = Some(vec![1.0]);
+    let path = dir.path().join("bad.ply");
+    let message = write_ply(&path, &cloud).unwrap_err().to_string();
+    assert!(
+        message.contains("bad.ply") && message.contains("radii"),
+        "{message}"
+    );
+    assert!(!path.exists());
+}
+
+// ---------------------------------------------------------------- hand-written encodings
+
+#[test]
+fn all_three_encodings_read_to_the_same_cloud() {
+    let dir = temp_dir();
+    let elements = mixed_elements();
+    let mut clouds = Vec::new();
+    for (encoding, name) in [
+        (Enc::Ascii, "mixed_ascii.ply"),
+        (Enc::Le, "mixed_le.ply"),
+        (Enc::Be, "mixed_be.ply"),
+    ] {
+        let path = write_file(dir.path(), name, &encode_ply(encoding, &elements));
+        let loaded = read_cloud(&path).unwrap_or_else(|e| panic!("{e}"));
+        check_info(&loaded.info);
+        clouds.push(loaded.cloud);
+    }
+    let expected_world = [
+        DVec3::new(1.5, -2.25, 7.0),
+        DVec3::new(1000.0, 0.5, -3.0),
+        DVec3::new(-0.75, 3.0, 0.0),
+    ];
+    for cloud in &clouds {
+        for (read, truth) in world_positions(cloud).iter().zip(&expected_world) {
+            assert_close(*read, *truth, 1e-4);
+        }
+        let normals = cloud.normals.as_ref().unwrap();
+        assert_eq!(normals[1], Vec3::new(0.6, 0.8, 0.0));
+        assert_eq!(cloud.radii.as_ref().unwrap(), &vec![0.125, 0.5, 2.0]);
+        let colors = cloud.colors.as_ref().unwrap();
+        assert_eq!(colors[0], [1.0, 0.0, 128.0 / 255.0]);
+        assert_eq!(colors[2], [17.0 / 255.0, 34.0 / 255.0, 51.0 / 255.0]);
+    }
+    for other in &clouds[1..] {
+        assert_eq!(other.positions, clouds[0].positions);
+        assert_eq!(other.origin, clouds[0].origin);
+        assert_eq!(other.normals, clouds[0].normals);
+        assert_eq!(other.radii, clouds[0].radii);
+        assert_eq!(other.colors, clouds[0].colors);
+    }
+}
+
+fn check_info(info: &FileInfo) {
+    let names: Vec<(&str, usize)> = info
+        .elements
+        .iter()
+        .map(|(n, c)| (n.as_str(), *c))
+        .collect();
+    assert_eq!(
+        names,
+        vec![
+            ("face", 4),
+            ("range_grid", 3),
+            ("vertex", 3),
+            ("face", 2),
+            ("empty_thing", 0)
+        ]
+    );
+    assert_eq!(info.vertex_properties[0], "float64 x");
+    assert_eq!(info.vertex_properties[3], "list ushort uint32 tags");
+    assert_eq!(info.comments, vec!["hand written", "obj_info test 1"]);
+}
+
+#[test]
+fn colours_as_ushort_and_float() {
+    let dir = temp_dir();
+    for (ty, values, expected) in [
+        (
+            Ty::U16,
+            [65535.0, 0.0, 32767.0],
+            [1.0, 0.0, 32767.0 / 65535.0],
+        ),
+        (Ty::F32, [0.25, 1.5, -1.0], [0.25, 1.0, 0.0]),
+        (Ty::F64, [0.5, 0.0, 1.0], [0.5, 0.0, 1.0]),
+    ] {
+        let vertex = Elem {
+            name: "vertex",
+            props: vec![
+                Prop::Scalar(Ty::F32, "x"),
+                Prop::Scalar(Ty::F32, "y"),
+                Prop::Scalar(Ty::F32, "z"),
+                Prop::Scalar(ty, "diffuse_red"),
+                Prop::Scalar(ty, "diffuse_green"),
+                Prop::Scalar(ty, "diffuse_blue"),
+            ],
+            records: vec![
+                [0.0, 0.0, 0.0, values[0], values[1], values[2]]
+                    .map(Val::S)
+                    .into(),
+            ],
+        };
+        for encoding in [Enc::Ascii, Enc::Le] {
+            let path = write_file(
+                dir.path(),
+                &format!("colour_{}.ply", ty.name()),
+                &encode_ply(encoding, &[vertex_clone(&vertex)]),
+            );
+            let colors = read_cloud(&path).unwrap().cloud.colors.unwrap();
+            for (got, want) in colors[0].iter().zip(expected) {
+                assert!(
+                    (got - want as f32).abs() < 1e-6,
+                    "{}: {:?} vs {expected:?}",
+                    ty.name(),
+                    colors[0]
+                );
+            }
+        }
+    }
+}
+
+fn vertex_clone(element: &Elem) -> Elem {
+    Elem {
+        name: element.name,
+        props: element
+            .props
+            .iter()
+            .map(|p| match p {
+                Prop::Scalar(t, n) => Prop::Scalar(*t, n),
+                Prop::List(c, i, n) => Prop::List(*c, *i, n),
+            })
+            .collect(),
+        records: element
+            .records
+            .iter()
+            .map(|r| {
+                r.iter()
+                    .map(|v| match v {
+                        Val::S(x) => Val::S(*x),
+                        Val::L(xs) => Val::L(xs.clone()),
+                    })
+                    .collect()
+            })
+            .collect(),
+    }
+}
+
+#[test]
+fn normal_aliases_and_non_finite_coordinates() {
+    let dir = temp_dir();
+    let text = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\n\
+                property float normal_x\nproperty float normal_y\nproperty float normal_z\nend_header\n\
+                1 2 3 0 0 1\nnan 0 0 0 1 0\n3 4 inf 1 0 0\n";
+    let path = write_file(dir.path(), "aliases.ply", text.as_bytes());
+    let cloud = read_cloud(&path).unwrap().cloud;
+    assert_eq!(cloud.len(), 3);
+    assert_eq!(cloud.normals.as_ref().unwrap()[1], Vec3::Y);
+    assert!(cloud.positions[1].x.is_nan());
+    assert!(cloud.positions[2].z.is_infinite());
+    assert!(cloud.origin.is_finite());
+    assert_close(world_positions(&cloud)[0], DVec3::new(1.0, 2.0, 3.0), 1e-6);
+}
+
+// ---------------------------------------------------------------- malformed input
+
+const SIMPLE_HEADER: &str = "ply\nformat binary_little_endian 1.0\nelement vertex 3\n\
+                             property float x\nproperty float y\nproperty float z\nend_header\n";
+
+fn simple_binary(count_in_header: &str, points: usize) -> Vec<u8> {
+    let mut bytes = SIMPLE_HEADER
+        .replace("vertex 3", &format!("vertex {count_in_header}"))
+        .into_bytes();
+    for i in 0..points * 3 {
+        bytes.extend((i as f32).to_le_bytes());
+    }
+    bytes
+}
+
+const SIMPLE_ASCII: &str = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+                            property float z\nend_header\n0 0 0\n1 1 1\n2 2 2\n";
+
+#[test]
+fn truncated_binary_body() {
+    let dir = temp_dir();
+    let mut bytes = simple_binary("3", 3);
+    bytes.truncate(bytes.len() - 5);
+    let path = write_file(dir.path(), "truncated.ply", &bytes);
+    expect_error(&path, "file ends inside vertex 2 of 3");
+    expect_error(&path, &format!("byte {}", bytes.len()));
+}
+
+#[test]
+fn truncated_binary_list_element_before_vertex() {
+    let dir = temp_dir();
+    let mut bytes = encode_ply(Enc::Be, &mixed_elements());
+    let header_end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .unwrap()
+        + 11;
+    let full = bytes.clone();
+    bytes.truncate(header_end + 10);
+    let path = write_file(dir.path(), "short_faces.ply", &bytes);
+    expect_error(
+        &path,
+        &format!("byte {header_end}: element 'face' declares 4 records of at least 3 bytes"),
+    );
+    // Each face record is 15 bytes: the second one is cut.
+    let path = write_file(dir.path(), "cut_faces.ply", &full[..header_end + 20]);
+    expect_error(&path, "file ends inside face 1 of 4");
+}
+
+#[test]
+fn truncated_ascii_line() {
+    let dir = temp_dir();
+    let path = write_file(
+        dir.path(),
+        "short_line.ply",
+        SIMPLE_ASCII.replace("1 1 1", "1 1").as_bytes(),
+    );
+    expect_error(&path, "line 9: vertex 1: expected 3 values, found 2");
+    let path = write_file(
+        dir.path(),
+        "long_line.ply",
+        SIMPLE_ASCII.replace("1 1 1", "1 1 1 1").as_bytes(),
+    );
+    expect_error(&path, "line 9: vertex 1: expected 3 values, found 4");
+    let path = write_file(
+        dir.path(),
+        "few_lines.ply",
+        SIMPLE_ASCII.replace("2 2 2\n", "").as_bytes(),
+    );
+    expect_error(&path, "file ends inside vertex 2 of 3");
+}
+
+#[test]
+fn bad_token() {
+    let dir = temp_dir();
+    let path = write_file(
+        dir.path(),
+        "bad_token.ply",
+        SIMPLE_ASCII.replace("2 2 2", "2 zwei 2").as_bytes(),
+    );
+    expect_error(
+        &path,
+        "line 10: vertex 2: bad value 'zwei' for property 'y'",
+    );
+}
+
+#[test]
+fn counts_larger_than_the_file() {
+    let dir = temp_dir();
+    let path = write_file(dir.path(), "too_many.ply", &simple_binary("1000000", 3));
+    expect_error(&path, "file ends inside vertex 3 of 1000000");
+    let path = write_file(
+        dir.path(),
+        "absurd.ply",
+        &simple_binary("18446744073709551615", 3),
+    );
+    expect_error(&path, "file ends inside vertex 3 of 18446744073709551615");
+    let text = SIMPLE_ASCII.replace("vertex 3", "vertex 99999999999");
+    let path = write_file(dir.path(), "absurd_ascii.ply", text.as_bytes());
+    expect_error(&path, "element 'vertex' declares 99999999999 records");
+    let path = write_file(
+        dir.path(),
+        "overflow.ply",
+        &simple_binary("99999999999999999999999", 3),
+    );
+    expect_error(&path, "line 3: bad element count");
+}
+
+#[test]
+fn header_problems() {
+    let dir = temp_dir();
+    let cases = [
+        (
+            "missing_x.ply",
+            SIMPLE_ASCII.replace("property float x\n", "property float w\n"),
+            "only part of 'x y z': 'x' missing",
+        ),
+        (
+            "no_position.ply",
+            SIMPLE_ASCII
+                .replace("float x", "float a")
+                .replace("float y", "float b")
+                .replace("float z", "float c"),
+            "no 'x y z'",
+        ),
+        (
+            "unknown_type.ply",
+            SIMPLE_ASCII.replace("float y", "float3 y"),
+            "line 5: unknown property type 'float3'",
+        ),
+        (
+            "no_end.ply",
+            SIMPLE_ASCII.split("end_header").next().unwrap().to_string(),
+            "file ends before 'end_header'",
+        ),
+        (
+            "no_vertex.ply",
+            SIMPLE_ASCII.replace("element vertex", "element point"),
+            "no 'vertex' element",
+        ),
+        (
+            "version.ply",
+            SIMPLE_ASCII.replace("1.0", "2.0"),
+            "line 2: unsupported PLY version '2.0'",
+        ),
+        (
+            "encoding.ply",
+            SIMPLE_ASCII.replace("ascii", "binary_middle_endian"),
+            "unknown PLY encoding",
+        ),
+        (
+            "half_normal.ply",
+            SIMPLE_ASCII.replace(
+                "property float z\n",
+                "property float z\nproperty float nx\n",
+            ),
+            "only part of 'nx ny nz'",
+        ),
+    ];
+    for (name, text, fragment) in cases {
+        let path = write_file(dir.path(), name, text.as_bytes());
+        expect_error(&path, fragment);
+    }
+}
+
+#[test]
+fn empty_garbage_and_missing_files() {
+    let dir = temp_dir();
+    expect_error(&write_file(dir.path(), "empty.ply", b""), "file is empty");
+    let mut state = 0x9e37_79b9_7f4a_7c15u64;
+    let garbage: Vec<u8> = (0..4096)
+        .map(|_| (xorshift(&mut state) >> 24) as u8)
+        .collect();
+    expect_error(
+        &write_file(dir.path(), "garbage.bin", &garbage),
+        "unrecognised format",
+    );
+    expect_error(
+        &write_file(dir.path(), "garbage.ply", &garbage),
+        "does not start with the line 'ply'",
+    );
+    expect_error(&dir.path().join("missing.ply"), "No such file");
+}
+
+fn xorshift(state: &mut u64) -> u64 {
+    *state ^= *state << 13;
+    *state ^= *state >> 7;
+    *state ^= *state << 17;
+    *state
+}
+
+/// Mutated and truncated copies of valid files must give `Ok` or `Err`, never a panic.
+#[test]
+fn mutations_never_panic() {
+    let dir = temp_dir();
+    let originals = [
+        ("fuzz_le.ply", encode_ply(Enc::Le, &mixed_elements())),
+        ("fuzz_be.ply", encode_ply(Enc::Be, &mixed_elements())),
+        ("fuzz_ascii.ply", encode_ply(Enc::Ascii, &mixed_elements())),
+    ];
+    let mut state = 0x2545_f491_4f6c_dd1du64;
+    let mut outcomes = [0usize; 2];
+    for round in 0..3000 {
+        let (name, original) = &originals[round % originals.len()];
+        let mut bytes = original.clone();
+        let random = |state: &mut u64, below: usize| (xorshift(state) % below as u64) as usize;
+        for _ in 0..1 + random(&mut state, 4) {
+            let at = random(&mut state, bytes.len());
+            match random(&mut state, 5) {
+                0 => bytes[at] ^= 1 << random(&mut state, 8),
+                1 => bytes[at] = b"0123456789 \n-.e"[random(&mut state, 15)],
+                2 => bytes[at] = (xorshift(&mut state) >> 32) as u8,
+                3 => bytes.truncate(at.max(1)),
+                _ => bytes.insert(at, b'9'),
+            }
+        }
+        let path = write_file(dir.path(), name, &bytes);
+        let result: Result<_, IoError> = read_cloud(&path);
+        if let Err(error) = &result {
+            assert!(error.to_string().contains(name), "{error}");
+        }
+        outcomes[usize::from(result.is_ok())] += 1;
+    }
+    // Both outcomes must occur, or the mutations are too weak (or too strong) to test much.
+    assert!(
+        outcomes[0] > 100 && outcomes[1] > 100,
+        "errors / successes: {outcomes:?}"
+    );
+}
+
+// ---------------------------------------------------------------- XYZ
+
+#[test]
+fn xyz_three_six_and_nine_columns() {
+    let dir = temp_dir();
+    let path = write_file(
+        dir.path(),
+        "plain.xyz",
+        b"# a scan\n\n1 2 3\n4.5 5 6 # trailing\n",
+    );
+    let loaded = read_cloud(&path).unwrap();
+    assert_eq!(loaded.info.format, "XYZ text");
+    assert_eq!(loaded.info.elements, vec![("point".to_string(), 2)]);
+    assert_eq!(loaded.info.comments, vec!["a scan"]);
+    assert_close(
+        world_positions(&loaded.cloud)[1],
+        DVec3::new(4.5, 5.0, 6.0),
+        1e-6,
+    );
+
+    let path = write_file(
+        dir.path(),
+        "normals.xyz",
+        b"1,2,3,0,0,1\r\n4, 5, 6, 0, 1, 0\r\n",
+    );
+    let cloud = read_cloud(&path).unwrap().cloud;
+    assert_eq!(cloud.normals.unwrap(), vec![Vec3::Z, Vec3::Y]);
+    assert!(cloud.colors.is_none());
+
+    let path = write_file(dir.path(), "rgb.txt", b"1 2 3 255 0 51\n4 5 6 0 255 0\n");
+    let cloud = read_cloud(&path).unwrap().cloud;
+    assert_eq!(
+        cloud.colors.unwrap(),
+        vec![[1.0, 0.0, 0.2], [0.0, 1.0, 0.0]]
+    );
+    assert!(cloud.normals.is_none());
+
+    let path = write_file(
+        dir.path(),
+        "full.pts",
+        b"2\n1 2 3 0 0 1 0.5 0.25 1\n4 5 6 1 0 0 0 0 0\n",
+    );
+    let cloud = read_cloud(&path).unwrap().cloud;
+    assert_eq!(cloud.len(), 2);
+    assert_eq!(cloud.normals.unwrap()[1], Vec3::X);
+    assert_eq!(cloud.colors.unwrap()[0], [0.5, 0.25, 1.0]);
+}
+
+#[test]
+fn xyz_is_recognised_by_content_without_an_extension() {
+    let dir = temp_dir();
+    let path = write_file(
+        dir.path(),
+        "scan_points",
+        b"636001.76 5112345.25 212.5\n636002.76 5112346.25 213.5\n",
+    );
+    let cloud = read_cloud(&path).unwrap().cloud;
+    assert_close(
+        world_positions(&cloud)[0],
+        DVec3::new(636001.76, 5112345.25, 212.5),
+        1e-6,
+    );
+}
+
+#[test]
+fn xyz_errors_name_the_line() {
+    let dir = temp_dir();
+    let path = write_file(dir.path(), "bad.xyz", b"# header\n1 2 3\n4 5 x\n");
+    expect_error(&path, "line 3: bad value 'x' in column 3");
+    let path = write_file(dir.path(), "ragged.xyz", b"1 2 3\n\n4 5 6 7\n");
+    expect_error(&path, "line 3: expected 3 values, found 4");
+    let path = write_file(dir.path(), "four.xyz", b"1 2 3 4\n");
+    expect_error(&path, "line 1: expected 3, 6 or 9 values");
+}
+
+// ---------------------------------------------------------------- atomic writes and PNG
+
+fn directory_entries(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+#[test]
+fn atomic_write_leaves_nothing_on_failure() {
+    let dir = temp_dir();
+    let path = dir.path().join("out.bin");
+    let result = atomic_write(&path, |out| {
+        out.write_all(b"partial")?;
+        Err(std::io::Error::other("renderer gave up"))
+    });
+    let message = result.unwrap_err().to_string();
+    assert!(
+        message.contains("out.bin") && message.contains("renderer gave up"),
+        "{message}"
+    );
+    assert!(
+        directory_entries(dir.path()).is_empty(),
+        "{:?}",
+        directory_entries(dir.path())
+    );
+}
+
+#[test]
+fn atomic_write_replaces_only_on_success() {
+    let dir = temp_dir();
+    let path = dir.path().join("out.bin");
+    atomic_write(&path, |out| out.write_all(b"first")).unwrap();
+    assert_eq!(std::fs::read(&path).unwrap(), b"first");
+    let _ = atomic_write(&path, |out| {
+        out.write_all(b"second, but broken")?;
+        Err(std::io::Error::other("no"))
+    });
+    assert_eq!(std::fs::read(&path).unwrap(), b"first");
+    atomic_write(&path, |out| out.write_all(b"third")).unwrap();
+    assert_eq!(std::fs::read(&path).unwrap(), b"third");
+    assert_eq!(directory_entries(dir.path()), vec!["out.bin"]);
+}
+
+#[test]
+fn png_round_trip() {
+    let dir = temp_dir();
+    let (width, height) = (7u32, 5u32);
+    let pixels: Vec<u8> = (0..width * height * 3)
+        .map(|i| (i * 37 % 256) as u8)
+        .collect();
+    let path = dir.path().join("image.png");
+    write_png(&path, width, height, &pixels).unwrap();
+    let file = std::io::BufReader::new(std::fs::File::open(&path).unwrap());
+    let mut reader = png::Decoder::new(file).read_info().unwrap();
+    let mut decoded = vec![0; reader.output_buffer_size().unwrap()];
+    let frame = reader.next_frame(&mut decoded).unwrap();
+    assert_eq!((frame.width, frame.height), (width, height));
+    assert_eq!(
+        (frame.color_type, frame.bit_depth),
+        (png::ColorType::Rgb, png::BitDepth::Eight)
+    );
+    assert_eq!(&decoded[..frame.buffer_size()], &pixels[..]);
+
+    let message = write_png(&dir.path().join("wrong.png"), 4, 4, &pixels)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        message.contains("wrong.png") && message.contains("4x4"),
+        "{message}"
+    );
+}

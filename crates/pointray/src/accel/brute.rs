@@ -1,0 +1,45 @@
+use super::{Accel, SplatVisitor, TraversalStats};
+use crate::math::{Aabb, Ray};
+use crate::splat::Splat;
+
+/// Tests every splat against every ray: O(n) per ray, correct by construction, the oracle the
+/// other accelerators are checked against.
+pub struct BruteForce {
+    splats: Vec<Splat>,
+    bounds: Aabb,
+}
+
+impl BruteForce {
+    pub fn new(splats: Vec<Splat>) -> Self {
+        let bounds = splats.iter().fold(Aabb::EMPTY, |b, s| b.union(s.bounds()));
+        Self { splats, bounds }
+    }
+}
+
+impl Accel for BruteForce {
+    fn name(&self) -> &'static str {
+        "brute"
+    }
+
+    fn splats(&self) -> &[Splat] {
+        &self.splats
+    }
+
+    fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    fn memory_bytes(&self) -> usize {
+        0
+    }
+
+    fn traverse<V: SplatVisitor>(&self, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
+        for (i, s) in self.splats.iter().enumerate() {
+            stats.splat_tests += 1;
+            visitor.visit(ray, s, i as u32);
+            if visitor.done() {
+                return;
+            }
+        }
+    }
+}

@@ -1,0 +1,255 @@
+//! Binned SAH build (Wald 2007): at each node, bin the primitives' centroids into `bins`
+//! slots along each axis, sweep the bins for the split with the least surface-area cost, and
+//! recurse on both halves in parallel.
+
+use glam::Vec3;
+use rayon::join;
+
+use super::{Bvh, LEAF, MAX_DEPTH, Node};
+use crate::math::Aabb;
+use crate::splat::Splat;
+
+/// Build parameters, with named presets (as in obvhs).
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct BvhParams {
+    /// Centroid bins per axis.
+    pub bins: usize,
+    /// A node with more splats than this is always split.
+    pub max_leaf_size: usize,
+    /// SAH cost of one traversal step (two box tests), relative to `intersection_cost`.
+    pub traversal_cost: f32,
+    /// SAH cost of one ray–disk test.
+    pub intersection_cost: f32,
+}
+
+impl BvhParams {
+    /// The default: 16 bins, leaves of up to 8 splats.
+    pub fn standard() -> Self {
+        Self { bins: 16, max_leaf_size: 8, traversal_cost: 1.0, intersection_cost: 1.0 }
+    }
+
+    /// Quicker build, somewhat slower rays.
+    pub fn fast() -> Self {
+        Self { bins: 8, max_leaf_size: 16, traversal_cost: 1.0, intersection_cost: 1.0 }
+    }
+
+    /// Slower build, small leaves.
+    pub fn precise() -> Self {
+        Self { bins: 32, max_leaf_size: 4, traversal_cost: 1.0, intersection_cost: 1.0 }
+    }
+
+    /// Every preset, for tests and benchmarks.
+    pub fn presets() -> [(&'static str, BvhParams); 3] {
+        [("standard", Self::standard()), ("fast", Self::fast()), ("precise", Self::precise())]
+    }
+}
+
+/// A primitive during the build: its bounds and their centre.
+#[derive(Clone, Copy)]
+struct Prim {
+    bounds: Aabb,
+    centroid: Vec3,
+    index: u32,
+}
+
+enum BuildNode {
+    Leaf { bounds: Aabb, first: usize, count: usize },
+    Inner { bounds: Aabb, children: Box<[BuildNode; 2]> },
+}
+
+impl BuildNode {
+    fn bounds(&self) -> Aabb {
+        match self {
+            BuildNode::Leaf { bounds, .. } | BuildNode::Inner { bounds, .. } => *bounds,
+        }
+    }
+}
+
+/// Below this many primitives a subtree is built on the current thread.
+const PARALLEL_THRESHOLD: usize = 8 * 1024;
+
+impl Bvh {
+    pub fn build(splats: Vec<Splat>, params: &BvhParams) -> Bvh {
+        assert!(params.bins >= 2 && params.max_leaf_size >= 1 && params.max_leaf_size <= u16::MAX as usize);
+        let mut prims: Vec<Prim> = splats
+            .iter()
+            .enumerate()
+            .map(|(i, s)| {
+                let bounds = s.bounds();
+                Prim { bounds, centroid: bounds.center(), index: i as u32 }
+            })
+            .collect();
+        let root = build_node(&mut prims, 0, params, 0);
+        let input_index: Vec<u32> = prims.iter().map(|p| p.index).collect();
+        let splats: Vec<Splat> = input_index.iter().map(|&i| splats[i as usize]).collect();
+        let bounds = root.bounds();
+        let mut nodes = Vec::with_capacity(splats.len() / params.max_leaf_size.max(2) * 2 + 1);
+        let depth = match root {
+            BuildNode::Inner { children, .. } => flatten(*children, &mut nodes),
+            leaf @ BuildNode::Leaf { .. } => {
+                // A single leaf still gets a root node, with an empty second child, so that
+                // traversal has one shape.
+                let empty = BuildNode::Leaf { bounds: Aabb::EMPTY, first: 0, count: 0 };
+                flatten([leaf, empty], &mut nodes)
+            }
+        };
+        Bvh { nodes, splats, bounds, input_index, depth }
+    }
+}
+
+/// Writes `children`'s node and, depth first, their subtrees; returns the subtree's depth.
+fn flatten(children: [BuildNode; 2], nodes: &mut Vec<Node>) -> usize {
+    let at = nodes.len();
+    let b = [children[0].bounds(), children[1].bounds()];
+    nodes.push(Node {
+        min_x: [b[0].min.x, b[1].min.x],
+        min_y: [b[0].min.y, b[1].min.y],
+        min_z: [b[0].min.z, b[1].min.z],
+        max_x: [b[0].max.x, b[1].max.x],
+        max_y: [b[0].max.y, b[1].max.y],
+        max_z: [b[0].max.z, b[1].max.z],
+        child: [0; 2],
+        count: [0; 2],
+    });
+    let mut depth = 1;
+    for (i, c) in children.into_iter().enumerate() {
+        match c {
+            BuildNode::Leaf { first, count, .. } => {
+                nodes[at].child[i] = LEAF | first as u32;
+                nodes[at].count[i] = count as u16;
+            }
+            BuildNode::Inner { children, .. } => {
+                nodes[at].child[i] = nodes.len() as u32;
+                depth = depth.max(1 + flatten(*children, nodes));
+            }
+        }
+    }
+    depth
+}
+
+/// Builds the subtree over `prims`, which start at `offset` in the final splat order.
+fn build_node(prims: &mut [Prim], offset: usize, params: &BvhParams, depth: usize) -> BuildNode {
+    let bounds = prims.iter().fold(Aabb::EMPTY, |b, p| b.union(p.bounds));
+    let n = prims.len();
+    let leaf = || BuildNode::Leaf { bounds, first: offset, count: n };
+    if n <= 1 {
+        return leaf();
+    }
+    let split = if depth >= MAX_DEPTH - 8 {
+        // Pathological distributions (SAH peeling one primitive at a time) end here: object
+        // median splits bound the remaining depth by log2(n).
+        None
+    } else {
+        best_sah_split(prims, &bounds, params)
+    };
+    let mid = match split {
+        Some(s) if s.cost < n as f32 * params.intersection_cost || n > params.max_leaf_size => {
+            partition(prims, |p| s.bin_of(p.centroid) < s.bin)
+        }
+        None if n > params.max_leaf_size => median_split(prims),
+        _ => return leaf(),
+    };
+    let mid = if mid == 0 || mid == n { median_split(prims) } else { mid };
+    let (left, right) = prims.split_at_mut(mid);
+    let (l, r) = if n >= PARALLEL_THRESHOLD {
+        join(
+            || build_node(left, offset, params, depth + 1),
+            || build_node(right, offset + mid, params, depth + 1),
+        )
+    } else {
+        (build_node(left, offset, params, depth + 1), build_node(right, offset + mid, params, depth + 1))
+    };
+    BuildNode::Inner { bounds, children: Box::new([l, r]) }
+}
+
+struct Split {
+    axis: usize,
+    bin: usize,
+    bins: usize,
+    lo: f32,
+    scale: f32,
+    cost: f32,
+}
+
+impl Split {
+    fn bin_of(&self, c: Vec3) -> usize {
+        bin_index(c[self.axis], self.lo, self.scale, self.bins)
+    }
+}
+
+fn bin_index(x: f32, lo: f32, scale: f32, bins: usize) -> usize {
+    (((x - lo) * scale) as usize).min(bins - 1)
+}
+
+/// The cheapest binned SAH split over all three axes, or `None` when all centroids coincide.
+fn best_sah_split(prims: &[Prim], bounds: &Aabb, params: &BvhParams) -> Option<Split> {
+    let cb = prims.iter().fold(Aabb::EMPTY, |b, p| b.grow(p.centroid));
+    let bins = params.bins;
+    let parent_area = bounds.half_area().max(f32::MIN_POSITIVE);
+    let mut best: Option<Split> = None;
+    let mut bin_bounds = vec![Aabb::EMPTY; bins];
+    let mut bin_counts = vec![0usize; bins];
+    let mut right_area = vec![0f32; bins];
+    for axis in 0..3 {
+        let (lo, hi) = (cb.min[axis], cb.max[axis]);
+        if hi <= lo {
+            continue;
+        }
+        let scale = bins as f32 / (hi - lo);
+        bin_bounds.fill(Aabb::EMPTY);
+        bin_counts.fill(0);
+        for p in prims {
+            let b = bin_index(p.centroid[axis], lo, scale, bins);
+            bin_bounds[b] = bin_bounds[b].union(p.bounds);
+            bin_counts[b] += 1;
+        }
+        // Sweep from the right for the areas of the right-hand sides …
+        let mut acc = Aabb::EMPTY;
+        for b in (1..bins).rev() {
+            acc = acc.union(bin_bounds[b]);
+            right_area[b] = acc.half_area();
+        }
+        // … then from the left, pricing every split plane between bin b-1 and b.
+        let (mut left, mut left_count) = (Aabb::EMPTY, 0usize);
+        for b in 1..bins {
+            left = left.union(bin_bounds[b - 1]);
+            left_count += bin_counts[b - 1];
+            let right_count = prims.len() - left_count;
+            if left_count == 0 || right_count == 0 {
+                continue;
+            }
+            let cost = params.traversal_cost
+                + params.intersection_cost
+                    * (left.half_area() * left_count as f32 + right_area[b] * right_count as f32)
+                    / parent_area;
+            if best.as_ref().is_none_or(|s| cost < s.cost) {
+                best = Some(Split { axis, bin: b, bins, lo, scale, cost });
+            }
+        }
+    }
+    best
+}
+
+/// Moves the elements satisfying `left` to the front; returns how many there are.
+fn partition(prims: &mut [Prim], left: impl Fn(&Prim) -> bool) -> usize {
+    let mut i = 0;
+    for j in 0..prims.len() {
+        if left(&prims[j]) {
+            prims.swap(i, j);
+            i += 1;
+        }
+    }
+    i
+}
+
+/// Splits at the median centroid along the widest axis of the centroids (ties by index), so
+/// that both halves are non-empty whatever the input.
+fn median_split(prims: &mut [Prim]) -> usize {
+    let cb = prims.iter().fold(Aabb::EMPTY, |b, p| b.grow(p.centroid));
+    let axis = cb.extent().max_position();
+    let mid = prims.len() / 2;
+    prims.select_nth_unstable_by(mid, |a, b| {
+        a.centroid[axis].total_cmp(&b.centroid[axis]).then(a.index.cmp(&b.index))
+    });
+    mid
+}

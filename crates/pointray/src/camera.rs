@@ -1,0 +1,166 @@
+//! Pinhole camera. Primary rays carry their footprint: one pixel's angular width.
+
+use glam::Vec3;
+
+use crate::math::{Aabb, Ray, RayCone};
+
+/// A rectangle of pixels `[x0, x1) × [y0, y1)` of the full frame.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Region {
+    pub x0: u32,
+    pub y0: u32,
+    pub x1: u32,
+    pub y1: u32,
+}
+
+impl Region {
+    pub fn full(width: u32, height: u32) -> Self {
+        Self { x0: 0, y0: 0, x1: width, y1: height }
+    }
+
+    pub fn width(&self) -> u32 {
+        self.x1.saturating_sub(self.x0)
+    }
+
+    pub fn height(&self) -> u32 {
+        self.y1.saturating_sub(self.y0)
+    }
+
+    pub fn pixel_count(&self) -> u64 {
+        self.width() as u64 * self.height() as u64
+    }
+
+    /// The part of `self` inside a `width × height` frame.
+    #[must_use]
+    pub fn clamp_to(self, width: u32, height: u32) -> Self {
+        let x1 = self.x1.min(width);
+        let y1 = self.y1.min(height);
+        Self { x0: self.x0.min(x1), y0: self.y0.min(y1), x1, y1 }
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+pub struct Camera {
+    pub eye: Vec3,
+    forward: Vec3,
+    right: Vec3,
+    up: Vec3,
+    tan_half_fov: f32,
+    aspect: f32,
+    pub width: u32,
+    pub height: u32,
+}
+
+impl Camera {
+    /// A camera at `eye` looking at `target`, `vfov_deg` the vertical field of view.
+    pub fn look_at(eye: Vec3, target: Vec3, up: Vec3, vfov_deg: f32, width: u32, height: u32) -> Self {
+        let forward = (target - eye).normalize();
+        let mut up_hint = up.normalize();
+        if forward.dot(up_hint).abs() > 0.999 {
+            up_hint = Vec3::Z; // looking along `up`: any other up will do
+        }
+        let right = forward.cross(up_hint).normalize();
+        let up = right.cross(forward);
+        Self {
+            eye,
+            forward,
+            right,
+            up,
+            tan_half_fov: (vfov_deg.to_radians() * 0.5).tan(),
+            aspect: width as f32 / height as f32,
+            width,
+            height,
+        }
+    }
+
+    /// The convention of `shared/bench/embree`: the camera sits `distance × diagonal` from the
+    /// centre of `bounds` along `view_dir`, looking at the centre. At distance 1 with a 60°
+    /// field of view the bounding sphere just fills the frame.
+    pub fn orbit(bounds: &Aabb, view_dir: Vec3, up: Vec3, distance: f32, vfov_deg: f32, width: u32, height: u32) -> Self {
+        let center = bounds.center();
+        let eye = center + view_dir.normalize() * distance * bounds.diagonal();
+        Self::look_at(eye, center, up, vfov_deg, width, height)
+    }
+
+    /// Angular width of one pixel (radians): the spread of a primary ray's footprint cone.
+    pub fn pixel_spread(&self) -> f32 {
+        2.0 * self.tan_half_fov / self.height as f32
+    }
+
+    /// The ray through film position (`x`, `y`) in pixels (pixel centres at +0.5).
+    pub fn ray(&self, x: f32, y: f32) -> Ray {
+        let u = (2.0 * x / self.width as f32 - 1.0) * self.tan_half_fov * self.aspect;
+        let v = (1.0 - 2.0 * y / self.height as f32) * self.tan_half_fov;
+        let dir = self.forward + u * self.right + v * self.up;
+        Ray::new(self.eye, dir, RayCone { width0: 0.0, spread: self.pixel_spread() })
+    }
+
+    /// Film position of `p`, or `None` if `p` is not in front of the camera.
+    pub fn project(&self, p: Vec3) -> Option<(f32, f32)> {
+        let d = p - self.eye;
+        let z = d.dot(self.forward);
+        if z <= 0.0 {
+            return None;
+        }
+        let u = d.dot(self.right) / (z * self.tan_half_fov * self.aspect);
+        let v = d.dot(self.up) / (z * self.tan_half_fov);
+        Some((0.5 * (u + 1.0) * self.width as f32, 0.5 * (1.0 - v) * self.height as f32))
+    }
+
+    /// The pixels inside the projection of `bounds`, grown by one pixel (the Embree bench's
+    /// `--crop`). The full frame when a corner lies behind the camera.
+    pub fn region_of(&self, bounds: &Aabb) -> Region {
+        let full = Region::full(self.width, self.height);
+        let mut lo = (f32::INFINITY, f32::INFINITY);
+        let mut hi = (f32::NEG_INFINITY, f32::NEG_INFINITY);
+        for c in bounds.corners() {
+            let Some((x, y)) = self.project(c) else { return full };
+            lo = (lo.0.min(x), lo.1.min(y));
+            hi = (hi.0.max(x), hi.1.max(y));
+        }
+        let clampi = |v: f32, max: u32| v.clamp(0.0, max as f32) as u32;
+        let r = Region {
+            x0: clampi(lo.0.floor() - 1.0, self.width),
+            y0: clampi(lo.1.floor() - 1.0, self.height),
+            x1: clampi(hi.0.ceil() + 1.0, self.width),
+            y1: clampi(hi.1.ceil() + 1.0, self.height),
+        };
+        if r.pixel_count() == 0 { Region { x0: 0, y0: 0, x1: 1, y1: 1 } } else { r }
+    }
+
+    pub fn forward(&self) -> Vec3 {
+        self.forward
+    }
+
+    pub fn right(&self) -> Vec3 {
+        self.right
+    }
+
+    pub fn up(&self) -> Vec3 {
+        self.up
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn centre_pixel_looks_at_target_and_projection_inverts_rays() {
+        let cam = Camera::look_at(Vec3::new(1.0, 2.0, 5.0), Vec3::ZERO, Vec3::Y, 60.0, 64, 48);
+        let r = cam.ray(32.0, 24.0);
+        assert!(r.dir.dot(-cam.eye.normalize()) > 0.99999);
+        let p = cam.ray(10.5, 7.5).at(3.0);
+        let (x, y) = cam.project(p).unwrap();
+        assert!((x - 10.5).abs() < 1e-3 && (y - 7.5).abs() < 1e-3, "{x} {y}");
+    }
+
+    #[test]
+    fn orbit_at_distance_one_frames_the_bounding_sphere() {
+        let b = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0));
+        let cam = Camera::orbit(&b, Vec3::new(0.4, 0.3, 1.0), Vec3::Y, 1.0, 60.0, 100, 100);
+        assert!((cam.eye.length() - b.diagonal()).abs() < 1e-4);
+        let r = cam.region_of(&b);
+        assert!(r.x0 > 0 && r.x1 < 100 && r.y0 > 0 && r.y1 < 100, "{r:?}");
+    }
+}

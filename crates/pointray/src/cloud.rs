@@ -1,0 +1,96 @@
+//! `PointCloud`: the scanned points and whatever per-point attributes the input had.
+
+use glam::{DVec3, Vec3};
+
+use crate::math::Aabb;
+
+/// A point set in structure-of-arrays form. Attributes the input lacks are `None` and are
+/// filled in by [`crate::preprocess`].
+///
+/// Positions are stored in `f32` relative to `origin` (kept in `f64`), so that scans far from
+/// the coordinate origin (LiDAR in state-plane feet, say) keep their precision:
+/// world position = `origin + position`.
+#[derive(Clone, Debug, Default)]
+pub struct PointCloud {
+    pub positions: Vec<Vec3>,
+    /// Unit normals. Not necessarily consistently oriented until `preprocess::orient` ran.
+    pub normals: Option<Vec<Vec3>>,
+    /// Splat radii, in the same units as `positions`.
+    pub radii: Option<Vec<f32>>,
+    /// Colours as stored in the file (sRGB-encoded), each channel in `[0, 1]`.
+    pub colors: Option<Vec<[f32; 3]>>,
+    /// Offset subtracted from every input coordinate (see the type's doc).
+    pub origin: DVec3,
+}
+
+impl PointCloud {
+    /// A cloud of bare positions, already local (origin zero).
+    pub fn from_positions(positions: Vec<Vec3>) -> Self {
+        Self {
+            positions,
+            ..Self::default()
+        }
+    }
+
+    /// Builds a cloud from world coordinates in `f64`: recentres them on their bounding-box
+    /// centre and stores `f32` offsets from it.
+    pub fn from_world_positions(world: &[DVec3]) -> Self {
+        let origin = if world.is_empty() {
+            DVec3::ZERO
+        } else {
+            let (lo, hi) = world.iter().fold(
+                (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
+                |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+            );
+            (lo + hi) * 0.5
+        };
+        let positions = world.iter().map(|p| (*p - origin).as_vec3()).collect();
+        Self {
+            positions,
+            origin,
+            ..Self::default()
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+
+    /// Bounding box of the positions (not of the splats' disks).
+    pub fn bounds(&self) -> Aabb {
+        Aabb::from_points(self.positions.iter().copied())
+    }
+
+    /// Applies a permutation: element `i` of the result is element `order[i]` of `self`.
+    pub fn permute(&mut self, order: &[u32]) {
+        fn apply<T: Copy>(v: &mut Vec<T>, order: &[u32]) {
+            *v = order.iter().map(|&i| v[i as usize]).collect();
+        }
+        apply(&mut self.positions, order);
+        if let Some(n) = &mut self.normals {
+            apply(n, order);
+        }
+        if let Some(r) = &mut self.radii {
+            apply(r, order);
+        }
+        if let Some(c) = &mut self.colors {
+            apply(c, order);
+        }
+    }
+
+    /// Checks that every attribute has one entry per point.
+    pub fn check_lengths(&self) -> Result<(), String> {
+        let n = self.len();
+        let check = |name: &str, len: Option<usize>| match len {
+            Some(l) if l != n => Err(format!("{name} has {l} entries for {n} points")),
+            _ => Ok(()),
+        };
+        check("normals", self.normals.as_ref().map(Vec::len))?;
+        check("radii", self.radii.as_ref().map(Vec::len))?;
+        check("colors", self.colors.as_ref().map(Vec::len))
+    }
+}

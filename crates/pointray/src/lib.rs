@@ -1,0 +1,26 @@
+//! pointray: multiresolution ray tracing of point-based geometry.
+//!
+//! The pipeline, one module per stage:
+//!
+//! ```text
+//! PointCloud ──preprocess──▶ PointCloud with normals + radii ──Splat::from_cloud──▶ [Splat]
+//!     ──accel (BruteForce | Bvh)──▶ Accel ──render (camera, surface scheme, shading)──▶ Film + Stats
+//! ```
+//!
+//! File formats live in `pointray-io`, the command line in `pointray-cli`; this crate has no
+//! I/O and no global state.
+
+pub mod accel;
+pub mod camera;
+pub mod cloud;
+pub mod demo;
+pub mod film;
+pub mod knn;
+pub mod math;
+pub mod preprocess;
+pub mod render;
+pub mod shading;
+pub mod splat;
+pub mod stats;
+
+pub use cloud::PointCloud;

@@ -1,0 +1,333 @@
+//! Consistent normal orientation after Hoppe et al. 1992, "Surface reconstruction from
+//! unorganized points", §3.3: propagate a sign along a minimum spanning tree of the
+//! Riemannian graph, whose edge cost `1 − |nᵢ·nⱼ|` is low between nearly parallel normals, so
+//! the propagation prefers flat paths and crosses sharp bends last.
+//!
+//! Differences from Hoppe: the graph is the symmetric kNN graph only (Hoppe adds the edges
+//! of the Euclidean MST to make it connected). Instead, every connected component gets its
+//! own seed: its highest point (largest z), whose normal is made to point +z, which is
+//! outward for a closed surface. Components without a common edge cannot be made
+//! consistent with each other anyway, except by such a global rule.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use crate::knn::Neighbourhoods;
+
+/// What orientation did.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct OrientStats {
+    /// Normals negated (seeds included; fixed normals never are).
+    pub flipped: usize,
+    /// Connected components of the kNN graph, each oriented separately.
+    pub components: usize,
+}
+
+/// Orients every normal consistently with its neighbours (see the module docs).
+pub fn orient_normals(points: &[Vec3], normals: &mut [Vec3], nbrs: &Neighbourhoods) -> OrientStats {
+    orient_normals_from(points, normals, nbrs, None)
+}
+
+/// As [`orient_normals`], but the normals with `fixed[i] == true` are trusted: they are
+/// never flipped and seed the propagation in their components; only components without a
+/// fixed normal are seeded at their highest point.
+pub fn orient_normals_from(
+    points: &[Vec3],
+    normals: &mut [Vec3],
+    nbrs: &Neighbourhoods,
+    fixed: Option<&[bool]>,
+) -> OrientStats {
+    assert_eq!(points.len(), normals.len());
+    let t0 = std::time::Instant::now();
+    let graph = SymmetricGraph::new(nbrs, points.len());
+    eprintln!("graph {:?}", t0.elapsed());
+    let mut prim = Prim::new(points.len());
+    let mut stats = OrientStats::default();
+    if let Some(fixed) = fixed.filter(|f| f.contains(&true)) {
+        let anchors: Vec<u32> = (0..points.len() as u32)
+            .filter(|&i| fixed[i as usize])
+            .collect();
+        stats.flipped += prim.grow(&anchors, &graph, normals);
+        stats.components += graph.count_components_among(&anchors, points.len());
+    }
+    let t0 = std::time::Instant::now();
+    let order = highest_first(points);
+    eprintln!("sort {:?}", t0.elapsed());
+    let t0 = std::time::Instant::now();
+    for seed in order {
+        if prim.visited[seed as usize] {
+            continue;
+        }
+        if normals[seed as usize].z < 0.0 {
+            normals[seed as usize] = -normals[seed as usize];
+            stats.flipped += 1;
+        }
+        stats.flipped += prim.grow(&[seed], &graph, normals);
+        stats.components += 1;
+    }
+    eprintln!("prim {:?} pushes {} maxheap {}", t0.elapsed(), prim.pushes, prim.max_heap);
+    stats
+}
+
+/// Point indices by decreasing z (ties by index): the first unvisited one is always the
+/// highest point of a component not yet oriented.
+fn highest_first(points: &[Vec3]) -> Vec<u32> {
+    let mut order: Vec<u32> = (0..points.len() as u32).collect();
+    order.par_sort_unstable_by(|&a, &b| {
+        points[b as usize]
+            .z
+            .total_cmp(&points[a as usize].z)
+            .then(a.cmp(&b))
+    });
+    order
+}
+
+/// The symmetric kNN graph: the kNN rows plus, in CSR form, the reversed edges (j → i for
+/// every j in kNN(i)). Edges present both ways appear twice, which Prim tolerates.
+struct SymmetricGraph<'a> {
+    nbrs: &'a Neighbourhoods,
+    reverse_start: Vec<u32>,
+    reverse: Vec<u32>,
+}
+
+impl<'a> SymmetricGraph<'a> {
+    fn new(nbrs: &'a Neighbourhoods, n: usize) -> Self {
+        let mut reverse_start = vec![0u32; n + 1];
+        for &j in &nbrs.indices {
+            reverse_start[j as usize + 1] += 1;
+        }
+        for i in 0..n {
+            reverse_start[i + 1] += reverse_start[i];
+        }
+        let mut fill = reverse_start.clone();
+        let mut reverse = vec![0u32; nbrs.indices.len()];
+        for i in 0..nbrs.len() {
+            for &j in nbrs.of(i) {
+                reverse[fill[j as usize] as usize] = i as u32;
+                fill[j as usize] += 1;
+            }
+        }
+        Self {
+            nbrs,
+            reverse_start,
+            reverse,
+        }
+    }
+
+    fn neighbours(&self, i: usize) -> impl Iterator<Item = u32> + '_ {
+        let forward = if self.nbrs.k == 0 {
+            &[][..]
+        } else {
+            self.nbrs.of(i)
+        };
+        let reverse =
+            &self.reverse[self.reverse_start[i] as usize..self.reverse_start[i + 1] as usize];
+        forward.iter().chain(reverse).copied()
+    }
+
+    /// Number of connected components that contain at least one of `seeds` (union–find over
+    /// the kNN edges; only used when some normals are fixed).
+    fn count_components_among(&self, seeds: &[u32], n: usize) -> usize {
+        let mut parent: Vec<u32> = (0..n as u32).collect();
+        fn root(parent: &mut [u32], mut i: u32) -> u32 {
+            while parent[i as usize] != i {
+                parent[i as usize] = parent[parent[i as usize] as usize];
+                i = parent[i as usize];
+            }
+            i
+        }
+        for i in 0..self.nbrs.len() {
+            for &j in self.nbrs.of(i) {
+                let (a, b) = (root(&mut parent, i as u32), root(&mut parent, j));
+                parent[a.max(b) as usize] = a.min(b);
+            }
+        }
+        let mut roots: Vec<u32> = seeds.iter().map(|&s| root(&mut parent, s)).collect();
+        roots.sort_unstable();
+        roots.dedup();
+        roots.len()
+    }
+}
+
+/// Prim's algorithm with lazy deletion. Heap entries are one `u64`: the edge cost's `f32`
+/// bits (order-preserving for non-negative floats) above the target index. The tree parent
+/// of a node is kept beside it, not in the heap, and updated whenever a cheaper edge is found.
+struct Prim {
+    visited: Vec<bool>,
+    best_cost: Vec<f32>,
+    parent: Vec<u32>,
+    heap: BinaryHeap<Reverse<u64>>,
+    pushes: usize, max_heap: usize,
+}
+
+impl Prim {
+    fn new(n: usize) -> Self {
+        Self {
+            visited: vec![false; n],
+            best_cost: vec![f32::INFINITY; n],
+            parent: vec![u32::MAX; n],
+            heap: BinaryHeap::new(), pushes: 0, max_heap: 0,
+        }
+    }
+
+    /// Grows the spanning forest from the (already oriented) `roots` until their components
+    /// are exhausted, flipping each new node to agree with its tree parent. Returns the number
+    /// of flips.
+    fn grow(&mut self, roots: &[u32], graph: &SymmetricGraph, normals: &mut [Vec3]) -> usize {
+        for &r in roots {
+            self.visited[r as usize] = true;
+        }
+        for &r in roots {
+            self.relax(r, graph, normals);
+        }
+        let mut flipped = 0;
+        while let Some(Reverse(entry)) = self.heap.pop() {
+            let node = entry as u32;
+            if self.visited[node as usize]
+                || f32::from_bits((entry >> 32) as u32) > self.best_cost[node as usize]
+            {
+                continue; // stale entry
+            }
+            self.visited[node as usize] = true;
+            let parent_normal = normals[self.parent[node as usize] as usize];
+            if normals[node as usize].dot(parent_normal) < 0.0 {
+                normals[node as usize] = -normals[node as usize];
+                flipped += 1;
+            }
+            self.relax(node, graph, normals);
+        }
+        flipped
+    }
+
+    fn relax(&mut self, from: u32, graph: &SymmetricGraph, normals: &[Vec3]) {
+        let n_from = normals[from as usize];
+        for to in graph.neighbours(from as usize) {
+            let t = to as usize;
+            if self.visited[t] {
+                continue;
+            }
+            // max(0) keeps rounding (|dot| slightly above 1) from producing negative bits.
+            let cost = (1.0 - n_from.dot(normals[t]).abs()).max(0.0);
+            if cost < self.best_cost[t] {
+                self.best_cost[t] = cost;
+                self.parent[t] = from;
+                self.heap
+                    .push(Reverse(u64::from(cost.to_bits()) << 32 | u64::from(to)));
+                self.pushes += 1; self.max_heap = self.max_heap.max(self.heap.len());
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::knn::k_nearest;
+    use crate::preprocess::normals::pca_normals;
+    use crate::preprocess::normals::tests::{sphere, torus};
+    use rand::{RngExt, SeedableRng};
+    use rand_pcg::Pcg64Mcg;
+
+    fn count_inward(normals: &[Vec3], outward: &[Vec3]) -> usize {
+        normals
+            .iter()
+            .zip(outward)
+            .filter(|(n, o)| n.dot(**o) <= 0.0)
+            .count()
+    }
+
+    fn orient_and_check(name: &str, points: &[Vec3], outward: &[Vec3]) {
+        let nbrs = k_nearest(points, 16);
+        let (mut normals, _) = pca_normals(points, &nbrs, 16);
+        let stats = orient_normals(points, &mut normals, &nbrs);
+        let inward = count_inward(&normals, outward);
+        println!("{name}: {stats:?}, {inward} inward");
+        assert_eq!(inward, 0, "{name}");
+        assert_eq!(stats.components, 1, "{name}");
+    }
+
+    #[test]
+    fn sphere_is_all_outward() {
+        let (points, outward) = sphere(20_000, 3);
+        orient_and_check("sphere 20k", &points, &outward);
+    }
+
+    #[test]
+    fn torus_is_all_outward() {
+        let (points, outward) = torus(20_000, 1.0, 0.35, 4);
+        orient_and_check("torus 20k", &points, &outward);
+    }
+
+    #[test]
+    fn randomly_signed_true_normals_are_restored() {
+        let (points, outward) = torus(5_000, 1.0, 0.35, 5);
+        let mut rng = Pcg64Mcg::seed_from_u64(6);
+        let mut normals: Vec<Vec3> = outward
+            .iter()
+            .map(|&n| if rng.random::<bool>() { -n } else { n })
+            .collect();
+        let nbrs = k_nearest(&points, 10);
+        orient_normals(&points, &mut normals, &nbrs);
+        assert_eq!(normals, outward);
+    }
+
+    #[test]
+    fn separate_components_are_seeded_separately() {
+        let (a, na) = sphere(3_000, 7);
+        let b: Vec<Vec3> = a.iter().map(|p| *p + Vec3::new(10.0, 0.0, -3.0)).collect();
+        let points = [a.clone(), b].concat();
+        let outward = [na.clone(), na].concat();
+        let mut normals: Vec<Vec3> = outward.iter().map(|n| -*n).collect();
+        let nbrs = k_nearest(&points, 8);
+        let stats = orient_normals(&points, &mut normals, &nbrs);
+        assert_eq!(
+            stats,
+            OrientStats {
+                flipped: points.len(),
+                components: 2
+            }
+        );
+        assert_eq!(count_inward(&normals, &outward), 0);
+    }
+
+    #[test]
+    fn fixed_normals_seed_their_component() {
+        let (points, outward) = sphere(3_000, 8);
+        // Every normal inward, one fixed pointing outward: all others follow it.
+        let mut normals: Vec<Vec3> = outward.iter().map(|n| -*n).collect();
+        let mut fixed = vec![false; points.len()];
+        let lowest = (0..points.len()).min_by(|&a, &b| points[a].z.total_cmp(&points[b].z));
+        let lowest = lowest.unwrap();
+        normals[lowest] = outward[lowest];
+        fixed[lowest] = true;
+        let nbrs = k_nearest(&points, 8);
+        let stats = orient_normals_from(&points, &mut normals, &nbrs, Some(&fixed));
+        assert_eq!(
+            stats,
+            OrientStats {
+                flipped: points.len() - 1,
+                components: 1
+            }
+        );
+        assert_eq!(count_inward(&normals, &outward), 0);
+    }
+
+    #[test]
+    fn tiny_and_degenerate_inputs() {
+        for n in 0..3 {
+            let points: Vec<Vec3> = (0..n).map(|i| Vec3::X * i as f32).collect();
+            let mut normals = vec![-Vec3::Z; n];
+            let stats = orient_normals(&points, &mut normals, &k_nearest(&points, 8));
+            assert_eq!(stats.components, n.min(1));
+            assert!(normals.iter().all(|&v| v == Vec3::Z));
+        }
+        let points = vec![Vec3::ONE; 50];
+        let mut normals = vec![Vec3::Z; 50];
+        let stats = orient_normals(&points, &mut normals, &k_nearest(&points, 8));
+        assert_eq!(stats.flipped, 0);
+        assert!(stats.components >= 1);
+    }
+}

@@ -1,0 +1,64 @@
+//! Splats: oriented disks built from the points, and the ray–surface schemes over them.
+//!
+//! One file per kernel, as in Embree's `geometry/*_intersector.h`: [`oriented_disk`] is the
+//! exact ray–disk test; [`scheme`] turns the disks a ray crosses into one surface hit, either
+//! the first disk alone (`first-hit`) or the Schaufler–Jensen interpolation (`sj`).
+
+pub mod oriented_disk;
+pub mod scheme;
+
+use glam::Vec3;
+
+use crate::PointCloud;
+use crate::math::Aabb;
+
+/// One surface element: a disk of `radius` around `center`, perpendicular to the unit `normal`.
+/// 32 bytes, so two share a cache line; the colour is packed sRGB8 (`0x00BBGGRR`).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Splat {
+    pub center: Vec3,
+    pub radius: f32,
+    pub normal: Vec3,
+    pub color: u32,
+}
+
+/// The colour of splats whose cloud has none: a light warm grey, as in the Embree bench.
+pub const DEFAULT_COLOR: [f32; 3] = [0.92, 0.88, 0.80];
+
+impl Splat {
+    /// Tight bounds of the disk: along axis `i` it extends `r·sqrt(1 − nᵢ²)` from the centre.
+    pub fn bounds(&self) -> Aabb {
+        let half = self.radius * (Vec3::ONE - self.normal * self.normal).max(Vec3::ZERO).sqrt();
+        Aabb::new(self.center - half, self.center + half)
+    }
+
+    /// sRGB-encoded colour in `[0, 1]`.
+    pub fn color_srgb(&self) -> [f32; 3] {
+        let c = self.color;
+        [(c & 0xff) as f32 / 255.0, (c >> 8 & 0xff) as f32 / 255.0, (c >> 16 & 0xff) as f32 / 255.0]
+    }
+}
+
+pub fn pack_color(rgb: [f32; 3]) -> u32 {
+    let q = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u32;
+    q(rgb[0]) | q(rgb[1]) << 8 | q(rgb[2]) << 16
+}
+
+/// Splats for every point of a preprocessed cloud (normals and radii present).
+///
+/// # Panics
+/// If the cloud has no normals or no radii: run [`crate::preprocess::preprocess`] first.
+pub fn splats_from_cloud(cloud: &PointCloud) -> Vec<Splat> {
+    let normals = cloud.normals.as_ref().expect("splats need normals: preprocess the cloud first");
+    let radii = cloud.radii.as_ref().expect("splats need radii: preprocess the cloud first");
+    let default = pack_color(DEFAULT_COLOR);
+    (0..cloud.len())
+        .map(|i| Splat {
+            center: cloud.positions[i],
+            radius: radii[i],
+            normal: normals[i],
+            color: cloud.colors.as_ref().map_or(default, |c| pack_color(c[i])),
+        })
+        .collect()
+}

@@ -1,0 +1,95 @@
+//! Every accelerator returns exactly the hits of the brute-force oracle (full detail).
+
+use glam::Vec3;
+use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, TraversalStats};
+use pointray::math::Aabb;
+use pointray::splat::Splat;
+use pointray::splat::scheme::{self, SurfaceScheme};
+
+use crate::util::{random_rays, sphere_splats, torus_splats};
+
+/// Compares closest hits (first-hit and SJ) and shadow queries of a BVH built with `params`
+/// against brute force, over `rays` random rays. Returns how many rays hit.
+fn check_agreement(splats: &[Splat], params: &BvhParams, rays: usize, seed: u64) -> usize {
+    let brute = BruteForce::new(splats.to_vec());
+    let bvh = Bvh::build(splats.to_vec(), params);
+    let target = if splats.is_empty() { Aabb::new(Vec3::splat(-1.0), Vec3::ONE) } else { brute.bounds() };
+    let mut hits = 0;
+    for (i, ray) in random_rays(rays, &target, seed).iter().enumerate() {
+        for scheme in [SurfaceScheme::first_hit(), SurfaceScheme::sj()] {
+            let mut s = TraversalStats::default();
+            let a = scheme::intersect(&brute, ray, &scheme, &mut s);
+            let b = scheme::intersect(&bvh, ray, &scheme, &mut s);
+            match (a, b) {
+                (None, None) => {}
+                (Some(a), Some(b)) => {
+                    assert_eq!(a.t.to_bits(), b.t.to_bits(), "ray {i} {scheme:?}: t differs");
+                    assert_eq!(a.normal, b.normal, "ray {i} {scheme:?}: normal differs");
+                    assert_eq!(a.color, b.color, "ray {i} {scheme:?}: colour differs");
+                    assert_eq!(a.blended, b.blended, "ray {i} {scheme:?}");
+                    assert_eq!(brute.splats()[a.splat as usize], bvh.splats()[b.splat as usize], "ray {i}: other disk");
+                    hits += 1;
+                }
+                (a, b) => panic!("ray {i} {scheme:?}: brute {a:?} vs bvh {b:?}"),
+            }
+        }
+        let mut s = TraversalStats::default();
+        for t_max in [0.5 * target.diagonal(), f32::INFINITY] {
+            assert_eq!(
+                scheme::occluded(&brute, ray, t_max, &mut s),
+                scheme::occluded(&bvh, ray, t_max, &mut s),
+                "ray {i}: occlusion differs"
+            );
+        }
+    }
+    hits
+}
+
+#[test]
+fn bvh_matches_brute_force_on_sphere_and_torus_for_every_preset() {
+    let sphere = sphere_splats(20_000, 1.0, 1);
+    let torus = torus_splats(20_000, 2);
+    for (name, params) in BvhParams::presets() {
+        let hits = check_agreement(&sphere, &params, 10_000, 11);
+        assert!(hits > 5_000, "{name}: too few hits ({hits}) to mean anything");
+        let hits = check_agreement(&torus, &params, 10_000, 12);
+        assert!(hits > 3_000, "{name}: too few hits ({hits}) on the torus");
+    }
+}
+
+#[test]
+fn bvh_matches_brute_force_on_degenerate_inputs() {
+    let disk = |c: Vec3, n: Vec3| Splat { center: c, radius: 0.1, normal: n.normalize(), color: 0 };
+    let one = vec![disk(Vec3::ZERO, Vec3::Z)];
+    let coplanar: Vec<Splat> =
+        (0..500).map(|i| disk(Vec3::new((i % 25) as f32 * 0.08, (i / 25) as f32 * 0.08, 0.0), Vec3::Z)).collect();
+    // Every splat at one place: SAH finds no split, the median split must still terminate.
+    let duplicates: Vec<Splat> = (0..300).map(|i| disk(Vec3::ONE, Vec3::new(1.0, i as f32 * 0.01, 0.0))).collect();
+    let collinear: Vec<Splat> = (0..300).map(|i| disk(Vec3::new(i as f32 * 0.05, 0.0, 0.0), Vec3::Y)).collect();
+    for (name, params) in BvhParams::presets() {
+        for (what, splats) in [("one", &one), ("coplanar", &coplanar), ("duplicates", &duplicates), ("collinear", &collinear)] {
+            let hits = check_agreement(splats, &params, 2_000, 5);
+            assert!(hits > 0, "{name}/{what}: no ray hit, the test is vacuous");
+        }
+        assert_eq!(check_agreement(&[], &params, 100, 5), 0);
+    }
+}
+
+#[test]
+fn bvh_nodes_bound_their_splats_and_visit_fewer_than_brute_force() {
+    let splats = sphere_splats(30_000, 1.0, 3);
+    let bvh = Bvh::build(splats.clone(), &BvhParams::standard());
+    assert!(bvh.depth() < 64, "depth {}", bvh.depth());
+    pointray::accel::bvh::check_invariants(&bvh).expect("BVH invariants");
+    let mut sorted_in: Vec<u32> = (0..splats.len() as u32).map(|i| bvh.input_index(i)).collect();
+    sorted_in.sort_unstable();
+    assert!(sorted_in.iter().enumerate().all(|(i, &j)| i as u32 == j), "input_index is a permutation");
+    // Work per ray: the BVH must test orders of magnitude fewer disks than brute force.
+    let mut stats = TraversalStats::default();
+    let rays = random_rays(2_000, &bvh.bounds(), 9);
+    for ray in &rays {
+        scheme::intersect(&bvh, ray, &SurfaceScheme::sj(), &mut stats);
+    }
+    let per_ray = stats.splat_tests as f64 / rays.len() as f64;
+    assert!(per_ray < 100.0, "{per_ray} splat tests per ray");
+}

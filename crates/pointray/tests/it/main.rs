@@ -1,0 +1,7 @@
+//! The core library's integration tests: one binary (ripgrep style), synthetic clouds made in
+//! code, no external files.
+
+mod accel_agree;
+mod analytic;
+mod determinism;
+mod util;
