@@ -37,11 +37,11 @@ pub struct RenderConfig {
 /// Pixels per tile edge: small enough to balance 2–64 threads, big enough for coherence.
 const TILE: u32 = 16;
 
-/// Renders `config.region` of the frame. `progress` is told how many pixels each finished
+/// Renders `config.region` of the frame (the film covers just that region). `progress` is told how many pixels each finished
 /// tile held.
 pub fn render<A: Accel>(accel: &A, camera: &Camera, config: &RenderConfig, progress: &(dyn Fn(u64) + Sync)) -> (Film, RenderStats) {
-    let mut film = Film::new(camera.width, camera.height, config.background);
     let region = config.region.clamp_to(camera.width, camera.height);
+    let mut film = Film::new(region);
     let tiles_x = region.width().div_ceil(TILE);
     let tiles_y = region.height().div_ceil(TILE);
     let tiles: Vec<Region> = (0..tiles_y)

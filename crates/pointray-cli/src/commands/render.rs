@@ -194,7 +194,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         n => (times[n / 2], times[0]),
     };
 
-    pointray_io::image::write_png(&a.output, film.width, film.height, &film.to_srgb8())?;
+    pointray_io::image::write_png(&a.output, a.width, a.height, &film.frame_srgb8(a.width, a.height, config.background))?;
     let mrays = stats.rays as f64 / render_seconds / 1e6;
     if !quiet {
         eprintln!(

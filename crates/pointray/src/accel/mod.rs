@@ -69,13 +69,3 @@ pub enum AccelKind {
     Bvh,
     Brute,
 }
-
-/// Slab test: the parameter interval where the ray is inside `b`, clipped to `[t0, t1]`.
-#[inline(always)]
-pub(crate) fn slab(b_min: glam::Vec3A, b_max: glam::Vec3A, origin: glam::Vec3A, inv_dir: glam::Vec3A, t0: f32, t1: f32) -> Option<f32> {
-    let a = (b_min - origin) * inv_dir;
-    let b = (b_max - origin) * inv_dir;
-    let near = a.min(b).max_element().max(t0);
-    let far = a.max(b).min_element().min(t1);
-    (near <= far).then_some(near)
-}

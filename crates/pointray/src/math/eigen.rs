@@ -109,7 +109,8 @@ fn null_vector(a: &Mat, lambda: f64) -> (DVec3, f64) {
 fn closed_form(a: &Mat) -> Option<([f64; 3], [DVec3; 3])> {
     let values = cubic_eigenvalues(a);
     let min_gap = (values[1] - values[0]).min(values[2] - values[1]);
-    if !(min_gap >= MIN_RELATIVE_GAP) {
+    // Written so that a NaN gap also falls back.
+    if min_gap.is_nan() || min_gap < MIN_RELATIVE_GAP {
         return None;
     }
     // With both gaps ≥ g, |row × row| ≥ about g², so anything much smaller is rounding noise.
@@ -159,19 +160,19 @@ fn rotate(a: &mut Mat, v: &mut Mat, p: usize, q: usize) {
         return;
     }
     let theta = (a[q][q] - a[p][p]) / (2.0 * apq);
+    // The smaller root of t² + 2θt − 1 = 0 (rotation angle ≤ π/4); signum(0) = 1.
     let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-    let t = if theta == 0.0 { 1.0 } else { t };
     let c = 1.0 / (t * t + 1.0).sqrt();
     let s = t * c;
-    for k in 0..3 {
-        let (akp, akq) = (a[k][p], a[k][q]);
-        a[k][p] = c * akp - s * akq;
-        a[k][q] = s * akp + c * akq;
+    for row in a.iter_mut() {
+        let (akp, akq) = (row[p], row[q]);
+        row[p] = c * akp - s * akq;
+        row[q] = s * akp + c * akq;
     }
+    let (row_p, row_q) = (a[p], a[q]);
     for k in 0..3 {
-        let (apk, aqk) = (a[p][k], a[q][k]);
-        a[p][k] = c * apk - s * aqk;
-        a[q][k] = s * apk + c * aqk;
+        a[p][k] = c * row_p[k] - s * row_q[k];
+        a[q][k] = s * row_p[k] + c * row_q[k];
     }
     for row in v.iter_mut() {
         let (vp, vq) = (row[p], row[q]);
@@ -260,11 +261,9 @@ mod tests {
         let mut worst = 0f32;
         for _ in 0..100_000 {
             let mut m = [[0f32; 3]; 3];
-            for i in 0..3 {
-                for j in i..3 {
-                    m[i][j] = rng.random_range(-10.0..10.0);
-                    m[j][i] = m[i][j];
-                }
+            for (i, j) in [(0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)] {
+                m[i][j] = rng.random_range(-10.0..10.0);
+                m[j][i] = m[i][j];
             }
             worst = worst.max(check(m));
         }

@@ -55,7 +55,7 @@ pub fn pca_normal(points: &[Vec3], i: usize, nbrs: &Neighbourhoods, k: usize) ->
     }
     let eigen = sym_eigen(c);
     let [_, middle, largest] = eigen.values;
-    if !(largest > 0.0) {
+    if largest.is_nan() || largest <= 0.0 {
         return (Vec3::Z, false);
     }
     if middle <= COLLINEAR_RATIO * largest {

@@ -41,9 +41,7 @@ pub fn orient_normals_from(
     fixed: Option<&[bool]>,
 ) -> OrientStats {
     assert_eq!(points.len(), normals.len());
-    let t0 = std::time::Instant::now();
     let graph = SymmetricGraph::new(nbrs, points.len());
-    eprintln!("graph {:?}", t0.elapsed());
     let mut prim = Prim::new(points.len());
     let mut stats = OrientStats::default();
     if let Some(fixed) = fixed.filter(|f| f.contains(&true)) {
@@ -53,11 +51,7 @@ pub fn orient_normals_from(
         stats.flipped += prim.grow(&anchors, &graph, normals);
         stats.components += graph.count_components_among(&anchors, points.len());
     }
-    let t0 = std::time::Instant::now();
-    let order = highest_first(points);
-    eprintln!("sort {:?}", t0.elapsed());
-    let t0 = std::time::Instant::now();
-    for seed in order {
+    for seed in highest_first(points) {
         if prim.visited[seed as usize] {
             continue;
         }
@@ -68,7 +62,6 @@ pub fn orient_normals_from(
         stats.flipped += prim.grow(&[seed], &graph, normals);
         stats.components += 1;
     }
-    eprintln!("prim {:?} pushes {} maxheap {}", t0.elapsed(), prim.pushes, prim.max_heap);
     stats
 }
 
@@ -152,6 +145,13 @@ impl<'a> SymmetricGraph<'a> {
     }
 }
 
+/// Edges this cheap (normals within about 3°) count as cost 0: they are taken at once, from a
+/// stack, in discovery order. This is exact Prim on costs clamped to 0 below the threshold;
+/// the order among nearly parallel normals does not matter for orientation, and on smooth
+/// surfaces the traversal then stays spatially coherent and the heap small (1M-point torus:
+/// 5M heap pushes and 1.1–2.8 s with exact costs, 0.36 s with this).
+const FREE_EDGE_COST: f32 = 1.4e-3;
+
 /// Prim's algorithm with lazy deletion. Heap entries are one `u64`: the edge cost's `f32`
 /// bits (order-preserving for non-negative floats) above the target index. The tree parent
 /// of a node is kept beside it, not in the heap, and updated whenever a cheaper edge is found.
@@ -160,7 +160,8 @@ struct Prim {
     best_cost: Vec<f32>,
     parent: Vec<u32>,
     heap: BinaryHeap<Reverse<u64>>,
-    pushes: usize, max_heap: usize,
+    /// Nodes reached by a free edge (see [`FREE_EDGE_COST`]), visited before the heap's.
+    free: Vec<u32>,
 }
 
 impl Prim {
@@ -169,7 +170,8 @@ impl Prim {
             visited: vec![false; n],
             best_cost: vec![f32::INFINITY; n],
             parent: vec![u32::MAX; n],
-            heap: BinaryHeap::new(), pushes: 0, max_heap: 0,
+            heap: BinaryHeap::new(),
+            free: Vec::new(),
         }
     }
 
@@ -184,13 +186,7 @@ impl Prim {
             self.relax(r, graph, normals);
         }
         let mut flipped = 0;
-        while let Some(Reverse(entry)) = self.heap.pop() {
-            let node = entry as u32;
-            if self.visited[node as usize]
-                || f32::from_bits((entry >> 32) as u32) > self.best_cost[node as usize]
-            {
-                continue; // stale entry
-            }
+        while let Some(node) = self.next_node() {
             self.visited[node as usize] = true;
             let parent_normal = normals[self.parent[node as usize] as usize];
             if normals[node as usize].dot(parent_normal) < 0.0 {
@@ -202,6 +198,21 @@ impl Prim {
         flipped
     }
 
+    /// The unvisited node with the cheapest edge into the tree, if any.
+    fn next_node(&mut self) -> Option<u32> {
+        if let Some(node) = self.free.pop() {
+            return Some(node); // pushed once only: its best cost is 0 from then on
+        }
+        while let Some(Reverse(entry)) = self.heap.pop() {
+            let node = entry as u32;
+            let cost = f32::from_bits((entry >> 32) as u32);
+            if !self.visited[node as usize] && cost <= self.best_cost[node as usize] {
+                return Some(node);
+            } // else a stale entry
+        }
+        None
+    }
+
     fn relax(&mut self, from: u32, graph: &SymmetricGraph, normals: &[Vec3]) {
         let n_from = normals[from as usize];
         for to in graph.neighbours(from as usize) {
@@ -211,12 +222,16 @@ impl Prim {
             }
             // max(0) keeps rounding (|dot| slightly above 1) from producing negative bits.
             let cost = (1.0 - n_from.dot(normals[t]).abs()).max(0.0);
+            let cost = if cost <= FREE_EDGE_COST { 0.0 } else { cost };
             if cost < self.best_cost[t] {
                 self.best_cost[t] = cost;
                 self.parent[t] = from;
-                self.heap
-                    .push(Reverse(u64::from(cost.to_bits()) << 32 | u64::from(to)));
-                self.pushes += 1; self.max_heap = self.max_heap.max(self.heap.len());
+                if cost == 0.0 {
+                    self.free.push(to);
+                } else {
+                    self.heap
+                        .push(Reverse(u64::from(cost.to_bits()) << 32 | u64::from(to)));
+                }
             }
         }
     }

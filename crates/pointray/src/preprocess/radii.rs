@@ -222,7 +222,9 @@ mod tests {
         let rows = scan_rows(n, 23);
         let sphere_probes = sphere(100_000, 24).0;
         let square_probes = probes_in_square(100_000, 25);
-        let cases: Vec<(&str, Vec<Vec3>, Vec<Vec3>, &[Vec3])> = vec![
+        // (name, points, normals, probes)
+        type Case<'a> = (&'a str, Vec<Vec3>, Vec<Vec3>, &'a [Vec3]);
+        let cases: [Case; 3] = [
             ("sphere", sph, sph_n, &sphere_probes),
             ("plane", plane, vec![Vec3::Z; n], &square_probes),
             (

@@ -50,10 +50,12 @@ fn bvh_matches_brute_force_on_sphere_and_torus_for_every_preset() {
     let sphere = sphere_splats(20_000, 1.0, 1);
     let torus = torus_splats(20_000, 2);
     for (name, params) in BvhParams::presets() {
-        let hits = check_agreement(&sphere, &params, 10_000, 11);
-        assert!(hits > 5_000, "{name}: too few hits ({hits}) to mean anything");
-        let hits = check_agreement(&torus, &params, 10_000, 12);
-        assert!(hits > 3_000, "{name}: too few hits ({hits}) on the torus");
+        // 10⁴ rays for the default preset; fewer for the others keep the suite short.
+        let rays = if name == "standard" { 10_000 } else { 2_000 };
+        let hits = check_agreement(&sphere, &params, rays, 11);
+        assert!(hits > rays / 2, "{name}: too few hits ({hits}) to mean anything");
+        let hits = check_agreement(&torus, &params, rays, 12);
+        assert!(hits > rays / 3, "{name}: too few hits ({hits}) on the torus");
     }
 }
 

@@ -63,10 +63,11 @@ fn sj_hits_lie_on_the_sphere_with_smooth_normals() {
         sj.mean_t_over_r, sj.max_t_over_r, sj.mean_normal_deg, sj.p99_normal_deg,
         first.mean_t_over_r, first.max_t_over_r, first.mean_normal_deg, first.p99_normal_deg
     );
-    assert!(sj.mean_t_over_r < 0.05 && sj.max_t_over_r < 0.5, "position error");
+    // Measured: |dt|/r mean 0.005, max 0.025; normals mean 0.17°, p99 0.55° (first-hit 1.08°).
+    assert!(sj.mean_t_over_r < 0.02 && sj.max_t_over_r < 0.1, "position error");
     assert!(sj.p99_normal_deg <= 2.0, "normal error");
-    // Interpolation is the point of SJ: its normals are closer to the truth than one disk's.
-    assert!(sj.mean_normal_deg < 0.8 * first.mean_normal_deg, "SJ does not smooth the normals");
+    // Interpolation is the point of SJ: its normals are far closer to the truth than one disk's.
+    assert!(sj.mean_normal_deg < 0.4 * first.mean_normal_deg, "SJ does not smooth the normals");
 }
 
 /// Lambert + Phong shading of the exact sphere, pixel for pixel as the renderer shades.
@@ -115,7 +116,8 @@ fn sphere_image_matches_the_analytic_image() {
     let mean = diff.iter().sum::<f32>() / diff.len() as f32;
     eprintln!("pixels off by > 0.03: {off} of {}, mean |diff| {mean:.5}", diff.len());
     assert!(stats.primary_hits > 1_000);
-    // Only silhouette pixels may differ (disks overhang the exact outline by up to r).
-    assert!(off <= 40, "{off} pixels differ");
-    assert!(mean < 0.004, "mean difference {mean}");
+    // Measured: no pixel off by more than 0.03, mean 0.0004. A few silhouette pixels may
+    // differ (disks overhang the exact outline by up to r).
+    assert!(off <= 8, "{off} pixels differ");
+    assert!(mean < 0.002, "mean difference {mean}");
 }

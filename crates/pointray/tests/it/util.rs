@@ -6,10 +6,15 @@ use pointray::splat::{Splat, pack_color};
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
-/// The radius that makes `n` random disks cover a surface of `area`: on average f² = 6.25
-/// disks overlap a point, leaving exp(−f²) ≈ 0.2 % uncovered (as the Embree bench's clouds).
-pub fn covering_radius(area: f32, n: usize) -> f32 {
-    2.5 * (area / (std::f32::consts::PI * n as f32)).sqrt()
+/// Splats at `centers` with the given normals and the pipeline's own radii (§2.1: distance to
+/// the 8th neighbour), so the disks cover the surface without holes.
+fn splats(centers: Vec<Vec3>, normals: Vec<Vec3>, color: impl Fn(usize) -> u32) -> Vec<Splat> {
+    let cfg = pointray::preprocess::PreprocessConfig::standard();
+    let nbrs = pointray::knn::k_nearest(&centers, cfg.k_radius);
+    let radii = pointray::preprocess::radii::splat_radii(&centers, &nbrs, cfg.k_radius, cfg.radius_scale);
+    (0..centers.len())
+        .map(|i| Splat { center: centers[i], radius: radii[i], normal: normals[i], color: color(i) })
+        .collect()
 }
 
 pub fn rng(seed: u64) -> Pcg64Mcg {
@@ -19,27 +24,18 @@ pub fn rng(seed: u64) -> Pcg64Mcg {
 /// `n` splats on a sphere of radius `radius` at the origin, exact outward normals.
 pub fn sphere_splats(n: usize, radius: f32, seed: u64) -> Vec<Splat> {
     let mut rng = rng(seed);
-    let r = covering_radius(4.0 * std::f32::consts::PI * radius * radius, n);
-    (0..n)
-        .map(|i| {
-            let d = uniform_sphere(&mut rng);
-            Splat { center: d * radius, radius: r, normal: d, color: pack_color([(i % 7) as f32 / 7.0, 0.5, 0.8]) }
-        })
-        .collect()
+    let normals: Vec<Vec3> = (0..n).map(|_| uniform_sphere(&mut rng)).collect();
+    let centers = normals.iter().map(|d| *d * radius).collect();
+    splats(centers, normals, |i| pack_color([(i % 7) as f32 / 7.0, 0.5, 0.8]))
 }
 
 /// `n` splats on a torus (major radius 1, minor 0.35) around the z axis, exact normals.
 pub fn torus_splats(n: usize, seed: u64) -> Vec<Splat> {
     let (big, small) = (1.0f32, 0.35f32);
     let mut rng = rng(seed);
-    let r = covering_radius(4.0 * std::f32::consts::PI * std::f32::consts::PI * big * small, n);
-    (0..n)
-        .map(|_| {
-            let p = uniform_torus(&mut rng, big, small);
-            let ring = Vec3::new(p.x, p.y, 0.0).normalize() * big;
-            Splat { center: p, radius: r, normal: (p - ring).normalize(), color: pack_color([0.9, 0.6, 0.2]) }
-        })
-        .collect()
+    let centers: Vec<Vec3> = (0..n).map(|_| uniform_torus(&mut rng, big, small)).collect();
+    let normals = centers.iter().map(|p| (*p - Vec3::new(p.x, p.y, 0.0).normalize() * big).normalize()).collect();
+    splats(centers, normals, |_| pack_color([0.9, 0.6, 0.2]))
 }
 
 /// Random rays aimed at random points of `target`'s box from all around it: some hit, some

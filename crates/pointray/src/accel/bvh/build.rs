@@ -5,7 +5,7 @@
 use glam::Vec3;
 use rayon::join;
 
-use super::{Bvh, LEAF, MAX_DEPTH, Node};
+use super::{Bvh, MAX_DEPTH, MAX_LEAF_SIZE, MAX_SPLATS, Node, leaf_ref};
 use crate::math::Aabb;
 use crate::splat::Splat;
 
@@ -25,7 +25,7 @@ pub struct BvhParams {
 impl BvhParams {
     /// The default: 16 bins, leaves of up to 8 splats.
     pub fn standard() -> Self {
-        Self { bins: 16, max_leaf_size: 8, traversal_cost: 1.0, intersection_cost: 1.0 }
+        Self { bins: 16, max_leaf_size: 8, traversal_cost: 2.0, intersection_cost: 1.0 }
     }
 
     /// Quicker build, somewhat slower rays.
@@ -69,8 +69,11 @@ impl BuildNode {
 const PARALLEL_THRESHOLD: usize = 8 * 1024;
 
 impl Bvh {
+    /// # Panics
+    /// With more than [`MAX_SPLATS`] splats, or parameters out of range.
     pub fn build(splats: Vec<Splat>, params: &BvhParams) -> Bvh {
-        assert!(params.bins >= 2 && params.max_leaf_size >= 1 && params.max_leaf_size <= u16::MAX as usize);
+        assert!(params.bins >= 2 && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
+        assert!(splats.len() <= MAX_SPLATS, "a BVH indexes at most {MAX_SPLATS} splats");
         let mut prims: Vec<Prim> = splats
             .iter()
             .enumerate()
@@ -86,11 +89,15 @@ impl Bvh {
         let mut nodes = Vec::with_capacity(splats.len() / params.max_leaf_size.max(2) * 2 + 1);
         let depth = match root {
             BuildNode::Inner { children, .. } => flatten(*children, &mut nodes),
-            leaf @ BuildNode::Leaf { .. } => {
-                // A single leaf still gets a root node, with an empty second child, so that
-                // traversal has one shape.
-                let empty = BuildNode::Leaf { bounds: Aabb::EMPTY, first: 0, count: 0 };
-                flatten([leaf, empty], &mut nodes)
+            BuildNode::Leaf { count: 0, .. } => 0, // no splats: no nodes
+            BuildNode::Leaf { first, count, .. } => {
+                // A single leaf still gets a root node, so that traversal has one shape. Its
+                // second child has empty bounds, which no ray enters; it repeats the leaf
+                // reference so that even entering it would be harmless.
+                let mut node = Node::new([bounds, Aabb::EMPTY]);
+                node.child = [leaf_ref(first, count); 2];
+                nodes.push(node);
+                1
             }
         };
         Bvh { nodes, splats, bounds, input_index, depth }
@@ -100,24 +107,11 @@ impl Bvh {
 /// Writes `children`'s node and, depth first, their subtrees; returns the subtree's depth.
 fn flatten(children: [BuildNode; 2], nodes: &mut Vec<Node>) -> usize {
     let at = nodes.len();
-    let b = [children[0].bounds(), children[1].bounds()];
-    nodes.push(Node {
-        min_x: [b[0].min.x, b[1].min.x],
-        min_y: [b[0].min.y, b[1].min.y],
-        min_z: [b[0].min.z, b[1].min.z],
-        max_x: [b[0].max.x, b[1].max.x],
-        max_y: [b[0].max.y, b[1].max.y],
-        max_z: [b[0].max.z, b[1].max.z],
-        child: [0; 2],
-        count: [0; 2],
-    });
+    nodes.push(Node::new([children[0].bounds(), children[1].bounds()]));
     let mut depth = 1;
     for (i, c) in children.into_iter().enumerate() {
         match c {
-            BuildNode::Leaf { first, count, .. } => {
-                nodes[at].child[i] = LEAF | first as u32;
-                nodes[at].count[i] = count as u16;
-            }
+            BuildNode::Leaf { first, count, .. } => nodes[at].child[i] = leaf_ref(first, count),
             BuildNode::Inner { children, .. } => {
                 nodes[at].child[i] = nodes.len() as u32;
                 depth = depth.max(1 + flatten(*children, nodes));

@@ -12,40 +12,57 @@ mod traverse;
 
 pub use build::BvhParams;
 
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 
 use crate::math::Aabb;
 use crate::splat::Splat;
 
-/// Marks a child reference as a leaf: the low bits are then the first splat's index.
+/// A child reference is a node index, or for a leaf `LEAF | (count − 1) << FIRST_BITS | first`:
+/// one word on the traversal stack says everything about a child.
 const LEAF: u32 = 1 << 31;
+const FIRST_BITS: u32 = 27;
+/// Most splats a leaf can hold (its count takes the 4 bits between `LEAF` and the index).
+pub(crate) const MAX_LEAF_SIZE: usize = 16;
+/// Most splats a BVH can index (2²⁷ ≈ 134 million).
+pub const MAX_SPLATS: usize = 1 << FIRST_BITS;
+
+fn leaf_ref(first: usize, count: usize) -> u32 {
+    debug_assert!((1..=MAX_LEAF_SIZE).contains(&count) && first < MAX_SPLATS);
+    LEAF | ((count - 1) as u32) << FIRST_BITS | first as u32
+}
+
+/// The splat range of a leaf reference.
+#[inline(always)]
+fn leaf_range(child: u32) -> std::ops::Range<usize> {
+    let first = (child & ((1 << FIRST_BITS) - 1)) as usize;
+    let count = ((child & !LEAF) >> FIRST_BITS) as usize + 1;
+    first..first + count
+}
 
 /// The deepest a build may go: traversal stacks are sized from it.
 pub(crate) const MAX_DEPTH: usize = 96;
 
-/// An inner node: the bounds of its two children (structure of arrays, child 0 and 1 side by
-/// side) and how to reach them.
+/// An inner node: the bounds of its two children and how to reach them.
+///
+/// Per axis one `Vec4` holds `[lo₀, lo₁, hi₀, hi₁]` (child 0 and 1), so that one SSE
+/// subtract and multiply per axis give the slab distances of both children at once.
 #[repr(C, align(64))]
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Node {
-    pub(crate) min_x: [f32; 2],
-    pub(crate) min_y: [f32; 2],
-    pub(crate) min_z: [f32; 2],
-    pub(crate) max_x: [f32; 2],
-    pub(crate) max_y: [f32; 2],
-    pub(crate) max_z: [f32; 2],
-    /// Inner child: its node index. Leaf child: `LEAF | first splat`.
+    pub(crate) bounds: [Vec4; 3],
+    /// Inner child: its node index. Leaf child: see [`leaf_ref`].
     pub(crate) child: [u32; 2],
-    /// Splats in a leaf child (0 for an inner child).
-    pub(crate) count: [u16; 2],
 }
 
 impl Node {
+    pub(crate) fn new(b: [Aabb; 2]) -> Self {
+        let axis = |k: usize| Vec4::new(b[0].min[k], b[1].min[k], b[0].max[k], b[1].max[k]);
+        Self { bounds: [axis(0), axis(1), axis(2)], child: [0; 2] }
+    }
+
     pub(crate) fn child_bounds(&self, i: usize) -> Aabb {
-        Aabb::new(
-            Vec3::new(self.min_x[i], self.min_y[i], self.min_z[i]),
-            Vec3::new(self.max_x[i], self.max_y[i], self.max_z[i]),
-        )
+        let [x, y, z] = self.bounds;
+        Aabb::new(Vec3::new(x[i], y[i], z[i]), Vec3::new(x[i + 2], y[i + 2], z[i + 2]))
     }
 }
 
@@ -105,8 +122,7 @@ pub fn check_invariants(bvh: &Bvh) -> Result<(), String> {
         for i in 0..2 {
             let boxed = n.child_bounds(i);
             let below = if n.child[i] & LEAF != 0 {
-                let first = (n.child[i] & !LEAF) as usize;
-                let range = first..first + n.count[i] as usize;
+                let range = if boxed.is_empty() { 0..0 } else { leaf_range(n.child[i]) };
                 let mut b = Vec::new();
                 for j in range {
                     let flag = seen.get_mut(j).ok_or(format!("leaf of node {node} points past the splats"))?;
@@ -127,7 +143,7 @@ pub fn check_invariants(bvh: &Bvh) -> Result<(), String> {
         Ok(all)
     }
     if bvh.nodes.is_empty() {
-        return Err("no root node".into());
+        return if bvh.splats.is_empty() { Ok(()) } else { Err("splats but no root node".into()) };
     }
     let mut seen = vec![false; bvh.splats.len()];
     walk(bvh, 0, &mut seen)?;
