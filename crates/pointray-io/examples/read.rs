@@ -7,11 +7,7 @@ use std::path::Path;
 use std::time::Instant;
 
 fn main() {
-    let repeat: usize = std::env::var("REPEAT")
-        .ok()
-        .and_then(|r| r.parse().ok())
-        .unwrap_or(5)
-        .max(1);
+    let repeat: usize = std::env::var("REPEAT").ok().and_then(|r| r.parse().ok()).unwrap_or(5).max(1);
     for argument in std::env::args().skip(1) {
         let path = Path::new(&argument);
         let mut fastest = f64::INFINITY;

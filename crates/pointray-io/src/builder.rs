@@ -65,11 +65,7 @@ impl CloudBuilder {
         } else {
             let origin = finite_bounds_centre(&self.world);
             let positions = self.world.iter().map(|p| (*p - origin).as_vec3()).collect();
-            PointCloud {
-                positions,
-                origin,
-                ..PointCloud::default()
-            }
+            PointCloud { positions, origin, ..PointCloud::default() }
         };
         cloud.normals = self.normals;
         cloud.radii = self.radii;
@@ -83,10 +79,8 @@ fn finite_bounds_centre(world: &[DVec3]) -> DVec3 {
     if finite.peek().is_none() {
         return DVec3::ZERO;
     }
-    let (lo, hi) = finite.fold(
-        (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-    );
+    let (lo, hi) = finite
+        .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
     (lo + hi) * 0.5
 }
 
@@ -104,10 +98,7 @@ mod tests {
             DVec3::new(5.0, 5.0, f64::NAN),
         ];
         for position in points {
-            builder.push(&PointRecord {
-                position,
-                ..Default::default()
-            });
+            builder.push(&PointRecord { position, ..Default::default() });
         }
         let cloud = builder.finish();
         assert_eq!(cloud.origin, DVec3::new(1001.0, 1.0, 0.0));

@@ -15,19 +15,11 @@ pub enum IoError {
 
     /// A text file (PLY header, ascii PLY body, XYZ) is malformed at this line.
     #[error("{}: line {line}: {message}", .path.display())]
-    AtLine {
-        path: PathBuf,
-        line: usize,
-        message: String,
-    },
+    AtLine { path: PathBuf, line: usize, message: String },
 
     /// A binary PLY body is malformed or truncated at this byte offset.
     #[error("{}: byte {offset}: {message}", .path.display())]
-    AtByte {
-        path: PathBuf,
-        offset: u64,
-        message: String,
-    },
+    AtByte { path: PathBuf, offset: u64, message: String },
 
     /// A problem that has no single location: unrecognised format, missing vertex element,
     /// inconsistent data handed to a writer.
@@ -47,32 +39,18 @@ impl IoError {
     }
 
     pub(crate) fn io(path: &Path, io: std::io::Error) -> Self {
-        IoError::Io {
-            path: path.to_path_buf(),
-            io,
-        }
+        IoError::Io { path: path.to_path_buf(), io }
     }
 
     pub(crate) fn at_line(path: &Path, line: usize, message: impl Into<String>) -> Self {
-        IoError::AtLine {
-            path: path.to_path_buf(),
-            line,
-            message: message.into(),
-        }
+        IoError::AtLine { path: path.to_path_buf(), line, message: message.into() }
     }
 
     pub(crate) fn at_byte(path: &Path, offset: usize, message: impl Into<String>) -> Self {
-        IoError::AtByte {
-            path: path.to_path_buf(),
-            offset: offset as u64,
-            message: message.into(),
-        }
+        IoError::AtByte { path: path.to_path_buf(), offset: offset as u64, message: message.into() }
     }
 
     pub(crate) fn invalid(path: &Path, message: impl Into<String>) -> Self {
-        IoError::Invalid {
-            path: path.to_path_buf(),
-            message: message.into(),
-        }
+        IoError::Invalid { path: path.to_path_buf(), message: message.into() }
     }
 }

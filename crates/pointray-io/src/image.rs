@@ -11,10 +11,7 @@ pub fn write_png(path: &Path, width: u32, height: u32, rgb8: &[u8]) -> Result<()
     if width == 0 || height == 0 || rgb8.len() as u64 != expected {
         return Err(IoError::invalid(
             path,
-            format!(
-                "cannot write a {width}x{height} RGB image from {} bytes (need {expected})",
-                rgb8.len()
-            ),
+            format!("cannot write a {width}x{height} RGB image from {} bytes (need {expected})", rgb8.len()),
         ));
     }
     atomic_write(path, |out| {

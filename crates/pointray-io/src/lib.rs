@@ -55,46 +55,27 @@ pub fn read_cloud(path: &Path) -> Result<LoadedCloud, IoError> {
     if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
         return ply::parse(path, &bytes);
     }
-    let extension = path
-        .extension()
-        .and_then(|e| e.to_str())
-        .map(str::to_ascii_lowercase);
+    let extension = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
     if extension.as_deref() == Some("ply") {
-        return Err(IoError::invalid(
-            path,
-            "not a PLY file: it does not start with the line 'ply'",
-        ));
+        return Err(IoError::invalid(path, "not a PLY file: it does not start with the line 'ply'"));
     }
-    if extension
-        .as_deref()
-        .is_some_and(|e| XYZ_EXTENSIONS.contains(&e))
-        || xyz::looks_like_xyz(&bytes)
-    {
+    if extension.as_deref().is_some_and(|e| XYZ_EXTENSIONS.contains(&e)) || xyz::looks_like_xyz(&bytes) {
         return xyz::parse(path, &bytes);
     }
-    Err(IoError::invalid(
-        path,
-        "unrecognised format: neither PLY (no 'ply' first line) nor XYZ text",
-    ))
+    Err(IoError::invalid(path, "unrecognised format: neither PLY (no 'ply' first line) nor XYZ text"))
 }
 
 /// Writes `path` all or nothing: the closure writes (buffered) into a temporary file in the
 /// same directory, which replaces `path` only after the closure succeeded and the data is
 /// flushed and synced. On any failure the temporary file is removed and `path` is untouched,
 /// so a crash or a full disk never leaves a half-written image or cloud behind.
-pub fn atomic_write(
-    path: &Path,
-    write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>,
-) -> Result<(), IoError> {
+pub fn atomic_write(path: &Path, write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<(), IoError> {
     let io_error = |e: std::io::Error| IoError::io(path, e);
     let directory = match path.parent() {
         Some(parent) if !parent.as_os_str().is_empty() => parent,
         _ => Path::new("."),
     };
-    let file_name = path
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
+    let file_name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     let prefix = format!(".{file_name}.");
     let mut builder = tempfile::Builder::new();
     builder.prefix(&prefix).suffix(".tmp");

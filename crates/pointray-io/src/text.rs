@@ -12,11 +12,7 @@ pub(crate) struct Lines<'a> {
 
 impl<'a> Lines<'a> {
     pub(crate) fn new(bytes: &'a [u8], first_line: usize) -> Self {
-        Self {
-            rest: bytes,
-            next_line: first_line,
-            offset: 0,
-        }
+        Self { rest: bytes, next_line: first_line, offset: 0 }
     }
 
     /// Number the next line returned will have (or would have, at the end).
@@ -72,15 +68,7 @@ mod tests {
     #[test]
     fn splits_lf_and_crlf_and_unterminated_last_line() {
         let lines: Vec<_> = Lines::new(b"a\r\nb\n\nc", 1).collect();
-        assert_eq!(
-            lines,
-            vec![
-                (1, &b"a"[..]),
-                (2, &b"b"[..]),
-                (3, &b""[..]),
-                (4, &b"c"[..])
-            ]
-        );
+        assert_eq!(lines, vec![(1, &b"a"[..]), (2, &b"b"[..]), (3, &b""[..]), (4, &b"c"[..])]);
     }
 
     #[test]

@@ -71,9 +71,7 @@ impl Columns {
             6 if looks_like_rgb(&tokens[3..]) => Ok(Self::PositionColor),
             6 => Ok(Self::PositionNormal),
             9 => Ok(Self::PositionNormalColor),
-            n => Err(format!(
-                "expected 3, 6 or 9 values (x y z [nx ny nz] [r g b]), found {n}"
-            )),
+            n => Err(format!("expected 3, 6 or 9 values (x y z [nx ny nz] [r g b]), found {n}")),
         }
     }
 }
@@ -87,9 +85,7 @@ fn looks_like_rgb(tokens: &[&str]) -> bool {
 }
 
 fn split_values(text: &str) -> Vec<&str> {
-    text.split(|c: char| c == ',' || c.is_ascii_whitespace())
-        .filter(|t| !t.is_empty())
-        .collect()
+    text.split(|c: char| c == ',' || c.is_ascii_whitespace()).filter(|t| !t.is_empty()).collect()
 }
 
 /// The data part of a line (before any `#`), or `None` for blank and comment-only lines.
@@ -143,17 +139,12 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
             Some(layout) => layout,
             None => {
                 let layout = Columns::from_first_line(&values).map_err(error)?;
-                builder =
-                    CloudBuilder::new(bytes.len() / (layout.count() * 6), layout.attributes());
+                builder = CloudBuilder::new(bytes.len() / (layout.count() * 6), layout.attributes());
                 *columns.insert(layout)
             }
         };
         if values.len() != layout.count() {
-            return Err(error(format!(
-                "expected {} values, found {}",
-                layout.count(),
-                values.len()
-            )));
+            return Err(error(format!("expected {} values, found {}", layout.count(), values.len())));
         }
         let record = parse_point(&values, layout).map_err(error)?;
         max_color = record.color.iter().fold(max_color, |m, &c| m.max(c));
@@ -165,13 +156,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     if let Some(colors) = &mut cloud.colors {
         let divisor = if max_color > 1.0 { 255.0 } else { 1.0 };
         for color in colors.iter_mut() {
-            *color = color.map(|c| {
-                if c.is_nan() {
-                    0.0
-                } else {
-                    (c / divisor).clamp(0.0, 1.0)
-                }
-            });
+            *color = color.map(|c| if c.is_nan() { 0.0 } else { (c / divisor).clamp(0.0, 1.0) });
         }
     }
     let info = FileInfo {
@@ -189,19 +174,12 @@ fn parse_point(values: &[&str], layout: Columns) -> Result<PointRecord, String> 
     let mut numbers = [0.0f64; 9];
     for (column, (slot, token)) in numbers.iter_mut().zip(values).enumerate() {
         *slot = token.parse::<f64>().map_err(|_| {
-            format!(
-                "bad value '{}' in column {}",
-                token.chars().take(40).collect::<String>(),
-                column + 1
-            )
+            format!("bad value '{}' in column {}", token.chars().take(40).collect::<String>(), column + 1)
         })?;
     }
     let triple = |start: usize| [numbers[start], numbers[start + 1], numbers[start + 2]];
     let as_vec3 = |[x, y, z]: [f64; 3]| Vec3::new(x as f32, y as f32, z as f32);
-    let mut record = PointRecord {
-        position: DVec3::from_array(triple(0)),
-        ..PointRecord::default()
-    };
+    let mut record = PointRecord { position: DVec3::from_array(triple(0)), ..PointRecord::default() };
     match layout {
         Columns::Position => {}
         Columns::PositionNormal => record.normal = as_vec3(triple(3)),
@@ -220,22 +198,10 @@ mod tests {
 
     #[test]
     fn six_columns_are_colour_only_for_byte_triples_that_are_not_unit_vectors() {
-        assert_eq!(
-            Columns::from_first_line(&["0", "0", "0", "255", "128", "0"]),
-            Ok(Columns::PositionColor)
-        );
-        assert_eq!(
-            Columns::from_first_line(&["0", "0", "0", "0", "0", "1"]),
-            Ok(Columns::PositionNormal)
-        );
-        assert_eq!(
-            Columns::from_first_line(&["0", "0", "0", "0.5", "0.5", "0.7"]),
-            Ok(Columns::PositionNormal)
-        );
-        assert_eq!(
-            Columns::from_first_line(&["0", "0", "0", "256", "0", "0"]),
-            Ok(Columns::PositionNormal)
-        );
+        assert_eq!(Columns::from_first_line(&["0", "0", "0", "255", "128", "0"]), Ok(Columns::PositionColor));
+        assert_eq!(Columns::from_first_line(&["0", "0", "0", "0", "0", "1"]), Ok(Columns::PositionNormal));
+        assert_eq!(Columns::from_first_line(&["0", "0", "0", "0.5", "0.5", "0.7"]), Ok(Columns::PositionNormal));
+        assert_eq!(Columns::from_first_line(&["0", "0", "0", "256", "0", "0"]), Ok(Columns::PositionNormal));
         assert!(Columns::from_first_line(&["0", "0", "0", "1"]).is_err());
     }
 

@@ -76,7 +76,15 @@ impl Camera {
     /// The convention of `shared/bench/embree`: the camera sits `distance × diagonal` from the
     /// centre of `bounds` along `view_dir`, looking at the centre. At distance 1 with a 60°
     /// field of view the bounding sphere just fills the frame.
-    pub fn orbit(bounds: &Aabb, view_dir: Vec3, up: Vec3, distance: f32, vfov_deg: f32, width: u32, height: u32) -> Self {
+    pub fn orbit(
+        bounds: &Aabb,
+        view_dir: Vec3,
+        up: Vec3,
+        distance: f32,
+        vfov_deg: f32,
+        width: u32,
+        height: u32,
+    ) -> Self {
         let center = bounds.center();
         let eye = center + view_dir.normalize() * distance * bounds.diagonal();
         Self::look_at(eye, center, up, vfov_deg, width, height)

@@ -26,10 +26,7 @@ pub struct PointCloud {
 impl PointCloud {
     /// A cloud of bare positions, already local (origin zero).
     pub fn from_positions(positions: Vec<Vec3>) -> Self {
-        Self {
-            positions,
-            ..Self::default()
-        }
+        Self { positions, ..Self::default() }
     }
 
     /// Builds a cloud from world coordinates in `f64`: recentres them on their bounding-box
@@ -38,18 +35,14 @@ impl PointCloud {
         let origin = if world.is_empty() {
             DVec3::ZERO
         } else {
-            let (lo, hi) = world.iter().fold(
-                (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)),
-                |(lo, hi), p| (lo.min(*p), hi.max(*p)),
-            );
+            let (lo, hi) =
+                world.iter().fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), p| {
+                    (lo.min(*p), hi.max(*p))
+                });
             (lo + hi) * 0.5
         };
         let positions = world.iter().map(|p| (*p - origin).as_vec3()).collect();
-        Self {
-            positions,
-            origin,
-            ..Self::default()
-        }
+        Self { positions, origin, ..Self::default() }
     }
 
     pub fn len(&self) -> usize {

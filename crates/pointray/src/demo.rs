@@ -31,7 +31,11 @@ pub fn demo_cloud(points: usize, seed: u64) -> PointCloud {
         for _ in 0..n {
             let (p, c) = match surface {
                 0 => {
-                    let p = Vec3::new(rng.random_range(-floor_half..floor_half), 0.0, rng.random_range(-floor_half..floor_half));
+                    let p = Vec3::new(
+                        rng.random_range(-floor_half..floor_half),
+                        0.0,
+                        rng.random_range(-floor_half..floor_half),
+                    );
                     let check = ((p.x * 2.5).floor() as i32 + (p.z * 2.5).floor() as i32).rem_euclid(2) == 0;
                     (p, if check { [0.85, 0.85, 0.82] } else { [0.35, 0.37, 0.42] })
                 }

@@ -32,7 +32,8 @@ impl Film {
         let mut out = Vec::with_capacity(width as usize * height as usize * 3);
         for y in 0..height {
             for x in 0..width {
-                let inside = (self.region.x0..self.region.x1).contains(&x) && (self.region.y0..self.region.y1).contains(&y);
+                let inside =
+                    (self.region.x0..self.region.x1).contains(&x) && (self.region.y0..self.region.y1).contains(&y);
                 out.extend_from_slice(&if inside { encode(self.rgb[self.index(x, y)]) } else { bg });
             }
         }

@@ -48,12 +48,9 @@ impl PointIndex {
     /// Builds the index; positions must be finite.
     pub fn new(points: &[Vec3]) -> Self {
         let coords: Vec<[f32; 3]> = points.iter().map(|p| p.to_array()).collect();
-        let tree = ImmutableKdTree::new_from_slice(&coords)
-            .expect("a kd-tree over fewer than 2³² points always builds");
-        Self {
-            tree,
-            len: points.len(),
-        }
+        let tree =
+            ImmutableKdTree::new_from_slice(&coords).expect("a kd-tree over fewer than 2³² points always builds");
+        Self { tree, len: points.len() }
     }
 
     /// The `count` points nearest to `q` as (index, squared distance), nearest first.
@@ -94,32 +91,20 @@ pub fn k_nearest(points: &[Vec3], k: usize) -> Neighbourhoods {
     let n = points.len();
     let k = k.min(n.saturating_sub(1));
     if k == 0 {
-        return Neighbourhoods {
-            k,
-            ..Neighbourhoods::default()
-        };
+        return Neighbourhoods { k, ..Neighbourhoods::default() };
     }
     let index = PointIndex::new(points);
     let mut indices = vec![0u32; n * k];
     let mut sq_dists = vec![0f32; n * k];
-    indices
-        .par_chunks_mut(k)
-        .zip(sq_dists.par_chunks_mut(k))
-        .enumerate()
-        .for_each(|(i, (row, row_dists))| {
-            let found = index.nearest(points[i], k + 1);
-            let others = found.into_iter().filter(|&(j, _)| j as usize != i).take(k);
-            for ((slot, slot_dist), (j, d)) in row.iter_mut().zip(row_dists.iter_mut()).zip(others)
-            {
-                *slot = j;
-                *slot_dist = d;
-            }
-        });
-    Neighbourhoods {
-        k,
-        indices,
-        sq_dists,
-    }
+    indices.par_chunks_mut(k).zip(sq_dists.par_chunks_mut(k)).enumerate().for_each(|(i, (row, row_dists))| {
+        let found = index.nearest(points[i], k + 1);
+        let others = found.into_iter().filter(|&(j, _)| j as usize != i).take(k);
+        for ((slot, slot_dist), (j, d)) in row.iter_mut().zip(row_dists.iter_mut()).zip(others) {
+            *slot = j;
+            *slot_dist = d;
+        }
+    });
+    Neighbourhoods { k, indices, sq_dists }
 }
 
 #[cfg(test)]
@@ -130,9 +115,7 @@ mod tests {
 
     fn random_points(n: usize, seed: u64) -> Vec<Vec3> {
         let mut rng = Pcg64Mcg::seed_from_u64(seed);
-        (0..n)
-            .map(|_| Vec3::new(rng.random(), rng.random(), rng.random()))
-            .collect()
+        (0..n).map(|_| Vec3::new(rng.random(), rng.random(), rng.random())).collect()
     }
 
     #[test]
@@ -155,10 +138,7 @@ mod tests {
                 assert_ne!(j as usize, i);
                 assert!((d - p.distance_squared(points[j as usize])).abs() <= 1e-6);
                 // Same set modulo ties at the k-th distance.
-                assert!(
-                    d <= kth,
-                    "point {i}: neighbour {j} at {d} beyond k-th {kth}"
-                );
+                assert!(d <= kth, "point {i}: neighbour {j} at {d} beyond k-th {kth}");
             }
             let mut set = nbrs.of(i).to_vec();
             set.sort_unstable();

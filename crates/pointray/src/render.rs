@@ -39,7 +39,12 @@ const TILE: u32 = 16;
 
 /// Renders `config.region` of the frame (the film covers just that region). `progress` is told how many pixels each finished
 /// tile held.
-pub fn render<A: Accel>(accel: &A, camera: &Camera, config: &RenderConfig, progress: &(dyn Fn(u64) + Sync)) -> (Film, RenderStats) {
+pub fn render<A: Accel>(
+    accel: &A,
+    camera: &Camera,
+    config: &RenderConfig,
+    progress: &(dyn Fn(u64) + Sync),
+) -> (Film, RenderStats) {
     let region = config.region.clamp_to(camera.width, camera.height);
     let mut film = Film::new(region);
     let tiles_x = region.width().div_ceil(TILE);
@@ -82,7 +87,14 @@ pub fn render<A: Accel>(accel: &A, camera: &Camera, config: &RenderConfig, progr
     (film, total)
 }
 
-fn render_pixel<A: Accel>(accel: &A, camera: &Camera, config: &RenderConfig, x: u32, y: u32, stats: &mut RenderStats) -> ([f32; 3], u32) {
+fn render_pixel<A: Accel>(
+    accel: &A,
+    camera: &Camera,
+    config: &RenderConfig,
+    x: u32,
+    y: u32,
+    stats: &mut RenderStats,
+) -> ([f32; 3], u32) {
     let nodes_before = stats.traversal.nodes_visited;
     let mut sum = Vec3::ZERO;
     let samples = config.samples.max(1);
@@ -138,7 +150,8 @@ fn in_shadow<A: Accel>(
     let offset = config.shadow_offset * hit.radius;
     let origin = hit.position + hit.normal * offset;
     let footprint = primary.cone.width_at(hit.t);
-    let ray = Ray::new(origin, to_light, crate::math::RayCone { width0: footprint, spread: 0.0 }).with_t_min(hit.radius);
+    let ray =
+        Ray::new(origin, to_light, crate::math::RayCone { width0: footprint, spread: 0.0 }).with_t_min(hit.radius);
     let mut ts = TraversalStats::default();
     let blocked = scheme::occluded(accel, &ray, light_dist, &mut ts);
     stats.traversal += ts;

@@ -23,7 +23,12 @@ pub fn preprocess_config(a: &PreprocessArgs) -> anyhow::Result<PreprocessConfig>
     anyhow::ensure!(a.k_normals >= 3, "--k-normals must be at least 3 (a plane needs 3 points)");
     anyhow::ensure!(a.k_radius >= 1, "--k-radius must be at least 1");
     anyhow::ensure!(a.radius_scale > 0.0 && a.radius_scale.is_finite(), "--radius-scale must be positive");
-    Ok(PreprocessConfig { k_normals: a.k_normals, k_radius: a.k_radius, radius_scale: a.radius_scale, ..PreprocessConfig::standard() })
+    Ok(PreprocessConfig {
+        k_normals: a.k_normals,
+        k_radius: a.k_radius,
+        radius_scale: a.radius_scale,
+        ..PreprocessConfig::standard()
+    })
 }
 
 /// Fills in what the cloud lacks; with `recompute`, replaces what it has.

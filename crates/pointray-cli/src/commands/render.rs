@@ -156,7 +156,13 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     } else {
         a.region.map_or(Region::full(a.width, a.height), |r| r.clamp_to(a.width, a.height))
     };
-    anyhow::ensure!(region.pixel_count() > 0, "--region {:?} lies outside the {}x{} frame", a.region, a.width, a.height);
+    anyhow::ensure!(
+        region.pixel_count() > 0,
+        "--region {:?} lies outside the {}x{} frame",
+        a.region,
+        a.width,
+        a.height
+    );
     let scheme = SurfaceScheme {
         window: a.sj_window,
         ..SurfaceScheme::of_kind(match a.surface {
@@ -194,7 +200,12 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         n => (times[n / 2], times[0]),
     };
 
-    pointray_io::image::write_png(&a.output, a.width, a.height, &film.frame_srgb8(a.width, a.height, config.background))?;
+    pointray_io::image::write_png(
+        &a.output,
+        a.width,
+        a.height,
+        &film.frame_srgb8(a.width, a.height, config.background),
+    )?;
     let mrays = stats.rays as f64 / render_seconds / 1e6;
     if !quiet {
         eprintln!(
@@ -224,7 +235,11 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
             samples_per_pixel: a.spp,
             load_seconds,
             preprocess_seconds: PreprocessSeconds {
-                total: pre.sort_seconds + pre.knn_seconds + pre.normals_seconds + pre.orient_seconds + pre.radii_seconds,
+                total: pre.sort_seconds
+                    + pre.knn_seconds
+                    + pre.normals_seconds
+                    + pre.orient_seconds
+                    + pre.radii_seconds,
                 sort: pre.sort_seconds,
                 knn: pre.knn_seconds,
                 normals: pre.normals_seconds,
@@ -262,4 +277,3 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     }
     Ok(())
 }
-

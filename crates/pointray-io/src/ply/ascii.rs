@@ -26,17 +26,13 @@ pub(crate) fn read_vertices(
             next_record(path, lines, element, index)?;
         }
     }
-    let vertex = elements
-        .get(vertex_index)
-        .ok_or_else(|| IoError::invalid(path, "no 'vertex' element"))?;
+    let vertex = elements.get(vertex_index).ok_or_else(|| IoError::invalid(path, "no 'vertex' element"))?;
     ensure_room(path, lines, vertex)?;
     let mut values = vec![0.0; vertex.properties.len()];
     let mut builder = CloudBuilder::new(vertex.count, layout.attributes());
     for index in 0..vertex.count {
         let (line_number, line) = next_record(path, lines, vertex, index)?;
-        let error = |message: String| {
-            IoError::at_line(path, line_number, format!("vertex {index}: {message}"))
-        };
+        let error = |message: String| IoError::at_line(path, line_number, format!("vertex {index}: {message}"));
         let text = as_text(line).ok_or_else(|| error("line is not text".into()))?;
         parse_record(text, vertex, &mut values).map_err(error)?;
         builder.push(&layout.record(&values));
@@ -54,10 +50,7 @@ fn ensure_room(path: &Path, lines: &Lines<'_>, element: &Element) -> Result<(), 
     Err(IoError::at_line(
         path,
         lines.next_line_number(),
-        format!(
-            "element '{}' declares {} records, but only {remaining} bytes remain",
-            element.name, element.count
-        ),
+        format!("element '{}' declares {} records, but only {remaining} bytes remain", element.name, element.count),
     ))
 }
 
@@ -71,10 +64,7 @@ fn next_record<'a>(
         IoError::at_line(
             path,
             lines.next_line_number().saturating_sub(1).max(1),
-            format!(
-                "file ends inside {} {index} of {}",
-                element.name, element.count
-            ),
+            format!("file ends inside {} {index} of {}", element.name, element.count),
         )
     })
 }
@@ -88,42 +78,27 @@ fn parse_record(text: &str, element: &Element, values: &mut [f64]) -> Result<(),
         if has_lists {
             format!("line ends inside property '{property}'")
         } else {
-            format!(
-                "expected {} values, found {found}",
-                element.properties.len()
-            )
+            format!("expected {} values, found {found}", element.properties.len())
         }
     };
     for (index, property) in element.properties.iter().enumerate() {
-        let token = tokens
-            .next()
-            .ok_or_else(|| ends_early(&property.name, found))?;
+        let token = tokens.next().ok_or_else(|| ends_early(&property.name, found))?;
         found += 1;
         match property.kind {
             PropertyKind::Scalar(_) => {
-                let value = token.parse::<f64>().map_err(|_| {
-                    format!(
-                        "bad value '{}' for property '{}'",
-                        clip(token),
-                        property.name
-                    )
-                })?;
+                let value = token
+                    .parse::<f64>()
+                    .map_err(|_| format!("bad value '{}' for property '{}'", clip(token), property.name))?;
                 if let Some(slot) = values.get_mut(index) {
                     *slot = value;
                 }
             }
             PropertyKind::List { .. } => {
-                let length = token.parse::<u64>().map_err(|_| {
-                    format!(
-                        "bad list length '{}' for property '{}'",
-                        clip(token),
-                        property.name
-                    )
-                })?;
+                let length = token
+                    .parse::<u64>()
+                    .map_err(|_| format!("bad list length '{}' for property '{}'", clip(token), property.name))?;
                 for _ in 0..length {
-                    tokens
-                        .next()
-                        .ok_or_else(|| ends_early(&property.name, found))?;
+                    tokens.next().ok_or_else(|| ends_early(&property.name, found))?;
                     found += 1;
                 }
             }
@@ -134,11 +109,7 @@ fn parse_record(text: &str, element: &Element, values: &mut [f64]) -> Result<(),
         return Err(if has_lists {
             format!("{extra} values after the last property")
         } else {
-            format!(
-                "expected {} values, found {}",
-                element.properties.len(),
-                found + extra
-            )
+            format!("expected {} values, found {}", element.properties.len(), found + extra)
         });
     }
     Ok(())

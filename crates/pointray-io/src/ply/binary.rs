@@ -58,9 +58,7 @@ impl Body<'_> {
         for element in elements.iter().take(vertex_index) {
             pos = self.skip_element(element, pos)?;
         }
-        let vertex = elements
-            .get(vertex_index)
-            .ok_or_else(|| IoError::invalid(self.path, "no 'vertex' element"))?;
+        let vertex = elements.get(vertex_index).ok_or_else(|| IoError::invalid(self.path, "no 'vertex' element"))?;
         self.ensure_room(vertex, pos)?;
         match vertex.fixed_size() {
             Some(size) => self.read_fixed_vertices(vertex, pos, size, layout),
@@ -72,12 +70,7 @@ impl Body<'_> {
     fn ensure_room(&self, element: &Element, pos: usize) -> Result<(), IoError> {
         let remaining = self.bytes.len().saturating_sub(pos);
         let min_size = element.min_size();
-        if min_size == 0
-            || element
-                .count
-                .checked_mul(min_size)
-                .is_some_and(|n| n <= remaining)
-        {
+        if min_size == 0 || element.count.checked_mul(min_size).is_some_and(|n| n <= remaining) {
             return Ok(());
         }
         if element.fixed_size().is_some() {
@@ -98,10 +91,7 @@ impl Body<'_> {
         IoError::at_byte(
             self.path,
             self.bytes.len(),
-            format!(
-                "file ends inside {} {index} of {}",
-                element.name, element.count
-            ),
+            format!("file ends inside {} {index} of {}", element.name, element.count),
         )
     }
 
@@ -131,27 +121,21 @@ impl Body<'_> {
             let start = pos;
             match property.kind {
                 PropertyKind::Scalar(scalar) => {
-                    let value = decode(self.bytes, pos, scalar, self.order)
-                        .ok_or_else(|| self.truncated(element, index))?;
-                    if let Some(slot) = values
-                        .as_deref_mut()
-                        .and_then(|v| v.get_mut(property_index))
-                    {
+                    let value =
+                        decode(self.bytes, pos, scalar, self.order).ok_or_else(|| self.truncated(element, index))?;
+                    if let Some(slot) = values.as_deref_mut().and_then(|v| v.get_mut(property_index)) {
                         *slot = value;
                     }
                     pos += scalar.size();
                 }
                 PropertyKind::List { count, item } => {
-                    let length = decode(self.bytes, pos, count, self.order)
-                        .ok_or_else(|| self.truncated(element, index))?;
+                    let length =
+                        decode(self.bytes, pos, count, self.order).ok_or_else(|| self.truncated(element, index))?;
                     if length < 0.0 {
                         return Err(IoError::at_byte(
                             self.path,
                             start,
-                            format!(
-                                "{} {index}: negative length {length} for list '{}'",
-                                element.name, property.name
-                            ),
+                            format!("{} {index}: negative length {length} for list '{}'", element.name, property.name),
                         ));
                     }
                     // Integer count types hold at most u32::MAX, exact in f64 and usize.
@@ -218,10 +202,7 @@ fn field_offsets(element: &Element, fields: &[Field]) -> Vec<(Field, usize)> {
             offset += scalar.size();
         }
     }
-    fields
-        .iter()
-        .filter_map(|&field| Some((field, *offsets.get(field.index)?)))
-        .collect()
+    fields.iter().filter_map(|&field| Some((field, *offsets.get(field.index)?))).collect()
 }
 
 #[cfg(test)]
@@ -231,16 +212,10 @@ mod tests {
     #[test]
     fn decodes_both_byte_orders_and_refuses_to_run_past_the_end() {
         let bytes = [0x01, 0x02, 0x03, 0x04];
-        assert_eq!(
-            decode(&bytes, 0, Scalar::U16, ByteOrder::Little),
-            Some(513.0)
-        );
+        assert_eq!(decode(&bytes, 0, Scalar::U16, ByteOrder::Little), Some(513.0));
         assert_eq!(decode(&bytes, 0, Scalar::U16, ByteOrder::Big), Some(258.0));
         assert_eq!(decode(&bytes, 3, Scalar::I8, ByteOrder::Big), Some(4.0));
         assert_eq!(decode(&bytes, 1, Scalar::F32, ByteOrder::Little), None);
-        assert_eq!(
-            decode(&bytes, usize::MAX, Scalar::F64, ByteOrder::Little),
-            None
-        );
+        assert_eq!(decode(&bytes, usize::MAX, Scalar::F64, ByteOrder::Little), None);
     }
 }

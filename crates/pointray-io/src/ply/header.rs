@@ -157,10 +157,7 @@ pub(crate) fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, IoError>
     match lines.next() {
         Some((_, b"ply")) => {}
         _ => {
-            return Err(error(
-                1,
-                "not a PLY file: the first line is not 'ply'".into(),
-            ));
+            return Err(error(1, "not a PLY file: the first line is not 'ply'".into()));
         }
     }
     let mut format: Option<(Encoding, String)> = None;
@@ -190,9 +187,7 @@ pub(crate) fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, IoError>
             "comment" => comments.push(rest_after_keyword(&line, keyword).to_string()),
             "obj_info" => comments.push(line.trim().to_string()),
             "format" => format = Some(parse_format(words.collect()).map_err(|m| error(number, m))?),
-            "element" => {
-                elements.push(parse_element(words.collect()).map_err(|m| error(number, m))?)
-            }
+            "element" => elements.push(parse_element(words.collect()).map_err(|m| error(number, m))?),
             "property" => {
                 let Some(element) = elements.last_mut() else {
                     return Err(error(number, "property before any element".into()));
@@ -201,10 +196,7 @@ pub(crate) fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, IoError>
                 element.properties.push(property);
             }
             other => {
-                return Err(error(
-                    number,
-                    format!("unknown header keyword '{}'", clip(other)),
-                ));
+                return Err(error(number, format!("unknown header keyword '{}'", clip(other))));
             }
         }
     }
@@ -221,16 +213,10 @@ fn parse_format(words: Vec<&str>) -> Result<(Encoding, String), String> {
         return Err("expected 'format <encoding> 1.0'".into());
     };
     let encoding = Encoding::parse(encoding).ok_or_else(|| {
-        format!(
-            "unknown PLY encoding '{}' (expected ascii, binary_little_endian or binary_big_endian)",
-            clip(encoding)
-        )
+        format!("unknown PLY encoding '{}' (expected ascii, binary_little_endian or binary_big_endian)", clip(encoding))
     })?;
     if version != "1.0" && version != "1" {
-        return Err(format!(
-            "unsupported PLY version '{}' (only 1.0 is known)",
-            clip(version)
-        ));
+        return Err(format!("unsupported PLY version '{}' (only 1.0 is known)", clip(version)));
     }
     Ok((encoding, "1.0".to_string()))
 }
@@ -243,40 +229,19 @@ fn parse_element(words: Vec<&str>) -> Result<Element, String> {
         .parse::<u64>()
         .ok()
         .and_then(|c| usize::try_from(c).ok())
-        .ok_or_else(|| {
-            format!(
-                "bad element count '{}' for element '{}'",
-                clip(count),
-                clip(name)
-            )
-        })?;
-    Ok(Element {
-        name: name.to_string(),
-        count,
-        properties: Vec::new(),
-    })
+        .ok_or_else(|| format!("bad element count '{}' for element '{}'", clip(count), clip(name)))?;
+    Ok(Element { name: name.to_string(), count, properties: Vec::new() })
 }
 
 fn parse_property(words: Vec<&str>) -> Result<Property, String> {
-    let scalar = |word: &str| {
-        Scalar::parse(word).ok_or_else(|| format!("unknown property type '{}'", clip(word)))
-    };
+    let scalar = |word: &str| Scalar::parse(word).ok_or_else(|| format!("unknown property type '{}'", clip(word)));
     let (name, kind) = match words[..] {
         ["list", count, item, name] => {
             let count = scalar(count)?;
             if !count.is_integer() {
-                return Err(format!(
-                    "list '{}' has a non-integer count type",
-                    clip(name)
-                ));
+                return Err(format!("list '{}' has a non-integer count type", clip(name)));
             }
-            (
-                name,
-                PropertyKind::List {
-                    count,
-                    item: scalar(item)?,
-                },
-            )
+            (name, PropertyKind::List { count, item: scalar(item)? })
         }
         ["list", ..] => {
             return Err("expected 'property list <count type> <item type> <name>'".into());
@@ -284,11 +249,7 @@ fn parse_property(words: Vec<&str>) -> Result<Property, String> {
         [ty, name] => (name, PropertyKind::Scalar(scalar(ty)?)),
         _ => return Err("expected 'property <type> <name>'".into()),
     };
-    Ok(Property {
-        name: name.to_string(),
-        kind,
-        declaration: words.join(" "),
-    })
+    Ok(Property { name: name.to_string(), kind, declaration: words.join(" ") })
 }
 
 /// Keeps echoed garbage short in messages.
@@ -321,10 +282,7 @@ mod tests {
         assert_eq!(header.elements.len(), 2);
         let vertex = &header.elements[0];
         assert_eq!((vertex.name.as_str(), vertex.count), ("vertex", 2));
-        assert_eq!(
-            vertex.properties[1].declaration,
-            "list uint8 int vertex_indices"
-        );
+        assert_eq!(vertex.properties[1].declaration, "list uint8 int vertex_indices");
         assert_eq!(vertex.fixed_size(), None);
         assert_eq!(vertex.min_size(), 5);
         assert_eq!(header.body_first_line, 10);
@@ -339,38 +297,17 @@ mod tests {
     #[test]
     fn rejects_bad_headers_with_line_numbers() {
         let cases = [
-            (
-                "ply\nformat ascii 2.0\nend_header\n",
-                "line 2: unsupported PLY version",
-            ),
-            (
-                "ply\nformat ascii 1.0\nproperty float x\nend_header\n",
-                "line 3: property before any element",
-            ),
+            ("ply\nformat ascii 2.0\nend_header\n", "line 2: unsupported PLY version"),
+            ("ply\nformat ascii 1.0\nproperty float x\nend_header\n", "line 3: property before any element"),
             (
                 "ply\nformat ascii 1.0\nelement v 1\nproperty float3 x\nend_header\n",
                 "line 4: unknown property type 'float3'",
             ),
-            (
-                "ply\nformat ascii 1.0\nelement v -1\nend_header\n",
-                "line 3: bad element count '-1'",
-            ),
-            (
-                "ply\nformat ascii 1.0\nelement v 1\nproperty list float int i\nend_header\n",
-                "non-integer count",
-            ),
-            (
-                "ply\nformat ascii 1.0\nelement v 1\n",
-                "line 3: file ends before 'end_header'",
-            ),
-            (
-                "ply\nelement v 1\nend_header\n",
-                "line 3: end_header before any 'format' line",
-            ),
-            (
-                "ply\nformat ascii 1.0\nbogus\nend_header\n",
-                "line 3: unknown header keyword 'bogus'",
-            ),
+            ("ply\nformat ascii 1.0\nelement v -1\nend_header\n", "line 3: bad element count '-1'"),
+            ("ply\nformat ascii 1.0\nelement v 1\nproperty list float int i\nend_header\n", "non-integer count"),
+            ("ply\nformat ascii 1.0\nelement v 1\n", "line 3: file ends before 'end_header'"),
+            ("ply\nelement v 1\nend_header\n", "line 3: end_header before any 'format' line"),
+            ("ply\nformat ascii 1.0\nbogus\nend_header\n", "line 3: unknown header keyword 'bogus'"),
         ];
         for (text, expected) in cases {
             let message = parse(text).unwrap_err().to_string();

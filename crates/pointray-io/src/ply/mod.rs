@@ -56,10 +56,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     };
     tracing::debug!(path = %path.display(), points = builder.len(), format = %header.format_name(), "read PLY");
     let info = file_info(&header, vertex_index, bytes.len());
-    Ok(LoadedCloud {
-        cloud: builder.finish(),
-        info,
-    })
+    Ok(LoadedCloud { cloud: builder.finish(), info })
 }
 
 fn file_info(header: &Header, vertex_index: usize, file_bytes: usize) -> FileInfo {
@@ -70,11 +67,7 @@ fn file_info(header: &Header, vertex_index: usize, file_bytes: usize) -> FileInf
         .unwrap_or_default();
     FileInfo {
         format: header.format_name(),
-        elements: header
-            .elements
-            .iter()
-            .map(|e| (e.name.clone(), e.count))
-            .collect(),
+        elements: header.elements.iter().map(|e| (e.name.clone(), e.count)).collect(),
         vertex_properties,
         comments: header.comments.clone(),
         file_bytes: file_bytes as u64,
@@ -88,12 +81,9 @@ fn file_info(header: &Header, vertex_index: usize, file_bytes: usize) -> FileInf
 /// zero, so a far-away scan loses nothing, else `float`. The file appears only when complete
 /// (see [`atomic_write`]).
 pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<(), IoError> {
-    cloud.check_lengths().map_err(|message| {
-        IoError::invalid(
-            path,
-            format!("cannot write an inconsistent cloud: {message}"),
-        )
-    })?;
+    cloud
+        .check_lengths()
+        .map_err(|message| IoError::invalid(path, format!("cannot write an inconsistent cloud: {message}")))?;
     let world_doubles = cloud.origin != DVec3::ZERO;
     let header = write_header(cloud, world_doubles);
     atomic_write(path, |out| {
@@ -109,8 +99,7 @@ pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<(), IoError> {
 }
 
 fn write_header(cloud: &PointCloud, world_doubles: bool) -> String {
-    let mut header =
-        String::from("ply\nformat binary_little_endian 1.0\ncomment written by pointray-io\n");
+    let mut header = String::from("ply\nformat binary_little_endian 1.0\ncomment written by pointray-io\n");
     header += &format!("element vertex {}\n", cloud.len());
     let coordinate_type = if world_doubles { "double" } else { "float" };
     for axis in ["x", "y", "z"] {

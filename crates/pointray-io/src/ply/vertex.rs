@@ -12,10 +12,7 @@ use crate::builder::{Attributes, PointRecord};
 const NORMAL_NAMES: [[&str; 3]; 2] = [["nx", "ny", "nz"], ["normal_x", "normal_y", "normal_z"]];
 /// Full names first; the short `r g b` only count when all three are present, since a lone
 /// `r` is as likely a range or reflectance as a red channel.
-const COLOR_NAMES: [[&str; 3]; 2] = [
-    ["red", "green", "blue"],
-    ["diffuse_red", "diffuse_green", "diffuse_blue"],
-];
+const COLOR_NAMES: [[&str; 3]; 2] = [["red", "green", "blue"], ["diffuse_red", "diffuse_green", "diffuse_blue"]];
 const SHORT_COLOR_NAMES: [&str; 3] = ["r", "g", "b"];
 
 /// A scalar vertex property the reader needs: its index in the record and its type.
@@ -45,20 +42,11 @@ impl VertexLayout {
             None => find_triple(vertex, SHORT_COLOR_NAMES).unwrap_or(None),
         };
         let radius = find_field(vertex, "radius").map_err(invalid)?;
-        Ok(Self {
-            position,
-            normal,
-            radius,
-            color,
-        })
+        Ok(Self { position, normal, radius, color })
     }
 
     pub(crate) fn attributes(&self) -> Attributes {
-        Attributes {
-            normals: self.normal.is_some(),
-            radii: self.radius.is_some(),
-            colors: self.color.is_some(),
-        }
+        Attributes { normals: self.normal.is_some(), radii: self.radius.is_some(), colors: self.color.is_some() }
     }
 
     /// Every field the reader decodes, for readers that only decode what they need.
@@ -74,10 +62,7 @@ impl VertexLayout {
     pub(crate) fn record(&self, values: &[f64]) -> PointRecord {
         let get = |field: Field| values.get(field.index).copied().unwrap_or(0.0);
         let [x, y, z] = self.position.map(get);
-        let mut record = PointRecord {
-            position: DVec3::new(x, y, z),
-            ..PointRecord::default()
-        };
+        let mut record = PointRecord { position: DVec3::new(x, y, z), ..PointRecord::default() };
         if let Some(normal) = self.normal {
             let [nx, ny, nz] = normal.map(get);
             record.normal = Vec3::new(nx as f32, ny as f32, nz as f32);
@@ -99,11 +84,7 @@ fn color_channel(value: f64, scalar: Scalar) -> f32 {
         Some(max) => value / max,
         None => value,
     };
-    if unit.is_nan() {
-        0.0
-    } else {
-        unit.clamp(0.0, 1.0) as f32
-    }
+    if unit.is_nan() { 0.0 } else { unit.clamp(0.0, 1.0) as f32 }
 }
 
 fn first_triple(vertex: &Element, schemes: &[[&str; 3]]) -> Result<Option<[Field; 3]>, String> {
@@ -117,45 +98,25 @@ fn first_triple(vertex: &Element, schemes: &[[&str; 3]]) -> Result<Option<[Field
 
 /// All three properties, none of them, or an error naming what is missing.
 fn find_triple(vertex: &Element, names: [&str; 3]) -> Result<Option<[Field; 3]>, String> {
-    let found = [
-        find_field(vertex, names[0])?,
-        find_field(vertex, names[1])?,
-        find_field(vertex, names[2])?,
-    ];
+    let found = [find_field(vertex, names[0])?, find_field(vertex, names[1])?, find_field(vertex, names[2])?];
     match found {
         [Some(a), Some(b), Some(c)] => Ok(Some([a, b, c])),
         [None, None, None] => Ok(None),
         _ => {
-            let missing: Vec<&str> = names
-                .iter()
-                .zip(&found)
-                .filter(|(_, f)| f.is_none())
-                .map(|(n, _)| *n)
-                .collect();
-            Err(format!(
-                "vertex element has only part of '{}': '{}' missing",
-                names.join(" "),
-                missing.join(" ")
-            ))
+            let missing: Vec<&str> = names.iter().zip(&found).filter(|(_, f)| f.is_none()).map(|(n, _)| *n).collect();
+            Err(format!("vertex element has only part of '{}': '{}' missing", names.join(" "), missing.join(" ")))
         }
     }
 }
 
 /// The first scalar property with this name; a list of that name is an error.
 fn find_field(vertex: &Element, name: &str) -> Result<Option<Field>, String> {
-    let Some((index, property)) = vertex
-        .properties
-        .iter()
-        .enumerate()
-        .find(|(_, p)| p.name == name)
-    else {
+    let Some((index, property)) = vertex.properties.iter().enumerate().find(|(_, p)| p.name == name) else {
         return Ok(None);
     };
     match property.kind {
         PropertyKind::Scalar(scalar) => Ok(Some(Field { index, scalar })),
-        PropertyKind::List { .. } => Err(format!(
-            "vertex property '{name}' is a list, expected a number"
-        )),
+        PropertyKind::List { .. } => Err(format!("vertex property '{name}' is a list, expected a number")),
     }
 }
 

@@ -15,10 +15,7 @@ impl Default for Aabb {
 }
 
 impl Aabb {
-    pub const EMPTY: Aabb = Aabb {
-        min: Vec3::INFINITY,
-        max: Vec3::NEG_INFINITY,
-    };
+    pub const EMPTY: Aabb = Aabb { min: Vec3::INFINITY, max: Vec3::NEG_INFINITY };
 
     pub fn new(min: Vec3, max: Vec3) -> Self {
         Self { min, max }
@@ -34,18 +31,12 @@ impl Aabb {
 
     #[must_use]
     pub fn grow(self, p: Vec3) -> Self {
-        Self {
-            min: self.min.min(p),
-            max: self.max.max(p),
-        }
+        Self { min: self.min.min(p), max: self.max.max(p) }
     }
 
     #[must_use]
     pub fn union(self, o: Aabb) -> Self {
-        Self {
-            min: self.min.min(o.min),
-            max: self.max.max(o.max),
-        }
+        Self { min: self.min.min(o.min), max: self.max.max(o.max) }
     }
 
     pub fn center(&self) -> Vec3 {
@@ -57,11 +48,7 @@ impl Aabb {
     }
 
     pub fn diagonal(&self) -> f32 {
-        if self.is_empty() {
-            0.0
-        } else {
-            self.extent().length()
-        }
+        if self.is_empty() { 0.0 } else { self.extent().length() }
     }
 
     /// Half the surface area (enough for SAH ratios); 0 for an empty box.

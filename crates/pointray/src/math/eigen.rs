@@ -29,18 +29,12 @@ pub fn sym_eigen(m: [[f32; 3]; 3]) -> SymEigen {
     let a = symmetric_part(m);
     let scale = a.iter().flatten().fold(0.0f64, |s, v| s.max(v.abs()));
     if scale == 0.0 || !scale.is_finite() {
-        return SymEigen {
-            values: [a[0][0] as f32, a[1][1] as f32, a[2][2] as f32],
-            vectors: IDENTITY,
-        };
+        return SymEigen { values: [a[0][0] as f32, a[1][1] as f32, a[2][2] as f32], vectors: IDENTITY };
     }
     // Normalising makes the gap threshold relative and keeps the cubic well scaled.
     let unit = a.map(|row| row.map(|v| v / scale));
     let (values, vectors) = closed_form(&unit).unwrap_or_else(|| jacobi(&unit));
-    SymEigen {
-        values: values.map(|v| (v * scale) as f32),
-        vectors: vectors.map(|v| v.as_vec3().normalize_or(Vec3::Z)),
-    }
+    SymEigen { values: values.map(|v| (v * scale) as f32), vectors: vectors.map(|v| v.as_vec3().normalize_or(Vec3::Z)) }
 }
 
 const IDENTITY: [Vec3; 3] = [Vec3::X, Vec3::Y, Vec3::Z];
@@ -80,8 +74,7 @@ fn cubic_eigenvalues(a: &Mat) -> [f64; 3] {
         [a[0][1] / p, d[1] / p, a[1][2] / p],
         [a[0][2] / p, a[1][2] / p, d[2] / p],
     ];
-    let det = b[0][0] * (b[1][1] * b[2][2] - b[1][2] * b[1][2])
-        - b[0][1] * (b[0][1] * b[2][2] - b[1][2] * b[0][2])
+    let det = b[0][0] * (b[1][1] * b[2][2] - b[1][2] * b[1][2]) - b[0][1] * (b[0][1] * b[2][2] - b[1][2] * b[0][2])
         + b[0][2] * (b[0][1] * b[1][2] - b[1][1] * b[0][2]);
     let phi = (0.5 * det).clamp(-1.0, 1.0).acos() / 3.0;
     let largest = q + 2.0 * p * phi.cos();
@@ -98,10 +91,7 @@ fn null_vector(a: &Mat, lambda: f64) -> (DVec3, f64) {
     [r0.cross(r1), r0.cross(r2), r1.cross(r2)]
         .into_iter()
         .map(|c| (c, c.length_squared()))
-        .fold(
-            (DVec3::ZERO, 0.0),
-            |best, c| if c.1 > best.1 { c } else { best },
-        )
+        .fold((DVec3::ZERO, 0.0), |best, c| if c.1 > best.1 { c } else { best })
 }
 
 /// Closed-form decomposition of a matrix normalised to max |entry| = 1, or `None` when its
@@ -190,16 +180,9 @@ mod tests {
     /// Checks A v = λ v, orthonormality and ascending order, with tolerances relative to |A|.
     fn check(m: [[f32; 3]; 3]) -> f32 {
         let e = sym_eigen(m);
-        let norm = m
-            .iter()
-            .flatten()
-            .fold(0f32, |s, v| s.max(v.abs()))
-            .max(f32::MIN_POSITIVE);
+        let norm = m.iter().flatten().fold(0f32, |s, v| s.max(v.abs())).max(f32::MIN_POSITIVE);
         assert!(e.values.iter().all(|v| v.is_finite()), "{m:?} → {e:?}");
-        assert!(
-            e.values[0] <= e.values[1] && e.values[1] <= e.values[2],
-            "{m:?} → {e:?}"
-        );
+        assert!(e.values[0] <= e.values[1] && e.values[1] <= e.values[2], "{m:?} → {e:?}");
         let mut worst = 0f32;
         for (i, (&lambda, &v)) in e.values.iter().zip(&e.vectors).enumerate() {
             assert!((v.length() - 1.0).abs() < 1e-5, "not unit: {m:?} → {e:?}");
@@ -242,11 +225,7 @@ mod tests {
             [[1.0; 3]; 3], // rank 1
             [[1.0, 2.0, 3.0], [2.0, 4.0, 6.0], [3.0, 6.0, 9.0]],
             [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 0.0]],
-            [
-                [f32::MIN_POSITIVE, 0.0, 0.0],
-                [0.0, 0.0, 0.0],
-                [0.0, 0.0, 0.0],
-            ],
+            [[f32::MIN_POSITIVE, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]],
         ] {
             check(m);
         }

@@ -28,11 +28,8 @@ pub fn encode(p: Vec3, bounds: &Aabb) -> u64 {
 pub fn sort_order(points: &[Vec3]) -> Vec<u32> {
     use rayon::prelude::*;
     let bounds = Aabb::from_points(points.iter().copied());
-    let mut keyed: Vec<(u64, u32)> = points
-        .par_iter()
-        .enumerate()
-        .map(|(i, p)| (encode(*p, &bounds), i as u32))
-        .collect();
+    let mut keyed: Vec<(u64, u32)> =
+        points.par_iter().enumerate().map(|(i, p)| (encode(*p, &bounds), i as u32)).collect();
     keyed.par_sort_unstable();
     keyed.into_iter().map(|(_, i)| i).collect()
 }

@@ -33,13 +33,7 @@ impl Ray {
     /// `dir` need not be normalised; it is.
     pub fn new(origin: Vec3, dir: Vec3, cone: RayCone) -> Self {
         let dir = dir.normalize();
-        Self {
-            origin,
-            dir,
-            inv_dir: dir.recip(),
-            t_min: 0.0,
-            cone,
-        }
+        Self { origin, dir, inv_dir: dir.recip(), t_min: 0.0, cone }
     }
 
     #[must_use]

@@ -45,12 +45,7 @@ impl PreprocessConfig {
     ///   settings reaching 99.9 % (k 6 / scale 1.0: 2.7×) leave holes in a few pixels per
     ///   million. Same rule as the Embree reference benchmark.
     pub fn standard() -> Self {
-        Self {
-            k_normals: 16,
-            k_radius: 8,
-            radius_scale: 1.0,
-            sort: true,
-        }
+        Self { k_normals: 16, k_radius: 8, radius_scale: 1.0, sort: true }
     }
 }
 
@@ -82,10 +77,7 @@ pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> PreprocessS
     if let Err(e) = cloud.check_lengths() {
         panic!("preprocess: inconsistent point cloud: {e}");
     }
-    let mut stats = PreprocessStats {
-        dropped_non_finite: drop_non_finite(cloud),
-        ..Default::default()
-    };
+    let mut stats = PreprocessStats { dropped_non_finite: drop_non_finite(cloud), ..Default::default() };
     if cfg.sort && cloud.len() > 1 {
         let start = Instant::now();
         cloud.permute(&morton::sort_order(&cloud.positions));
@@ -101,10 +93,7 @@ pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> PreprocessS
     stats.computed_normals = need_normals;
     stats.computed_radii = need_radii;
     if !need_normals && !need_radii {
-        info!(
-            points = n,
-            "preprocess: normals and radii given, nothing to compute"
-        );
+        info!(points = n, "preprocess: normals and radii given, nothing to compute");
         return stats;
     }
 
@@ -139,11 +128,8 @@ pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> PreprocessS
         degenerate = stats.degenerate_normals,
         flipped = stats.flipped_normals,
         components = stats.orientation_components,
-        seconds = stats.sort_seconds
-            + stats.knn_seconds
-            + stats.normals_seconds
-            + stats.orient_seconds
-            + stats.radii_seconds,
+        seconds =
+            stats.sort_seconds + stats.knn_seconds + stats.normals_seconds + stats.orient_seconds + stats.radii_seconds,
         "preprocess done"
     );
     stats
@@ -151,9 +137,7 @@ pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> PreprocessS
 
 /// Removes points with a non-finite coordinate; returns how many.
 fn drop_non_finite(cloud: &mut PointCloud) -> usize {
-    let keep: Vec<u32> = (0..cloud.len() as u32)
-        .filter(|&i| cloud.positions[i as usize].is_finite())
-        .collect();
+    let keep: Vec<u32> = (0..cloud.len() as u32).filter(|&i| cloud.positions[i as usize].is_finite()).collect();
     let dropped = cloud.len() - keep.len();
     if dropped > 0 {
         cloud.permute(&keep);
@@ -179,10 +163,7 @@ fn invalid_normals(cloud: &mut PointCloud) -> Vec<bool> {
         .collect();
     let count = missing.iter().filter(|&&m| m).count();
     if count > 0 {
-        info!(
-            count,
-            "given normals invalid (zero or non-finite): re-estimating those"
-        );
+        info!(count, "given normals invalid (zero or non-finite): re-estimating those");
     }
     missing
 }
@@ -206,9 +187,7 @@ fn fill_normals(
 ) {
     let start = Instant::now();
     let positions = &cloud.positions;
-    let normals = cloud
-        .normals
-        .get_or_insert_with(|| vec![Vec3::Z; positions.len()]);
+    let normals = cloud.normals.get_or_insert_with(|| vec![Vec3::Z; positions.len()]);
     let degenerate = normals
         .par_iter_mut()
         .zip(missing)
@@ -227,8 +206,7 @@ fn fill_normals(
     let start = Instant::now();
     let fixed: Vec<bool> = missing.iter().map(|m| !m).collect();
     let some_given = fixed.contains(&true);
-    let orientation =
-        orient::orient_normals_from(positions, normals, nbrs, some_given.then_some(&fixed[..]));
+    let orientation = orient::orient_normals_from(positions, normals, nbrs, some_given.then_some(&fixed[..]));
     stats.flipped_normals = orientation.flipped;
     stats.orientation_components = orientation.components;
     stats.orient_seconds = start.elapsed().as_secs_f64();
@@ -244,18 +222,9 @@ mod tests {
     fn fills_everything_for_bare_positions() {
         let (points, outward) = sphere(5_000, 1);
         let mut cloud = PointCloud::from_positions(points);
-        let stats = preprocess(
-            &mut cloud,
-            &PreprocessConfig {
-                sort: false,
-                ..PreprocessConfig::standard()
-            },
-        );
+        let stats = preprocess(&mut cloud, &PreprocessConfig { sort: false, ..PreprocessConfig::standard() });
         assert!(stats.computed_normals && stats.computed_radii);
-        assert_eq!(
-            (stats.degenerate_normals, stats.orientation_components),
-            (0, 1)
-        );
+        assert_eq!((stats.degenerate_normals, stats.orientation_components), (0, 1));
         let normals = cloud.normals.unwrap();
         assert!(normals.iter().zip(&outward).all(|(n, o)| n.dot(*o) > 0.9));
         assert!(cloud.radii.unwrap().iter().all(|&r| r > 0.0 && r < 0.2));
@@ -288,13 +257,7 @@ mod tests {
         let mut cloud = PointCloud::from_positions(points);
         cloud.normals = Some(given);
         cloud.radii = Some(radii);
-        let stats = preprocess(
-            &mut cloud,
-            &PreprocessConfig {
-                sort: false,
-                ..PreprocessConfig::standard()
-            },
-        );
+        let stats = preprocess(&mut cloud, &PreprocessConfig { sort: false, ..PreprocessConfig::standard() });
         assert_eq!(stats.dropped_non_finite, 2);
         assert_eq!(cloud.len(), 2_998);
         assert!(stats.computed_normals && stats.computed_radii);
@@ -315,13 +278,7 @@ mod tests {
         let mut cloud = PointCloud::from_positions(points);
         cloud.normals = Some(given.iter().map(|n| -*n).collect());
         cloud.radii = Some(vec![0.1; 1_000]);
-        let stats = preprocess(
-            &mut cloud,
-            &PreprocessConfig {
-                sort: false,
-                ..PreprocessConfig::standard()
-            },
-        );
+        let stats = preprocess(&mut cloud, &PreprocessConfig { sort: false, ..PreprocessConfig::standard() });
         assert!(!stats.computed_normals && !stats.computed_radii);
         assert!((cloud.normals.unwrap()[0] + given[0]).length() < 1e-6);
     }
@@ -330,8 +287,7 @@ mod tests {
     fn tiny_and_degenerate_clouds() {
         let cfg = PreprocessConfig::standard();
         for n in 0..4 {
-            let mut cloud =
-                PointCloud::from_positions((0..n).map(|i| Vec3::X * i as f32).collect());
+            let mut cloud = PointCloud::from_positions((0..n).map(|i| Vec3::X * i as f32).collect());
             preprocess(&mut cloud, &cfg);
             assert_eq!(cloud.normals.as_ref().map(Vec::len), Some(n));
             assert_eq!(cloud.radii.as_ref().map(Vec::len), Some(n));

@@ -17,10 +17,8 @@ const COLLINEAR_RATIO: f32 = 1e-5;
 /// PCA normals of every point from the first `k` (clamped to `nbrs.k`) neighbours, computed
 /// in parallel, and the number of degenerate neighbourhoods (see [`pca_normal`]).
 pub fn pca_normals(points: &[Vec3], nbrs: &Neighbourhoods, k: usize) -> (Vec<Vec3>, usize) {
-    let estimates: Vec<(Vec3, bool)> = (0..points.len())
-        .into_par_iter()
-        .map(|i| pca_normal(points, i, nbrs, k))
-        .collect();
+    let estimates: Vec<(Vec3, bool)> =
+        (0..points.len()).into_par_iter().map(|i| pca_normal(points, i, nbrs, k)).collect();
     let degenerate = estimates.iter().filter(|(_, ok)| !ok).count();
     (estimates.into_iter().map(|(n, _)| n).collect(), degenerate)
 }
@@ -33,15 +31,9 @@ pub fn pca_normals(points: &[Vec3], nbrs: &Neighbourhoods, k: usize) -> (Vec<Vec
 /// line that is closest to +Z (or +X for a vertical line).
 pub fn pca_normal(points: &[Vec3], i: usize, nbrs: &Neighbourhoods, k: usize) -> (Vec3, bool) {
     let centre = points[i];
-    let neighbours = if nbrs.k == 0 {
-        &[][..]
-    } else {
-        &nbrs.of(i)[..k.min(nbrs.k)]
-    };
+    let neighbours = if nbrs.k == 0 { &[][..] } else { &nbrs.of(i)[..k.min(nbrs.k)] };
     // Offsets from the point itself keep f32 precision for clouds far from the origin.
-    let offsets = || {
-        std::iter::once(Vec3::ZERO).chain(neighbours.iter().map(|&j| points[j as usize] - centre))
-    };
+    let offsets = || std::iter::once(Vec3::ZERO).chain(neighbours.iter().map(|&j| points[j as usize] - centre));
     let count = (neighbours.len() + 1) as f32;
     let centroid = offsets().sum::<Vec3>() / count;
     let mut c = [[0f32; 3]; 3];
@@ -66,11 +58,7 @@ pub fn pca_normal(points: &[Vec3], i: usize, nbrs: &Neighbourhoods, k: usize) ->
 
 /// The unit vector orthogonal to the unit `line` that is closest to +Z (+X if `line` ∥ Z).
 fn perpendicular_closest_to_z(line: Vec3) -> Vec3 {
-    let toward = if line.z.abs() > 0.999 {
-        Vec3::X
-    } else {
-        Vec3::Z
-    };
+    let toward = if line.z.abs() > 0.999 { Vec3::X } else { Vec3::Z };
     (toward - line * line.dot(toward)).normalize()
 }
 
@@ -117,11 +105,7 @@ pub(crate) mod tests {
 
     /// Angles in degrees between estimated and true normals, up to sign.
     pub(crate) fn unsigned_errors(estimated: &[Vec3], truth: &[Vec3]) -> Vec<f32> {
-        estimated
-            .iter()
-            .zip(truth)
-            .map(|(a, b)| a.dot(*b).abs().min(1.0).acos().to_degrees())
-            .collect()
+        estimated.iter().zip(truth).map(|(a, b)| a.dot(*b).abs().min(1.0).acos().to_degrees()).collect()
     }
 
     fn check_accuracy(name: &str, points: &[Vec3], truth: &[Vec3]) {
@@ -131,10 +115,7 @@ pub(crate) mod tests {
         let within = errors.iter().filter(|&&e| e <= 3.0).count() as f32 / errors.len() as f32;
         let max = errors.iter().copied().fold(0.0, f32::max);
         let mean = errors.iter().sum::<f32>() / errors.len() as f32;
-        println!(
-            "{name}: {:.3} % within 3°, max {max:.3}°, mean {mean:.4}°",
-            within * 100.0
-        );
+        println!("{name}: {:.3} % within 3°, max {max:.3}°, mean {mean:.4}°", within * 100.0);
         assert_eq!(degenerate, 0);
         assert!(within >= 0.995, "{name}: only {within} within 3°");
         assert!(normals.iter().all(|n| (n.length() - 1.0).abs() < 1e-5));
@@ -163,14 +144,10 @@ pub(crate) mod tests {
                 let nbrs = k_nearest(&points, k);
                 let (normals, _) = pca_normals(&points, &nbrs, k);
                 let errors = unsigned_errors(&normals, &truth);
-                let within =
-                    errors.iter().filter(|&&e| e <= 3.0).count() as f32 / errors.len() as f32;
+                let within = errors.iter().filter(|&&e| e <= 3.0).count() as f32 / errors.len() as f32;
                 let max = errors.iter().copied().fold(0.0, f32::max);
                 let mean = errors.iter().sum::<f32>() / errors.len() as f32;
-                println!(
-                    "torus {n} k {k}: {:.3} % within 3°, max {max:.3}°, mean {mean:.4}°",
-                    within * 100.0
-                );
+                println!("torus {n} k {k}: {:.3} % within 3°, max {max:.3}°, mean {mean:.4}°", within * 100.0);
             }
         }
     }
@@ -182,16 +159,12 @@ pub(crate) mod tests {
         let (u, v) = crate::math::orthonormal_basis(normal);
         let offset = Vec3::new(100.0, -50.0, 20.0);
         let points: Vec<Vec3> = (0..5000)
-            .map(|_| {
-                offset + u * rng.random_range(-1.0..1.0f32) + v * rng.random_range(-1.0..1.0f32)
-            })
+            .map(|_| offset + u * rng.random_range(-1.0..1.0f32) + v * rng.random_range(-1.0..1.0f32))
             .collect();
         let nbrs = k_nearest(&points, 16);
         let (normals, degenerate) = pca_normals(&points, &nbrs, 16);
         assert_eq!(degenerate, 0);
-        let worst = unsigned_errors(&normals, &vec![normal; points.len()])
-            .into_iter()
-            .fold(0.0, f32::max);
+        let worst = unsigned_errors(&normals, &vec![normal; points.len()]).into_iter().fold(0.0, f32::max);
         assert!(worst < 0.5, "worst {worst}°");
     }
 
@@ -210,11 +183,7 @@ pub(crate) mod tests {
         let nbrs = k_nearest(&points, 16);
         let (normals, degenerate) = pca_normals(&points, &nbrs, 16);
         assert_eq!(degenerate, 100);
-        assert!(
-            normals
-                .iter()
-                .all(|n| n.dot(dir).abs() < 1e-4 && n.is_normalized())
-        );
+        assert!(normals.iter().all(|n| n.dot(dir).abs() < 1e-4 && n.is_normalized()));
 
         // 0, 1 and 2 points.
         for n in 0..3 {

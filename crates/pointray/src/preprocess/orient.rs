@@ -45,9 +45,7 @@ pub fn orient_normals_from(
     let mut prim = Prim::new(points.len());
     let mut stats = OrientStats::default();
     if let Some(fixed) = fixed.filter(|f| f.contains(&true)) {
-        let anchors: Vec<u32> = (0..points.len() as u32)
-            .filter(|&i| fixed[i as usize])
-            .collect();
+        let anchors: Vec<u32> = (0..points.len() as u32).filter(|&i| fixed[i as usize]).collect();
         stats.flipped += prim.grow(&anchors, &graph, normals);
         stats.components += graph.count_components_among(&anchors, points.len());
     }
@@ -69,12 +67,7 @@ pub fn orient_normals_from(
 /// highest point of a component not yet oriented.
 fn highest_first(points: &[Vec3]) -> Vec<u32> {
     let mut order: Vec<u32> = (0..points.len() as u32).collect();
-    order.par_sort_unstable_by(|&a, &b| {
-        points[b as usize]
-            .z
-            .total_cmp(&points[a as usize].z)
-            .then(a.cmp(&b))
-    });
+    order.par_sort_unstable_by(|&a, &b| points[b as usize].z.total_cmp(&points[a as usize].z).then(a.cmp(&b)));
     order
 }
 
@@ -103,21 +96,12 @@ impl<'a> SymmetricGraph<'a> {
                 fill[j as usize] += 1;
             }
         }
-        Self {
-            nbrs,
-            reverse_start,
-            reverse,
-        }
+        Self { nbrs, reverse_start, reverse }
     }
 
     fn neighbours(&self, i: usize) -> impl Iterator<Item = u32> + '_ {
-        let forward = if self.nbrs.k == 0 {
-            &[][..]
-        } else {
-            self.nbrs.of(i)
-        };
-        let reverse =
-            &self.reverse[self.reverse_start[i] as usize..self.reverse_start[i + 1] as usize];
+        let forward = if self.nbrs.k == 0 { &[][..] } else { self.nbrs.of(i) };
+        let reverse = &self.reverse[self.reverse_start[i] as usize..self.reverse_start[i + 1] as usize];
         forward.iter().chain(reverse).copied()
     }
 
@@ -229,8 +213,7 @@ impl Prim {
                 if cost == 0.0 {
                     self.free.push(to);
                 } else {
-                    self.heap
-                        .push(Reverse(u64::from(cost.to_bits()) << 32 | u64::from(to)));
+                    self.heap.push(Reverse(u64::from(cost.to_bits()) << 32 | u64::from(to)));
                 }
             }
         }
@@ -247,11 +230,7 @@ mod tests {
     use rand_pcg::Pcg64Mcg;
 
     fn count_inward(normals: &[Vec3], outward: &[Vec3]) -> usize {
-        normals
-            .iter()
-            .zip(outward)
-            .filter(|(n, o)| n.dot(**o) <= 0.0)
-            .count()
+        normals.iter().zip(outward).filter(|(n, o)| n.dot(**o) <= 0.0).count()
     }
 
     fn orient_and_check(name: &str, points: &[Vec3], outward: &[Vec3]) {
@@ -280,10 +259,7 @@ mod tests {
     fn randomly_signed_true_normals_are_restored() {
         let (points, outward) = torus(5_000, 1.0, 0.35, 5);
         let mut rng = Pcg64Mcg::seed_from_u64(6);
-        let mut normals: Vec<Vec3> = outward
-            .iter()
-            .map(|&n| if rng.random::<bool>() { -n } else { n })
-            .collect();
+        let mut normals: Vec<Vec3> = outward.iter().map(|&n| if rng.random::<bool>() { -n } else { n }).collect();
         let nbrs = k_nearest(&points, 10);
         orient_normals(&points, &mut normals, &nbrs);
         assert_eq!(normals, outward);
@@ -298,13 +274,7 @@ mod tests {
         let mut normals: Vec<Vec3> = outward.iter().map(|n| -*n).collect();
         let nbrs = k_nearest(&points, 8);
         let stats = orient_normals(&points, &mut normals, &nbrs);
-        assert_eq!(
-            stats,
-            OrientStats {
-                flipped: points.len(),
-                components: 2
-            }
-        );
+        assert_eq!(stats, OrientStats { flipped: points.len(), components: 2 });
         assert_eq!(count_inward(&normals, &outward), 0);
     }
 
@@ -320,13 +290,7 @@ mod tests {
         fixed[lowest] = true;
         let nbrs = k_nearest(&points, 8);
         let stats = orient_normals_from(&points, &mut normals, &nbrs, Some(&fixed));
-        assert_eq!(
-            stats,
-            OrientStats {
-                flipped: points.len() - 1,
-                components: 1
-            }
-        );
+        assert_eq!(stats, OrientStats { flipped: points.len() - 1, components: 1 });
         assert_eq!(count_inward(&normals, &outward), 0);
     }
 

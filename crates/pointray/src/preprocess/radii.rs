@@ -26,11 +26,7 @@ pub fn splat_radii(points: &[Vec3], nbrs: &Neighbourhoods, k: usize, scale: f32)
         .into_par_iter()
         .map(|i| {
             let dists = nbrs.sq_dists_of(i);
-            let d = if dists[k - 1] > 0.0 {
-                dists[k - 1]
-            } else {
-                dists[nbrs.k - 1]
-            };
+            let d = if dists[k - 1] > 0.0 { dists[k - 1] } else { dists[nbrs.k - 1] };
             scale * d.sqrt()
         })
         .collect();
@@ -41,18 +37,13 @@ pub fn splat_radii(points: &[Vec3], nbrs: &Neighbourhoods, k: usize, scale: f32)
 /// Gives points whose neighbours all coincide the mean positive radius, so that they stay
 /// visible.
 fn fill_zero_radii(radii: &mut [f32]) {
-    let (sum, count) = radii
-        .iter()
-        .filter(|&&r| r > 0.0)
-        .fold((0.0f64, 0usize), |(s, c), &r| (s + f64::from(r), c + 1));
+    let (sum, count) =
+        radii.iter().filter(|&&r| r > 0.0).fold((0.0f64, 0usize), |(s, c), &r| (s + f64::from(r), c + 1));
     if count == 0 || count == radii.len() {
         return;
     }
     let mean = (sum / count as f64) as f32;
-    radii
-        .iter_mut()
-        .filter(|r| **r <= 0.0)
-        .for_each(|r| *r = mean);
+    radii.iter_mut().filter(|r| **r <= 0.0).for_each(|r| *r = mean);
 }
 
 #[cfg(test)]
@@ -98,9 +89,7 @@ mod tests {
 
     fn plane_patch(n: usize, seed: u64) -> Vec<Vec3> {
         let mut rng = Pcg64Mcg::seed_from_u64(seed);
-        (0..n)
-            .map(|_| Vec3::new(rng.random(), rng.random(), 0.0))
-            .collect()
+        (0..n).map(|_| Vec3::new(rng.random(), rng.random(), 0.0)).collect()
     }
 
     /// Range-scan-like rows: dense along x, rows 4× as far apart in y, with jitter.
@@ -124,9 +113,7 @@ mod tests {
 
     fn probes_in_square(n: usize, seed: u64) -> Vec<Vec3> {
         let mut rng = Pcg64Mcg::seed_from_u64(seed);
-        (0..n)
-            .map(|_| Vec3::new(rng.random_range(0.1..0.9), rng.random_range(0.1..0.9), 0.0))
-            .collect()
+        (0..n).map(|_| Vec3::new(rng.random_range(0.1..0.9), rng.random_range(0.1..0.9), 0.0)).collect()
     }
 
     /// Coverage of `points` after the full standard preprocessing (PCA normals, oriented,
@@ -137,20 +124,13 @@ mod tests {
         let nbrs = k_nearest(&cloud.positions, 1);
         let radii = cloud.radii.unwrap();
         let ratio = radii.iter().sum::<f32>() / radii.len() as f32 / mean_nn_spacing(&nbrs);
-        let disks = Disks {
-            centres: cloud.positions,
-            normals: cloud.normals.unwrap(),
-            radii,
-        };
+        let disks = Disks { centres: cloud.positions, normals: cloud.normals.unwrap(), radii };
         (coverage(&disks, probes), ratio)
     }
 
     fn assert_covered(name: &str, points: Vec<Vec3>, probes: &[Vec3]) {
         let (covered, ratio) = standard_coverage(points, probes);
-        println!(
-            "{name}: {:.4} % covered, mean radius {ratio:.2} × mean NN spacing",
-            covered * 100.0
-        );
+        println!("{name}: {:.4} % covered, mean radius {ratio:.2} × mean NN spacing", covered * 100.0);
         assert!(covered >= 0.999, "{name}: {covered}");
         assert!(ratio < 4.5, "{name}: radii wastefully large ({ratio})");
     }
@@ -165,20 +145,13 @@ mod tests {
         let rotation = glam::Quat::from_axis_angle(Vec3::new(1.0, 2.0, 3.0).normalize(), 0.7);
         let tilt = |p: Vec3| rotation * p + Vec3::new(5.0, -3.0, 2.0);
         let points = plane_patch(100_000, 22).into_iter().map(tilt).collect();
-        let probes: Vec<Vec3> = probes_in_square(100_000, 25)
-            .into_iter()
-            .map(tilt)
-            .collect();
+        let probes: Vec<Vec3> = probes_in_square(100_000, 25).into_iter().map(tilt).collect();
         assert_covered("plane 100k", points, &probes);
     }
 
     #[test]
     fn default_radii_cover_anisotropic_scan_rows() {
-        assert_covered(
-            "scan rows 100k",
-            scan_rows(100_000, 23),
-            &probes_in_square(100_000, 25),
-        );
+        assert_covered("scan rows 100k", scan_rows(100_000, 23), &probes_in_square(100_000, 25));
     }
 
     #[test]
@@ -188,14 +161,8 @@ mod tests {
         let nbrs = k_nearest(&points, 8);
         let radii = splat_radii(&points, &nbrs, 8, 1.0);
         assert!(radii.iter().all(|&r| r > 0.0 && r.is_finite()));
-        assert_eq!(
-            splat_radii(&[Vec3::ONE], &k_nearest(&[Vec3::ONE], 8), 8, 1.0),
-            vec![0.0]
-        );
-        assert_eq!(
-            splat_radii(&[], &k_nearest(&[], 8), 8, 1.0),
-            Vec::<f32>::new()
-        );
+        assert_eq!(splat_radii(&[Vec3::ONE], &k_nearest(&[Vec3::ONE], 8), 8, 1.0), vec![0.0]);
+        assert_eq!(splat_radii(&[], &k_nearest(&[], 8), 8, 1.0), Vec::<f32>::new());
     }
 
     /// The measurement behind the defaults: coverage and radius/spacing for k and scale on
@@ -227,12 +194,7 @@ mod tests {
         let cases: [Case; 3] = [
             ("sphere", sph, sph_n, &sphere_probes),
             ("plane", plane, vec![Vec3::Z; n], &square_probes),
-            (
-                "rows",
-                rows.clone(),
-                vec![Vec3::Z; rows.len()],
-                &square_probes,
-            ),
+            ("rows", rows.clone(), vec![Vec3::Z; rows.len()], &square_probes),
         ];
         for (name, points, normals, probes) in &cases {
             let nbrs = k_nearest(points, 16);
@@ -241,11 +203,7 @@ mod tests {
                 for scale in [0.8f32, 0.9, 1.0, 1.1, 1.2] {
                     let radii = splat_radii(points, &nbrs, k, scale);
                     let ratio = radii.iter().sum::<f32>() / radii.len() as f32 / spacing;
-                    let disks = Disks {
-                        centres: points.clone(),
-                        normals: normals.clone(),
-                        radii,
-                    };
+                    let disks = Disks { centres: points.clone(), normals: normals.clone(), radii };
                     let covered = coverage(&disks, probes) * 100.0;
                     println!("{name} k={k} scale={scale}: {covered:.4} %, r/spacing {ratio:.2}");
                 }

@@ -199,12 +199,7 @@ struct SjWindow {
 
 impl SjWindow {
     fn new(window: f32) -> Self {
-        Self {
-            window,
-            end: f32::INFINITY,
-            len: 0,
-            crossings: [Crossing::default(); WINDOW_CAPACITY],
-        }
+        Self { window, end: f32::INFINITY, len: 0, crossings: [Crossing::default(); WINDOW_CAPACITY] }
     }
 
     fn first(&self) -> Option<&Crossing> {

@@ -69,7 +69,9 @@ fn bvh_matches_brute_force_on_degenerate_inputs() {
     let duplicates: Vec<Splat> = (0..300).map(|i| disk(Vec3::ONE, Vec3::new(1.0, i as f32 * 0.01, 0.0))).collect();
     let collinear: Vec<Splat> = (0..300).map(|i| disk(Vec3::new(i as f32 * 0.05, 0.0, 0.0), Vec3::Y)).collect();
     for (name, params) in BvhParams::presets() {
-        for (what, splats) in [("one", &one), ("coplanar", &coplanar), ("duplicates", &duplicates), ("collinear", &collinear)] {
+        for (what, splats) in
+            [("one", &one), ("coplanar", &coplanar), ("duplicates", &duplicates), ("collinear", &collinear)]
+        {
             let hits = check_agreement(splats, &params, 2_000, 5);
             assert!(hits > 0, "{name}/{what}: no ray hit, the test is vacuous");
         }

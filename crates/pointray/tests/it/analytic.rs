@@ -60,8 +60,14 @@ fn sj_hits_lie_on_the_sphere_with_smooth_normals() {
     let first = measure(SurfaceScheme::first_hit());
     eprintln!(
         "sj: |dt|/r mean {:.4} max {:.4}, normal mean {:.3}° p99 {:.3}°; first-hit: |dt|/r mean {:.4} max {:.4}, normal mean {:.3}° p99 {:.3}°",
-        sj.mean_t_over_r, sj.max_t_over_r, sj.mean_normal_deg, sj.p99_normal_deg,
-        first.mean_t_over_r, first.max_t_over_r, first.mean_normal_deg, first.p99_normal_deg
+        sj.mean_t_over_r,
+        sj.max_t_over_r,
+        sj.mean_normal_deg,
+        sj.p99_normal_deg,
+        first.mean_t_over_r,
+        first.max_t_over_r,
+        first.mean_normal_deg,
+        first.p99_normal_deg
     );
     // Measured: |dt|/r mean 0.005, max 0.025; normals mean 0.17°, p99 0.55° (first-hit 1.08°).
     assert!(sj.mean_t_over_r < 0.02 && sj.max_t_over_r < 0.1, "position error");
@@ -80,7 +86,15 @@ fn analytic_image(cam: &Camera, config: &RenderConfig) -> Vec<[f32; 3]> {
                 None => config.background,
                 Some(t) => {
                     let p = ray.at(t);
-                    let hit = SurfaceHit { t, position: p, normal: p.normalize(), color: [0.8, 0.8, 0.8], radius: 0.0, splat: 0, blended: 1 };
+                    let hit = SurfaceHit {
+                        t,
+                        position: p,
+                        normal: p.normalize(),
+                        color: [0.8, 0.8, 0.8],
+                        radius: 0.0,
+                        splat: 0,
+                        blended: 1,
+                    };
                     let (l, _, e) = config.light.towards(p);
                     config.material.shade(&hit, -ray.dir, l, e, hit.normal.dot(l) > 0.0)
                 }

@@ -12,7 +12,15 @@ use crate::util::torus_splats;
 #[test]
 fn image_is_identical_with_one_and_two_threads() {
     let bvh = Bvh::build(torus_splats(40_000, 7), &BvhParams::standard());
-    let cam = Camera::orbit(&pointray::math::Aabb::new(Vec3::splat(-1.4), Vec3::splat(1.4)), Vec3::new(0.4, 0.9, 1.0), Vec3::Y, 0.9, 60.0, 48, 40);
+    let cam = Camera::orbit(
+        &pointray::math::Aabb::new(Vec3::splat(-1.4), Vec3::splat(1.4)),
+        Vec3::new(0.4, 0.9, 1.0),
+        Vec3::Y,
+        0.9,
+        60.0,
+        48,
+        40,
+    );
     let config = RenderConfig {
         scheme: SurfaceScheme::sj(),
         light: pointray::demo::demo_light(),

@@ -146,10 +146,7 @@ fn build_node(prims: &mut [Prim], offset: usize, params: &BvhParams, depth: usiz
     let mid = if mid == 0 || mid == n { median_split(prims) } else { mid };
     let (left, right) = prims.split_at_mut(mid);
     let (l, r) = if n >= PARALLEL_THRESHOLD {
-        join(
-            || build_node(left, offset, params, depth + 1),
-            || build_node(right, offset + mid, params, depth + 1),
-        )
+        join(|| build_node(left, offset, params, depth + 1), || build_node(right, offset + mid, params, depth + 1))
     } else {
         (build_node(left, offset, params, depth + 1), build_node(right, offset + mid, params, depth + 1))
     };
@@ -242,8 +239,6 @@ fn median_split(prims: &mut [Prim]) -> usize {
     let cb = prims.iter().fold(Aabb::EMPTY, |b, p| b.grow(p.centroid));
     let axis = cb.extent().max_position();
     let mid = prims.len() / 2;
-    prims.select_nth_unstable_by(mid, |a, b| {
-        a.centroid[axis].total_cmp(&b.centroid[axis]).then(a.index.cmp(&b.index))
-    });
+    prims.select_nth_unstable_by(mid, |a, b| a.centroid[axis].total_cmp(&b.centroid[axis]).then(a.index.cmp(&b.index)));
     mid
 }

@@ -108,7 +108,12 @@ impl super::Accel for Bvh {
         self.nodes.len() * size_of::<Node>() + self.input_index.len() * size_of::<u32>()
     }
 
-    fn traverse<V: super::SplatVisitor>(&self, ray: &crate::math::Ray, visitor: &mut V, stats: &mut super::TraversalStats) {
+    fn traverse<V: super::SplatVisitor>(
+        &self,
+        ray: &crate::math::Ray,
+        visitor: &mut V,
+        stats: &mut super::TraversalStats,
+    ) {
         traverse::traverse(self, ray, visitor, stats);
     }
 }

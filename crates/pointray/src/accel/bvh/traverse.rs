@@ -38,10 +38,7 @@ impl SlabRay {
         let near = tx.max(ty).max(tz).max(Vec4::splat(t0));
         let far = tx.min(ty).min(tz).min(Vec4::splat(t1)).zwxy();
         let hit = near.cmple(far);
-        [
-            if hit.test(0) { near.x } else { f32::INFINITY },
-            if hit.test(1) { near.y } else { f32::INFINITY },
-        ]
+        [if hit.test(0) { near.x } else { f32::INFINITY }, if hit.test(1) { near.y } else { f32::INFINITY }]
     }
 }
 
