@@ -2,7 +2,6 @@
 
 use glam::Vec3;
 
-use crate::film::srgb_to_linear;
 use crate::splat::scheme::SurfaceHit;
 
 #[derive(Clone, Copy, Debug, serde::Serialize)]
@@ -48,7 +47,7 @@ impl Material {
     /// Linear radiance towards `view` (unit, from the surface towards the eye) with light
     /// arriving along `to_light` at `irradiance`; `lit` is false in shadow.
     pub fn shade(&self, hit: &SurfaceHit, view: Vec3, to_light: Vec3, irradiance: f32, lit: bool) -> [f32; 3] {
-        let albedo = Vec3::from(hit.color.map(srgb_to_linear));
+        let albedo = Vec3::from(hit.color);
         let mut c = albedo * self.ambient;
         let n_dot_l = hit.normal.dot(to_light);
         if lit && n_dot_l > 0.0 {

@@ -33,13 +33,20 @@ impl Splat {
         Aabb::new(self.center - half, self.center + half)
     }
 
-    /// sRGB-encoded colour in `[0, 1]`.
-    pub fn color_srgb(&self) -> [f32; 3] {
+    /// The colour in linear RGB (for shading and blending), through a table: no `powf` per hit.
+    pub fn color_linear(&self) -> [f32; 3] {
+        let table = srgb8_to_linear_table();
         let c = self.color;
-        [(c & 0xff) as f32 / 255.0, (c >> 8 & 0xff) as f32 / 255.0, (c >> 16 & 0xff) as f32 / 255.0]
+        [table[(c & 0xff) as usize], table[(c >> 8 & 0xff) as usize], table[(c >> 16 & 0xff) as usize]]
     }
 }
 
+fn srgb8_to_linear_table() -> &'static [f32; 256] {
+    static TABLE: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| std::array::from_fn(|i| crate::film::srgb_to_linear(i as f32 / 255.0)))
+}
+
+/// Packs an sRGB-encoded colour (each channel in `[0, 1]`) into a splat's 8-bit channels.
 pub fn pack_color(rgb: [f32; 3]) -> u32 {
     let q = |v: f32| (v.clamp(0.0, 1.0) * 255.0).round() as u32;
     q(rgb[0]) | q(rgb[1]) << 8 | q(rgb[2]) << 16

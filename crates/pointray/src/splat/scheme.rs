@@ -68,7 +68,7 @@ pub struct SurfaceHit {
     pub position: Vec3,
     /// Unit shading normal, turned to face the ray's origin (splats are two-sided).
     pub normal: Vec3,
-    /// sRGB-encoded colour.
+    /// Linear RGB colour (albedo).
     pub color: [f32; 3],
     /// Radius of the nearest disk: the local sampling scale, used for self-intersection offsets.
     pub radius: f32,
@@ -96,7 +96,7 @@ pub fn intersect<A: Accel + ?Sized>(
                 t,
                 position: ray.at(t),
                 normal: facing(s.normal, ray.dir),
-                color: s.color_srgb(),
+                color: s.color_linear(),
                 radius: s.radius,
                 splat: i,
                 blended: 1,
@@ -141,6 +141,7 @@ impl SplatVisitor for Nearest {
         self.t_max
     }
 
+    #[inline]
     fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32) {
         let Some(h) = oriented_disk::intersect(ray, splat, self.t_max) else { return };
         let better = match self.best {
@@ -165,6 +166,7 @@ impl SplatVisitor for AnyHit {
         self.t_max
     }
 
+    #[inline]
     fn visit(&mut self, ray: &Ray, splat: &Splat, _index: u32) {
         if oriented_disk::intersect(ray, splat, self.t_max).is_some() {
             self.hit = true;
@@ -229,14 +231,14 @@ impl SjWindow {
             wsum += w;
             t += w * x.t;
             n += w * s.normal;
-            c += w * Vec3::from(s.color_srgb());
+            c += w * Vec3::from(s.color_linear());
             blended += 1;
         }
         let (t, n, c) = if wsum > 0.0 && n.length_squared() > 0.0 {
             (t / wsum, n.normalize(), c / wsum)
         } else {
             // Crossings exactly on the rims carry no weight: fall back to the first disk.
-            (first.t, first_splat.normal, Vec3::from(first_splat.color_srgb()))
+            (first.t, first_splat.normal, Vec3::from(first_splat.color_linear()))
         };
         Some(SurfaceHit {
             t,
@@ -255,6 +257,7 @@ impl SplatVisitor for SjWindow {
         self.end
     }
 
+    #[inline]
     fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32) {
         let Some(h) = oriented_disk::intersect(ray, splat, self.end) else { return };
         let first_t = self.first().map_or(f32::INFINITY, |c| c.t);

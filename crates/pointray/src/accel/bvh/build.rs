@@ -5,7 +5,7 @@
 use glam::Vec3;
 use rayon::join;
 
-use super::{Bvh, MAX_DEPTH, MAX_LEAF_SIZE, MAX_SPLATS, Node, leaf_ref};
+use super::{Bvh, MAX_DEPTH, MAX_LEAF_SIZE, MAX_SPLATS, Node, WIDTH, leaf_ref};
 use crate::math::Aabb;
 use crate::splat::Splat;
 
@@ -86,35 +86,43 @@ impl Bvh {
         let input_index: Vec<u32> = prims.iter().map(|p| p.index).collect();
         let splats: Vec<Splat> = input_index.iter().map(|&i| splats[i as usize]).collect();
         let bounds = root.bounds();
-        let mut nodes = Vec::with_capacity(splats.len() / params.max_leaf_size.max(2) * 2 + 1);
+        let mut nodes = Vec::with_capacity(splats.len() / params.max_leaf_size.max(2) + 1);
         let depth = match root {
-            BuildNode::Inner { children, .. } => flatten(*children, &mut nodes),
             BuildNode::Leaf { count: 0, .. } => 0, // no splats: no nodes
-            BuildNode::Leaf { first, count, .. } => {
-                // A single leaf still gets a root node, so that traversal has one shape. Its
-                // second child has empty bounds, which no ray enters; it repeats the leaf
-                // reference so that even entering it would be harmless.
-                let mut node = Node::new([bounds, Aabb::EMPTY]);
-                node.child = [leaf_ref(first, count); 2];
-                nodes.push(node);
-                1
-            }
+            root => flatten(root, &mut nodes),
         };
         Bvh { nodes, splats, bounds, input_index, depth }
     }
 }
 
-/// Writes `children`'s node and, depth first, their subtrees; returns the subtree's depth.
-fn flatten(children: [BuildNode; 2], nodes: &mut Vec<Node>) -> usize {
+/// Writes the 4-wide node for `node` and, depth first, the nodes below it; returns the depth.
+///
+/// The node's children are found by opening binary inner nodes, the largest surface first,
+/// until there are four (SAH-wise, the child most likely to be entered is the one worth
+/// replacing by its children). A root that is a single leaf becomes a node with one child.
+fn flatten(node: BuildNode, nodes: &mut Vec<Node>) -> usize {
+    let mut children = vec![node];
+    while children.len() < WIDTH {
+        let widest = children
+            .iter()
+            .enumerate()
+            .filter(|(_, c)| matches!(c, BuildNode::Inner { .. }))
+            .max_by(|(_, a), (_, b)| a.bounds().half_area().total_cmp(&b.bounds().half_area()))
+            .map(|(i, _)| i);
+        let Some(i) = widest else { break };
+        let BuildNode::Inner { children: pair, .. } = children.swap_remove(i) else { unreachable!() };
+        children.extend(*pair);
+    }
     let at = nodes.len();
-    nodes.push(Node::new([children[0].bounds(), children[1].bounds()]));
+    let bounds: Vec<Aabb> = children.iter().map(BuildNode::bounds).collect();
+    nodes.push(Node::new(&bounds));
     let mut depth = 1;
     for (i, c) in children.into_iter().enumerate() {
         match c {
             BuildNode::Leaf { first, count, .. } => nodes[at].child[i] = leaf_ref(first, count),
-            BuildNode::Inner { children, .. } => {
+            inner @ BuildNode::Inner { .. } => {
                 nodes[at].child[i] = nodes.len() as u32;
-                depth = depth.max(1 + flatten(*children, nodes));
+                depth = depth.max(1 + flatten(inner, nodes));
             }
         }
     }

@@ -1,16 +1,16 @@
-//! Front-to-back traversal: test both children's boxes at once, visit the nearer first, keep
-//! the farther on a stack with its entry distance so it can be culled later when the
-//! visitor's `t_max` has shrunk below it.
+//! Front-to-back traversal: test a node's four child boxes at once, go on with the nearest
+//! child hit, and keep the others on a stack with their entry distances, so that they can be
+//! culled later when the visitor's `t_max` has shrunk below them.
 
-use glam::{Vec4, Vec4Swizzles};
+use glam::Vec4;
 
-use super::{Bvh, LEAF, MAX_DEPTH, Node, leaf_range};
+use super::{Bvh, LEAF, Node, WIDTH, leaf_range};
 use crate::accel::{SplatVisitor, TraversalStats};
 use crate::math::Ray;
 
-/// The ray in the form the two-box slab test wants: per axis the origin and inverse
-/// direction splatted to four lanes, and whether the axis runs backwards (then the near
-/// plane of each box is its `hi` side).
+/// The ray in the form the four-box slab test wants: per axis the origin and inverse
+/// direction splatted to four lanes, and whether the axis runs backwards (then a box's near
+/// plane is its `hi` side).
 struct SlabRay {
     origin: [Vec4; 3],
     inv_dir: [Vec4; 3],
@@ -26,19 +26,17 @@ impl SlabRay {
         }
     }
 
-    /// Entry distances of both children of `node` within `[t0, t1]`; infinity for a miss.
+    /// Entry distances of the four children of `node` within `[t0, t1]`, and a bit mask of
+    /// the children the ray enters.
     #[inline(always)]
-    fn entries(&self, node: &Node, t0: f32, t1: f32) -> [f32; 2] {
-        // Lanes: [near₀, near₁, far₀, far₁] per axis.
-        let t = |k: usize| {
-            let b = if self.backwards[k] { node.bounds[k].zwxy() } else { node.bounds[k] };
+    fn entries(&self, node: &Node, t0: f32, t1: f32) -> (Vec4, u32) {
+        let plane = |k: usize, near: bool| {
+            let b = if near != self.backwards[k] { node.lo[k] } else { node.hi[k] };
             (b - self.origin[k]) * self.inv_dir[k]
         };
-        let (tx, ty, tz) = (t(0), t(1), t(2));
-        let near = tx.max(ty).max(tz).max(Vec4::splat(t0));
-        let far = tx.min(ty).min(tz).min(Vec4::splat(t1)).zwxy();
-        let hit = near.cmple(far);
-        [if hit.test(0) { near.x } else { f32::INFINITY }, if hit.test(1) { near.y } else { f32::INFINITY }]
+        let near = plane(0, true).max(plane(1, true)).max(plane(2, true)).max(Vec4::splat(t0));
+        let far = plane(0, false).min(plane(1, false)).min(plane(2, false)).min(Vec4::splat(t1));
+        (near, near.cmple(far).bitmask())
     }
 }
 
@@ -50,13 +48,35 @@ fn cull_limit(t_max: f32) -> f32 {
     t_max * (1.0 + 1.0 / 65536.0)
 }
 
+/// Stack entries for trees up to this deep live in a fixed array on the machine stack; deeper
+/// (pathological) trees get a heap-allocated stack. Real scans give depths of 10–20.
+const INLINE_DEPTH: usize = 32;
+
 pub(super) fn traverse<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
     if bvh.nodes.is_empty() {
         return;
     }
+    // Each level pushes at most WIDTH − 1 entries.
+    if bvh.depth <= INLINE_DEPTH {
+        let mut stack = [(0u32, 0f32); (WIDTH - 1) * INLINE_DEPTH + 1];
+        traverse_with(bvh, ray, visitor, stats, &mut stack);
+    } else {
+        let mut stack = vec![(0u32, 0f32); (WIDTH - 1) * bvh.depth + 1];
+        traverse_with(bvh, ray, visitor, stats, &mut stack);
+    }
+}
+
+/// The traversal proper, with `stack` large enough for the tree: entries are
+/// (child reference, entry distance).
+#[inline(always)]
+fn traverse_with<V: SplatVisitor>(
+    bvh: &Bvh,
+    ray: &Ray,
+    visitor: &mut V,
+    stats: &mut TraversalStats,
+    stack: &mut [(u32, f32)],
+) {
     let slab = SlabRay::new(ray);
-    // (child reference, entry distance)
-    let mut stack = [(0u32, 0f32); MAX_DEPTH + 2];
     let mut sp = 0;
     let mut current = (0u32, ray.t_min);
     loop {
@@ -72,15 +92,25 @@ pub(super) fn traverse<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut V, s
                 }
             } else {
                 let node = &bvh.nodes[child as usize];
-                stats.nodes_visited += 2;
-                let t = slab.entries(node, ray.t_min, cull_limit(visitor.t_max()));
-                let (near, far) = if t[0] <= t[1] { (0, 1) } else { (1, 0) };
-                if t[near] < f32::INFINITY {
-                    if t[far] < f32::INFINITY {
-                        stack[sp] = (node.child[far], t[far]);
+                stats.nodes_visited += 1;
+                let (t, mut mask) = slab.entries(node, ray.t_min, cull_limit(visitor.t_max()));
+                if mask != 0 {
+                    // Push the children hit, keeping the nearest at `base`, then move it to the
+                    // top and take it: the rest of the stack needs no order (each entry is
+                    // culled by its own distance when popped).
+                    let base = sp;
+                    while mask != 0 {
+                        let i = mask.trailing_zeros() as usize;
+                        mask &= mask - 1;
+                        stack[sp] = (node.child[i], t[i]);
+                        if stack[sp].1 < stack[base].1 {
+                            stack.swap(sp, base);
+                        }
                         sp += 1;
                     }
-                    current = (node.child[near], t[near]);
+                    stack.swap(base, sp - 1);
+                    sp -= 1;
+                    current = stack[sp];
                     continue;
                 }
             }
