@@ -31,7 +31,7 @@ pub enum Command {
   pointray render bun_zipper.ply -o bunny.png --surface sj --spp 4
   pointray render dragon.ply -o d.png --view-dir 0.4,0.3,1 --distance 16 --crop-to-model --stats s.json
   pointray render scan.ply -o s.png --eye 0,0.1,0.4 --look-at 0,0.1,0 --fov 40")]
-    Render(RenderArgs),
+    Render(Box<RenderArgs>),
     /// Compute what a cloud lacks (normals, orientation, radii), sort it, and write a binary PLY.
     #[command(after_help = "Example:
   pointray prepare bun_zipper.ply -o bunny_prepared.ply")]

@@ -34,6 +34,9 @@ pub struct RenderConfig {
     pub seed: u64,
 }
 
+/// A finished tile: its pixels (radiance, nodes visited) in row order, and its counters.
+type RenderedTile = (Region, Vec<([f32; 3], u32)>, RenderStats);
+
 /// Pixels per tile edge: small enough to balance 2–64 threads, big enough for coherence.
 const TILE: u32 = 16;
 
@@ -57,7 +60,7 @@ pub fn render<A: Accel>(
             Region { x0, y0, x1: (x0 + TILE).min(region.x1), y1: (y0 + TILE).min(region.y1) }
         })
         .collect();
-    let rendered: Vec<(Region, Vec<([f32; 3], u32)>, RenderStats)> = tiles
+    let rendered: Vec<RenderedTile> = tiles
         .into_par_iter()
         .map(|tile| {
             let mut stats = RenderStats::default();

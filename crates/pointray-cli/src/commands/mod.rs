@@ -11,6 +11,16 @@ use pointray::preprocess::{PreprocessConfig, PreprocessStats, preprocess};
 
 use crate::args::PreprocessArgs;
 
+/// Refuses an output path that cannot be written, before any work is done: a directory, or a
+/// file in a directory that does not exist. (Writes are atomic, so a failure later leaves no
+/// partial file either; this only saves a wasted render.)
+pub fn check_output_path(path: &Path) -> anyhow::Result<()> {
+    anyhow::ensure!(!path.is_dir(), "{}: is a directory, not an output file", path.display());
+    let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    anyhow::ensure!(parent.is_dir(), "{}: directory {} does not exist", path.display(), parent.display());
+    Ok(())
+}
+
 /// Reads a cloud file, with the file name in any error.
 pub fn load(path: &Path) -> anyhow::Result<(pointray_io::LoadedCloud, f64)> {
     let t = Instant::now();

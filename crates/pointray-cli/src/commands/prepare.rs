@@ -3,6 +3,7 @@
 use crate::args::PrepareArgs;
 
 pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
+    super::check_output_path(&a.output)?;
     let (loaded, _) = super::load(&a.input)?;
     let mut cloud = loaded.cloud;
     let stats = super::prepare_cloud(&mut cloud, &a.preprocess, quiet)

@@ -44,6 +44,13 @@ impl AnyAccel {
         }
     }
 
+    fn bounds(&self) -> pointray::math::Aabb {
+        match self {
+            AnyAccel::Bvh(a) => a.bounds(),
+            AnyAccel::Brute(a) => a.bounds(),
+        }
+    }
+
     fn render(&self, camera: &Camera, config: &RenderConfig, progress: &(dyn Fn(u64) + Sync)) -> (Film, RenderStats) {
         match self {
             AnyAccel::Bvh(a) => render(a, camera, config, progress),
@@ -99,13 +106,42 @@ struct PreprocessSeconds {
     radii: f64,
 }
 
+/// Largest frame accepted: 2²⁸ pixels (16k × 16k), so that films and PNG buffers fit.
+const MAX_PIXELS: u64 = 1 << 28;
+
 pub fn run(a: &RenderArgs, quiet: bool) -> anyhow::Result<()> {
-    anyhow::ensure!(a.width > 0 && a.height > 0, "--width and --height must be positive");
-    anyhow::ensure!(a.fov > 0.0 && a.fov < 180.0, "--fov must be between 0 and 180 degrees");
-    anyhow::ensure!(a.distance.is_none_or(|d| d > 0.0 && d.is_finite()), "--distance must be positive");
-    anyhow::ensure!(a.spp >= 1, "--spp must be at least 1");
+    check_args(a)?;
+    // Fail before the work, not after it, when an output cannot be written.
+    super::check_output_path(&a.output)?;
+    if let Some(stats) = &a.stats {
+        super::check_output_path(stats)?;
+    }
     let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads.unwrap_or(0)).build()?;
     pool.install(|| run_in_pool(a, quiet, pool.current_num_threads()))
+}
+
+fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
+    use anyhow::ensure;
+    ensure!(a.width > 0 && a.height > 0, "--width and --height must be positive");
+    ensure!(
+        u64::from(a.width) * u64::from(a.height) <= MAX_PIXELS,
+        "--width x --height: a {}x{} frame is too large (at most {MAX_PIXELS} pixels)",
+        a.width,
+        a.height
+    );
+    ensure!(a.fov > 0.0 && a.fov < 180.0, "--fov must be between 0 and 180 degrees");
+    ensure!(a.distance.is_none_or(|d| d > 0.0 && d.is_finite()), "--distance must be positive");
+    ensure!(a.spp >= 1, "--spp must be at least 1");
+    ensure!(a.threads.is_none_or(|t| (1..=1024).contains(&t)), "--threads must be between 1 and 1024");
+    ensure!(a.sj_window >= 0.0 && a.sj_window.is_finite(), "--sj-window must be a non-negative number");
+    ensure!(a.shadow_offset >= 0.0 && a.shadow_offset.is_finite(), "--shadow-offset must be non-negative");
+    ensure!(a.up.length_squared() > 0.0, "--up must not be the zero vector");
+    ensure!(a.view_dir.is_none_or(|v| v.length_squared() > 0.0), "--view-dir must not be the zero vector");
+    ensure!(a.light_dir.is_none_or(|v| v.length_squared() > 0.0), "--light-dir must not be the zero vector");
+    if let (Some(eye), Some(target)) = (a.eye, a.look_at) {
+        ensure!(eye != target, "--eye and --look-at must differ");
+    }
+    Ok(())
 }
 
 fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()> {
@@ -137,6 +173,15 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         None => (glam::Vec3::from(pointray::demo::DEMO_VIEW.0), pointray::demo::DEMO_VIEW.1),
     };
     let distance = a.distance.unwrap_or(default_distance);
+    // The camera frames the points' bounds (the Embree bench's convention); a cloud of one
+    // point, or of coincident points, has none, and then the disks' bounds serve.
+    let bounds = if bounds.diagonal() > 0.0 { bounds } else { accel.bounds() };
+    let bounds = if bounds.diagonal() > 0.0 {
+        bounds
+    } else {
+        tracing::warn!("{input_name}: the model has no extent; framing a unit box around it");
+        pointray::math::Aabb::new(bounds.center() - 0.5, bounds.center() + 0.5)
+    };
     let camera = match (a.eye, a.look_at) {
         (Some(eye), Some(target)) => Camera::look_at(eye, target, a.up, a.fov, a.width, a.height),
         _ => Camera::orbit(&bounds, a.view_dir.unwrap_or(default_view), a.up, distance, a.fov, a.width, a.height),
@@ -156,13 +201,9 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     } else {
         a.region.map_or(Region::full(a.width, a.height), |r| r.clamp_to(a.width, a.height))
     };
-    anyhow::ensure!(
-        region.pixel_count() > 0,
-        "--region {:?} lies outside the {}x{} frame",
-        a.region,
-        a.width,
-        a.height
-    );
+    if let Some(r) = a.region.filter(|_| region.pixel_count() == 0) {
+        anyhow::bail!("--region {},{},{},{} lies outside the {}x{} frame", r.x0, r.y0, r.x1, r.y1, a.width, a.height);
+    }
     let scheme = SurfaceScheme {
         window: a.sj_window,
         ..SurfaceScheme::of_kind(match a.surface {

@@ -23,15 +23,18 @@ pub fn intersect(ray: &Ray, splat: &Splat, t_max: f32) -> Option<DiskHit> {
     let to_center = splat.center - ray.origin;
     let num = to_center.dot(splat.normal);
     // t ∈ [t_min, t_max] ⇔ num·sign(den) ∈ [t_min·|den|, t_max·|den|]; false for den = 0 and
-    // for NaN.
+    // for NaN. The bounds are widened by a few ulps here, because t·den rounds differently
+    // from num, and the exact test on t itself comes last: a disk that ties with the current
+    // nearest hit must reach the visitor whatever order disks arrive in.
     let (num_s, den_a) = if den < 0.0 { (-num, -den) } else { (num, den) };
-    if !(num_s >= ray.t_min * den_a && num_s <= t_max * den_a && den_a > 0.0) {
+    const SLACK: f32 = 1.0 / 65536.0;
+    if !(num_s >= ray.t_min * den_a * (1.0 - SLACK) && num_s <= t_max * den_a * (1.0 + SLACK) && den_a > 0.0) {
         return None;
     }
     let q = ray.dir * num - to_center * den;
     let r2_den2 = splat.radius * splat.radius * den * den;
     let q2 = q.length_squared();
-    if !(q2 < r2_den2) {
+    if q2 >= r2_den2 || q2.is_nan() {
         return None;
     }
     let t = num / den;

@@ -277,10 +277,10 @@ impl SplatVisitor for SjWindow {
         if self.len < WINDOW_CAPACITY {
             self.crossings[self.len] = c;
             self.len += 1;
-        } else if let Some(far) = self.crossings.iter_mut().max_by(|a, b| a.t.total_cmp(&b.t)) {
-            if c.t < far.t {
-                *far = c;
-            }
+        } else if let Some(far) = self.crossings.iter_mut().max_by(|a, b| a.t.total_cmp(&b.t))
+            && c.t < far.t
+        {
+            *far = c;
         }
     }
 }

@@ -59,6 +59,9 @@ pub(crate) struct Node {
     pub(crate) hi: [Vec4; 3],
     /// Inner child: its node index. Leaf child: see [`leaf_ref`].
     pub(crate) child: [u32; WIDTH],
+    /// Bit i set iff slot i holds a child. Traversal masks hits with it: a ray with NaN
+    /// components "enters" even empty boxes, and must not follow an unused slot.
+    pub(crate) used: u32,
 }
 
 impl Node {
@@ -67,7 +70,7 @@ impl Node {
         let get = |i: usize| b.get(i).copied().unwrap_or(Aabb::EMPTY);
         let lo = |k: usize| Vec4::from_array(std::array::from_fn(|i| get(i).min[k]));
         let hi = |k: usize| Vec4::from_array(std::array::from_fn(|i| get(i).max[k]));
-        Self { lo: [lo(0), lo(1), lo(2)], hi: [hi(0), hi(1), hi(2)], child: [0; WIDTH] }
+        Self { lo: [lo(0), lo(1), lo(2)], hi: [hi(0), hi(1), hi(2)], child: [0; WIDTH], used: (1 << b.len()) - 1 }
     }
 
     pub(crate) fn child_bounds(&self, i: usize) -> Aabb {
@@ -136,8 +139,11 @@ pub fn check_invariants(bvh: &Bvh) -> Result<(), String> {
         let mut all = Vec::new();
         for i in 0..WIDTH {
             let boxed = n.child_bounds(i);
-            if boxed.is_empty() {
-                continue; // an unused slot
+            if n.used & (1 << i) == 0 {
+                if !boxed.is_empty() {
+                    return Err(format!("node {node}: unused slot {i} has bounds"));
+                }
+                continue;
             }
             let below = if n.child[i] & LEAF != 0 {
                 let range = leaf_range(n.child[i]);

@@ -36,7 +36,7 @@ impl SlabRay {
         };
         let near = plane(0, true).max(plane(1, true)).max(plane(2, true)).max(Vec4::splat(t0));
         let far = plane(0, false).min(plane(1, false)).min(plane(2, false)).min(Vec4::splat(t1));
-        (near, near.cmple(far).bitmask())
+        (near, near.cmple(far).bitmask() & node.used)
     }
 }
 

@@ -1,0 +1,817 @@
+//! End-to-end tests of the `pointray` binary: every test runs the real executable on
+//! synthetic inputs written to a fresh temporary directory, and checks exit codes, messages,
+//! the PNG it writes (decoded) and the `--stats` JSON.
+
+#[path = "cli/support.rs"]
+mod support;
+
+use std::io::{BufRead, BufReader, Read};
+use std::process::Stdio;
+
+use support::*;
+
+// ---------------------------------------------------------------------------------------------
+// 1. Help texts
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn top_level_help_lists_subcommands_and_examples() {
+    let dir = temp_dir();
+    let run = run_in(dir.path(), &["--help"]);
+    run.assert_success();
+    for needle in
+        ["render", "prepare", "info", "Examples:", "pointray render -o demo.png", "--crop-to-model", "--stats"]
+    {
+        run.assert_stdout_contains(needle);
+    }
+    assert_dir_contains_exactly(dir.path(), &[]);
+}
+
+#[test]
+fn render_help_documents_key_flags_and_examples() {
+    let dir = temp_dir();
+    let run = run_in(dir.path(), &["render", "--help"]);
+    run.assert_success();
+    for needle in [
+        "Examples:",
+        "--output",
+        "--crop-to-model",
+        "--view-dir",
+        "--distance",
+        "--region",
+        "--stats",
+        "--surface",
+        "first-hit",
+        "--accel",
+        "brute",
+        "--spp",
+        "--threads",
+        "--demo-points",
+        "--k-normals",
+    ] {
+        run.assert_stdout_contains(needle);
+    }
+    // Nothing is rendered or written by --help, even though -o is otherwise required.
+    assert_dir_contains_exactly(dir.path(), &[]);
+}
+
+#[test]
+fn prepare_and_info_help_show_their_examples() {
+    let dir = temp_dir();
+    let run = run_in(dir.path(), &["prepare", "--help"]);
+    run.assert_success().assert_stdout_contains("Example:").assert_stdout_contains("pointray prepare");
+    run.assert_stdout_contains("--output")
+        .assert_stdout_contains("--recompute")
+        .assert_stdout_contains("--radius-scale");
+
+    let run = run_in(dir.path(), &["info", "--help"]);
+    run.assert_success().assert_stdout_contains("Example:").assert_stdout_contains("pointray info");
+    assert_dir_contains_exactly(dir.path(), &[]);
+}
+
+#[test]
+fn version_and_missing_subcommand() {
+    let dir = temp_dir();
+    run_in(dir.path(), &["--version"]).assert_success().assert_stdout_contains("pointray");
+    // No subcommand: clap's usage error (exit 2) on stderr.
+    let run = run_in(dir.path(), &[]);
+    assert_eq!(run.code, Some(2), "{run}");
+    run.assert_no_panic();
+    run.assert_stderr_contains("Usage");
+    // render without -o is a usage error too.
+    let run = run_in(dir.path(), &["render"]);
+    assert_eq!(run.code, Some(2), "{run}");
+    run.assert_stderr_contains("--output");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 2. The built-in demo scene, PNG and stats
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn demo_render_writes_png_and_complete_stats() {
+    let dir = temp_dir();
+    render_in(dir.path(), &["-o", "out.png", "--demo-points", "20000", "--stats", "s.json"]).assert_success();
+
+    // Atomic writes leave no temporary files behind.
+    assert_dir_contains_exactly(dir.path(), &["out.png", "s.json"]);
+
+    let image = read_png(&dir.path().join("out.png"));
+    assert_eq!((image.width, image.height), (W, H));
+    let bg = background_srgb8();
+    let lit = image.count_not(bg);
+    assert!(lit > (W * H / 4) as usize, "only {lit} of {} pixels show the scene", W * H);
+    assert!(lit < (W * H) as usize, "no background pixel at all: the sky is not visible");
+    let distinct: std::collections::BTreeSet<[u8; 3]> = image.pixels().map(|(_, _, p)| p).collect();
+    assert!(distinct.len() > 20, "a shaded scene has many colours, got {}", distinct.len());
+
+    let s = read_stats(&dir.path().join("s.json"));
+    for key in [
+        "points",
+        "build_seconds",
+        "render_seconds",
+        "rays",
+        "primary_rays",
+        "mrays_per_second",
+        "hit_fraction",
+        "nodes_visited_per_ray",
+        "splat_tests_per_ray",
+        "accel_bytes",
+        "bytes_per_splat",
+        "preprocess_seconds",
+    ] {
+        assert!(s.get(key).is_some(), "stats lack {key:?}: {s:#}");
+    }
+    let points = stat_u64(&s, "points");
+    assert!((19_000..=20_000).contains(&points), "demo with 20000 points has {points}");
+    let primary = stat_u64(&s, "primary_rays");
+    assert_eq!(primary, u64::from(W * H));
+    let rays = stat_u64(&s, "rays");
+    assert!(rays >= primary, "rays {rays} < primary rays {primary}");
+    assert!(rays > primary, "shadows are on by default, so some shadow rays must be traced");
+    let hit = stat_f64(&s, "hit_fraction");
+    assert!(hit > 0.0 && hit < 1.0, "hit_fraction {hit}");
+    // The PNG and the stats agree about hits: hit pixels are not background.
+    assert!((lit as f64) >= hit * f64::from(W * H) * 0.9, "{lit} lit pixels but hit fraction {hit}");
+    for key in ["build_seconds", "render_seconds"] {
+        let v = stat_f64(&s, key);
+        assert!(v.is_finite() && v >= 0.0, "{key} = {v}");
+    }
+    let mrays = stat_f64(&s, "mrays_per_second");
+    assert!(mrays.is_finite() && mrays > 0.0, "mrays_per_second = {mrays}");
+    assert!(stat_f64(&s, "nodes_visited_per_ray") > 0.0);
+    let tests = stat_f64(&s, "splat_tests_per_ray");
+    assert!(tests > 0.0 && tests < points as f64, "a BVH tests far fewer splats than exist: {tests}");
+    let accel_bytes = stat_u64(&s, "accel_bytes");
+    let per_splat = stat_f64(&s, "bytes_per_splat");
+    assert!(accel_bytes > points, "accel_bytes {accel_bytes}");
+    assert!((per_splat - accel_bytes as f64 / points as f64).abs() < 1e-6 * per_splat, "bytes_per_splat {per_splat}");
+    assert_eq!(s["accel"], "bvh");
+    assert_eq!(s["width"], W);
+    assert_eq!(s["height"], H);
+
+    let pre = s["preprocess_seconds"].as_object().unwrap_or_else(|| panic!("preprocess_seconds is no object: {s:#}"));
+    assert!(!pre.is_empty());
+    let mut sum = 0.0;
+    for (stage, v) in pre {
+        let v = v.as_f64().unwrap_or_else(|| panic!("preprocess_seconds.{stage} is not a number"));
+        assert!(v.is_finite() && v >= 0.0, "preprocess_seconds.{stage} = {v}");
+        if stage != "total" {
+            sum += v;
+        }
+    }
+    if let Some(total) = pre.get("total").and_then(serde_json::Value::as_f64) {
+        assert!((total - sum).abs() <= 1e-9 + 1e-6 * total, "total {total} != sum of stages {sum}");
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// 3. Determinism across thread counts
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn pixels_do_not_depend_on_thread_count() {
+    let dir = temp_dir();
+    for spp in ["1", "2"] {
+        let mut images = Vec::new();
+        for threads in ["1", "2"] {
+            let out = format!("t{threads}_spp{spp}.png");
+            let stats = format!("t{threads}_spp{spp}.json");
+            render_in(
+                dir.path(),
+                &["-o", &out, "--demo-points", "20000", "--threads", threads, "--spp", spp, "--stats", &stats],
+            )
+            .assert_success();
+            let s = read_stats(&dir.path().join(&stats));
+            assert_eq!(stat_u64(&s, "threads").to_string(), threads, "the pool has the requested size");
+            images.push((read_png(&dir.path().join(&out)), stat_u64(&s, "rays"), stat_u64(&s, "primary_rays")));
+        }
+        let (a, b) = (&images[0], &images[1]);
+        assert_eq!((a.0.width, a.0.height), (W, H));
+        assert!(a.0 == b.0, "spp {spp}: 1 and 2 threads give different pixels");
+        assert_eq!(a.1, b.1, "spp {spp}: ray counts differ between 1 and 2 threads");
+        assert_eq!(a.2, b.2);
+    }
+}
+
+#[test]
+fn same_seed_same_image_different_seed_different_image() {
+    let dir = temp_dir();
+    let base = ["--demo-points", "20000", "--spp", "2"];
+    for (out, seed) in [("a.png", "7"), ("b.png", "7"), ("c.png", "8")] {
+        let mut args = vec!["-o", out, "--seed", seed];
+        args.extend_from_slice(&base);
+        render_in(dir.path(), &args).assert_success();
+    }
+    let [a, b, c] = ["a.png", "b.png", "c.png"].map(|f| read_png(&dir.path().join(f)));
+    assert!(a == b, "the same seed gives different pixels");
+    assert!(a != c, "the seed changes neither the demo points nor the jitter");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 4. Brute force and BVH agree
+// ---------------------------------------------------------------------------------------------
+
+fn assert_accels_agree(dir: &std::path::Path, input: &str) {
+    for surface in ["first-hit", "sj"] {
+        let mut renders = Vec::new();
+        for accel in ["brute", "bvh"] {
+            let out = format!("{input}.{surface}.{accel}.png");
+            let stats = format!("{input}.{surface}.{accel}.json");
+            render_in(dir, &[input, "-o", &out, "--accel", accel, "--surface", surface, "--stats", &stats])
+                .assert_success();
+            let s = read_stats(&dir.join(&stats));
+            assert_eq!(
+                s["accel"].as_str().map(str::to_ascii_lowercase).as_deref().map(|a| a.contains(accel)),
+                Some(true),
+                "{s:#}"
+            );
+            renders.push((read_png(&dir.join(&out)), s));
+        }
+        let ((brute, sb), (bvh, sv)) = (&renders[0], &renders[1]);
+        let lit = bvh.count_not(background_srgb8());
+        assert!(lit > 100, "{input} {surface}: the sphere covers only {lit} pixels");
+        let differing: Vec<_> = brute.pixels().zip(bvh.pixels()).filter(|(a, b)| a.2 != b.2).take(5).collect();
+        assert!(differing.is_empty(), "{input} {surface}: brute force and BVH differ, e.g. {differing:?}");
+        assert_eq!(sb["hit_fraction"], sv["hit_fraction"], "{input} {surface}");
+        assert_eq!(sb["primary_rays"], sv["primary_rays"]);
+        // Brute force tests every splat for every ray; the BVH must do far less work.
+        let points = stat_f64(sb, "points");
+        assert!(stat_f64(sb, "splat_tests_per_ray") >= points * 0.99, "{sb:#}");
+        assert!(stat_f64(sv, "splat_tests_per_ray") < points * 0.25, "{sv:#}");
+    }
+}
+
+#[test]
+fn brute_force_and_bvh_give_identical_pixels_positions_only() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    assert_accels_agree(dir.path(), "sphere.ply");
+}
+
+#[test]
+fn brute_force_and_bvh_give_identical_pixels_with_normals() {
+    let dir = temp_dir();
+    write_file(dir.path(), "normals.ply", ascii_ply_with_normals(&sphere_points(2000)));
+    assert_accels_agree(dir.path(), "normals.ply");
+}
+
+#[test]
+fn surface_schemes_differ_but_cover_the_same_silhouette_roughly() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    for surface in ["first-hit", "sj"] {
+        render_in(dir.path(), &["sphere.ply", "-o", &format!("{surface}.png"), "--surface", surface]).assert_success();
+    }
+    let first = read_png(&dir.path().join("first-hit.png"));
+    let sj = read_png(&dir.path().join("sj.png"));
+    assert!(first != sj, "--surface has no effect on the image");
+    let bg = background_srgb8();
+    let (a, b) = (first.count_not(bg) as f64, sj.count_not(bg) as f64);
+    assert!((a - b).abs() <= 0.1 * a.max(b), "silhouettes differ a lot: {a} vs {b} pixels");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 5. Regions and --crop-to-model
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn region_renders_exactly_its_pixels() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    render_in(dir.path(), &["sphere.ply", "-o", "full.png", "--stats", "full.json"]).assert_success();
+    render_in(dir.path(), &["sphere.ply", "-o", "part.png", "--stats", "part.json", "--region", "10,10,30,20"])
+        .assert_success();
+    let s = read_stats(&dir.path().join("part.json"));
+    assert_eq!(stat_u64(&s, "primary_rays"), (30 - 10) * (20 - 10));
+    assert_eq!(stat_u64(&read_stats(&dir.path().join("full.json")), "primary_rays"), u64::from(W * H));
+
+    let full = read_png(&dir.path().join("full.png"));
+    let part = read_png(&dir.path().join("part.png"));
+    assert_eq!((part.width, part.height), (W, H), "a region render still writes the whole frame");
+    let bg = background_srgb8();
+    let mut inside_lit = 0;
+    for (x, y, p) in part.pixels() {
+        if (10..30).contains(&x) && (10..20).contains(&y) {
+            // Per-pixel results do not depend on what else is rendered.
+            assert_eq!(p, full.pixel(x, y), "pixel ({x},{y}) differs from the full-frame render");
+            inside_lit += usize::from(p != bg);
+        } else {
+            assert_eq!(p, bg, "pixel ({x},{y}) outside the region is not background");
+        }
+    }
+    assert!(inside_lit > 50, "the region should cover the sphere, {inside_lit} lit pixels");
+}
+
+#[test]
+fn region_partly_outside_the_frame_is_clamped() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    render_in(dir.path(), &["sphere.ply", "-o", "c.png", "--stats", "c.json", "--region", "40,30,1000,1000"])
+        .assert_success();
+    let s = read_stats(&dir.path().join("c.json"));
+    assert_eq!(stat_u64(&s, "primary_rays"), u64::from((W - 40) * (H - 30)));
+    let image = read_png(&dir.path().join("c.png"));
+    assert_eq!((image.width, image.height), (W, H));
+}
+
+#[test]
+fn crop_to_model_renders_fewer_rays_and_loses_no_hits() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let common = ["sphere.ply", "--distance", "4", "--view-dir", "0.4,0.3,1"];
+    let mut args = common.to_vec();
+    args.extend_from_slice(&["-o", "full.png", "--stats", "full.json"]);
+    render_in(dir.path(), &args).assert_success();
+    let mut args = common.to_vec();
+    args.extend_from_slice(&["-o", "crop.png", "--stats", "crop.json", "--crop-to-model"]);
+    render_in(dir.path(), &args).assert_success();
+
+    let full_s = read_stats(&dir.path().join("full.json"));
+    let crop_s = read_stats(&dir.path().join("crop.json"));
+    let (full_rays, crop_rays) = (stat_u64(&full_s, "primary_rays"), stat_u64(&crop_s, "primary_rays"));
+    assert_eq!(full_rays, u64::from(W * H));
+    assert!(crop_rays > 0 && crop_rays < full_rays / 2, "crop renders {crop_rays} of {full_rays} primary rays");
+    let (full_hit, crop_hit) = (stat_f64(&full_s, "hit_fraction"), stat_f64(&crop_s, "hit_fraction"));
+    assert!(full_hit > 0.0, "the sphere is not visible at --distance 4");
+    assert!(crop_hit > full_hit, "cropping should raise the hit fraction: {crop_hit} <= {full_hit}");
+    // Same number of hits: the crop is conservative.
+    let (full_hits, crop_hits) = (full_hit * full_rays as f64, crop_hit * crop_rays as f64);
+    assert!((full_hits - crop_hits).abs() < 0.5, "hits {full_hits} (full) vs {crop_hits} (crop)");
+
+    // The same picture: the crop only skips pixels that would be background anyway.
+    let full = read_png(&dir.path().join("full.png"));
+    let crop = read_png(&dir.path().join("crop.png"));
+    let differing: Vec<_> = full.pixels().zip(crop.pixels()).filter(|(a, b)| a.2 != b.2).take(5).collect();
+    assert!(differing.is_empty(), "--crop-to-model changes pixels, e.g. {differing:?}");
+    let r = &crop_s["region"];
+    assert!(r.is_object(), "stats lack the region: {crop_s:#}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 6. prepare and info
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn prepare_adds_normals_and_radii_that_info_reports() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+
+    let raw = run_in(dir.path(), &["info", "sphere.ply"]);
+    raw.assert_success();
+    for needle in
+        ["ascii", "points:      3000", "normals:     no", "radii:       no", "element:     vertex 3000", "diagonal:"]
+    {
+        raw.assert_stdout_contains(needle);
+    }
+
+    run_in(dir.path(), &["-q", "prepare", "sphere.ply", "-o", "prepared.ply"]).assert_success();
+    assert_dir_contains_exactly(dir.path(), &["sphere.ply", "prepared.ply"]);
+
+    let info = run_in(dir.path(), &["info", "prepared.ply"]);
+    info.assert_success();
+    for needle in ["file:        prepared.ply", "binary", "points:      3000", "normals:     yes", "radii:       yes"] {
+        info.assert_stdout_contains(needle);
+    }
+    // Same bounds as the raw cloud: prepare reorders but does not move points.
+    let bounds = |s: &str| s.lines().filter(|l| l.starts_with("bounds")).map(str::to_string).collect::<Vec<_>>();
+    assert_eq!(bounds(&raw.stdout).len(), 2, "{raw}");
+    assert_eq!(bounds(&raw.stdout), bounds(&info.stdout));
+
+    // Rendering the prepared file uses its normals and radii instead of recomputing them.
+    render_in(dir.path(), &["prepared.ply", "-o", "p.png", "--stats", "p.json"]).assert_success();
+    let s = read_stats(&dir.path().join("p.json"));
+    assert_eq!(stat_u64(&s, "points"), 3000);
+    assert_eq!(s["preprocess"]["computed_normals"], false, "{s:#}");
+    assert_eq!(s["preprocess"]["computed_radii"], false, "{s:#}");
+    assert!(read_png(&dir.path().join("p.png")).count_not(background_srgb8()) > 100);
+}
+
+#[test]
+fn prepare_not_quiet_summarises_on_stderr() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let run = run_in(dir.path(), &["prepare", "sphere.ply", "-o", "out.ply"]);
+    run.assert_success().assert_stderr_contains("3000 points").assert_stderr_contains("computed");
+    run.assert_stderr_contains("out.ply");
+    assert!(run.stdout.is_empty(), "prepare prints nothing on stdout: {run}");
+}
+
+#[test]
+fn info_reads_xyz_text() {
+    let dir = temp_dir();
+    let points = [[0.0, 0.0, 0.0], [1.0, 2.0, 3.0], [-1.0, 0.5, 2.0], [0.25, -2.0, 1.0]];
+    write_file(dir.path(), "cloud.xyz", xyz_text(&points));
+    let run = run_in(dir.path(), &["info", "cloud.xyz"]);
+    run.assert_success();
+    for needle in [
+        "file:        cloud.xyz",
+        "XYZ",
+        "points:      4",
+        "normals:     no",
+        "radii:       no",
+        "bounds min:  -1.000000 -2.000000 0.000000",
+        "bounds max:  1.000000 2.000000 3.000000",
+    ] {
+        run.assert_stdout_contains(needle);
+    }
+    assert!(run.stderr.is_empty(), "info writes nothing to stderr on success: {run}");
+}
+
+#[test]
+fn render_and_prepare_accept_xyz() {
+    let dir = temp_dir();
+    write_file(dir.path(), "sphere.xyz", xyz_text(&sphere_points(2000)));
+    render_in(dir.path(), &["sphere.xyz", "-o", "x.png", "--stats", "x.json"]).assert_success();
+    assert_eq!(stat_u64(&read_stats(&dir.path().join("x.json")), "points"), 2000);
+    assert!(read_png(&dir.path().join("x.png")).count_not(background_srgb8()) > 100);
+    run_in(dir.path(), &["-q", "prepare", "sphere.xyz", "-o", "x.ply"]).assert_success();
+    run_in(dir.path(), &["info", "x.ply"]).assert_success().assert_stdout_contains("points:      2000");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 7. Bad input files
+// ---------------------------------------------------------------------------------------------
+
+/// Bad input files, by name: (file name, contents or None for "does not exist").
+fn bad_inputs() -> Vec<(&'static str, Option<Vec<u8>>)> {
+    let points = sphere_points(100);
+    let mut truncated = binary_ply(&points, 100);
+    truncated.truncate(truncated.len() - 100 * 12 / 2 - 5);
+    let garbage = ascii_ply(&points[..10], 0).replace("\n0.", "\nbanana ").into_bytes();
+    assert!(garbage.windows(6).any(|w| w == b"banana"));
+    let huge_binary = binary_ply(&points, 1_000_000_000_000);
+    let huge_ascii = ascii_ply(&points, 0).replace("element vertex 100", "element vertex 1000000000000").into_bytes();
+    vec![
+        ("missing.ply", None),
+        ("empty.ply", Some(Vec::new())),
+        ("truncated.ply", Some(truncated)),
+        ("garbage.ply", Some(garbage)),
+        ("huge_binary.ply", Some(huge_binary)),
+        ("huge_ascii.ply", Some(huge_ascii)),
+        ("not_a_ply.ply", Some(b"hello world\n1 2 3\n".to_vec())),
+        ("header_only.ply", Some(b"ply\nformat ascii 1.0\nelement vertex 3\n".to_vec())),
+        ("garbage.xyz", Some(b"1 2 3\n4 five 6\n".to_vec())),
+        ("mystery.bin", Some(vec![0xff, 0x00, 0x13, 0x37, 0x80, 0x81])),
+    ]
+}
+
+#[track_caller]
+fn assert_clean_failure(run: &Run, file: &str) {
+    run.assert_failure(1);
+    run.assert_stderr_contains(file);
+    run.assert_stderr_contains("error");
+}
+
+#[test]
+fn bad_input_files_fail_cleanly_in_every_command() {
+    let dir = temp_dir();
+    let sub = dir.path().join("sub");
+    std::fs::create_dir(&sub).unwrap();
+    let mut inputs = Vec::new();
+    for (name, contents) in bad_inputs() {
+        if let Some(bytes) = contents {
+            write_file(dir.path(), name, bytes);
+            inputs.push(name.to_string());
+        }
+    }
+    for (name, _) in bad_inputs() {
+        let runs = [
+            render_in(dir.path(), &[name, "-o", "out.png", "--stats", "out.json"]),
+            render_in(dir.path(), &[name, "-o", "sub/out.png"]),
+            run_in(dir.path(), &["-q", "prepare", name, "-o", "out.ply"]),
+            run_in(dir.path(), &["prepare", name, "-o", "sub/out.ply"]),
+            run_in(dir.path(), &["info", name]),
+        ];
+        for run in &runs {
+            assert_clean_failure(run, name);
+            assert!(run.stdout.is_empty(), "nothing on stdout for a failure: {run}");
+        }
+        // No output (nor temporary file) appeared, neither beside the inputs nor in sub/.
+        let mut expected: Vec<&str> = inputs.iter().map(String::as_str).collect();
+        expected.push("sub");
+        assert_dir_contains_exactly(dir.path(), &expected);
+        assert_dir_contains_exactly(&sub, &[]);
+    }
+}
+
+#[test]
+fn bad_input_errors_name_the_problem() {
+    let dir = temp_dir();
+    for (name, contents) in bad_inputs() {
+        if let Some(bytes) = contents {
+            write_file(dir.path(), name, bytes);
+        }
+    }
+    let msg = |name: &str| {
+        let run = run_in(dir.path(), &["info", name]);
+        assert_clean_failure(&run, name);
+        run.stderr.to_lowercase()
+    };
+    assert!(msg("missing.ply").contains("no such file"));
+    assert!(msg("empty.ply").contains("empty"));
+    // Binary errors carry a byte offset, text errors a line number.
+    assert!(msg("truncated.ply").contains("byte"));
+    assert!(msg("garbage.ply").contains("line"));
+    assert!(msg("garbage.xyz").contains("line 2"));
+    let huge = msg("huge_binary.ply");
+    assert!(huge.contains("1000000000000"), "the claimed count is reported: {huge}");
+
+    // An absolute path appears as given.
+    let abs = dir.path().join("empty.ply");
+    let run = run_in(dir.path(), &["info", abs.to_str().unwrap()]);
+    assert_clean_failure(&run, abs.to_str().unwrap());
+}
+
+#[test]
+fn cloud_without_finite_points_is_an_error() {
+    let dir = temp_dir();
+    write_file(dir.path(), "nan.xyz", "nan nan nan\ninf 1 2\n");
+    write_file(dir.path(), "zero.ply", ascii_ply(&[], 0));
+    for name in ["nan.xyz", "zero.ply"] {
+        let run = render_in(dir.path(), &[name, "-o", "out.png"]);
+        assert_clean_failure(&run, name);
+        run.assert_stderr_contains("no (finite) points");
+        let run = run_in(dir.path(), &["-q", "prepare", name, "-o", "out.ply"]);
+        assert_clean_failure(&run, name);
+    }
+    assert_dir_contains_exactly(dir.path(), &["nan.xyz", "zero.ply"]);
+    // info describes such a file without failing.
+    run_in(dir.path(), &["info", "nan.xyz"]).assert_success().assert_stdout_contains("non-finite:  2 points");
+    run_in(dir.path(), &["info", "zero.ply"]).assert_success().assert_stdout_contains("points:      0");
+}
+
+fn write_tiny_clouds(dir: &std::path::Path) {
+    write_file(dir, "one.xyz", "1 2 3\n");
+    write_file(dir, "two.xyz", "1 2 3\n1 2 4\n");
+    write_file(dir, "same.xyz", "1 2 3\n".repeat(50));
+    write_file(dir, "line.xyz", (0..50).map(|i| format!("{i} 0 0\n")).collect::<String>());
+}
+
+/// Renders `name` with both accelerators; they must succeed and agree.
+fn assert_tiny_cloud_renders(dir: &std::path::Path, name: &str) {
+    let mut images = Vec::new();
+    for accel in ["brute", "bvh"] {
+        let out = format!("{name}.{accel}.png");
+        render_in(dir, &[name, "-o", &out, "--accel", accel]).assert_success();
+        let image = read_png(&dir.join(&out));
+        assert_eq!((image.width, image.height), (W, H));
+        images.push(image);
+    }
+    assert!(images[0] == images[1], "{name}: brute force and BVH differ");
+    run_in(dir, &["-q", "prepare", name, "-o", &format!("{name}.ply")]).assert_success();
+}
+
+#[test]
+fn tiny_clouds_render_without_panicking() {
+    let dir = temp_dir();
+    write_tiny_clouds(dir.path());
+    for name in ["two.xyz", "line.xyz"] {
+        assert_tiny_cloud_renders(dir.path(), name);
+    }
+}
+
+#[test]
+fn single_point_and_coincident_clouds_render_without_panicking() {
+    let dir = temp_dir();
+    write_tiny_clouds(dir.path());
+    for name in ["one.xyz", "same.xyz"] {
+        assert_tiny_cloud_renders(dir.path(), name);
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// 7b. Bad flags
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn bad_flags_are_rejected_with_clear_messages() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    // (extra args, exit code, words the message must contain)
+    let cases: &[(&[&str], i32, &[&str])] = &[
+        (&["--width", "0", "--height", "40"], 1, &["--width", "positive"]),
+        (&["--width", "48", "--height", "0"], 1, &["--height", "positive"]),
+        (&["--width", "48", "--height", "40", "--fov", "0"], 1, &["--fov"]),
+        (&["--width", "48", "--height", "40", "--fov", "180"], 1, &["--fov"]),
+        (&["--width", "48", "--height", "40", "--distance=-1"], 1, &["--distance", "positive"]),
+        (&["--width", "48", "--height", "40", "--distance", "0"], 1, &["--distance", "positive"]),
+        // `-1` looks like a flag to clap: a usage error that tells how to pass it.
+        (&["--width", "48", "--height", "40", "--distance", "-1"], 2, &["-1"]),
+        (&["--width", "48", "--height", "40", "--spp", "0"], 1, &["--spp"]),
+        (&["--width", "48", "--height", "40", "--k-normals", "2"], 1, &["--k-normals"]),
+        (&["--width", "48", "--height", "40", "--k-radius", "0"], 1, &["--k-radius"]),
+        (&["--width", "48", "--height", "40", "--radius-scale", "0"], 1, &["--radius-scale"]),
+        (&["--width", "48", "--height", "40", "--region", "5,5,2,2"], 2, &["--region", "empty region"]),
+        (&["--width", "48", "--height", "40", "--region", "1,2,3"], 2, &["--region", "4"]),
+        (&["--width", "48", "--height", "40", "--region", "1.5,0,3,3"], 2, &["--region", "integers"]),
+        (&["--width", "48", "--height", "40", "--region", "100,100,200,200"], 1, &["--region", "outside"]),
+        (&["--width", "48", "--height", "40", "--region", "0,0,8,8", "--crop-to-model"], 2, &["--crop-to-model"]),
+        (&["--width", "48", "--height", "40", "--eye", "0,0,3"], 2, &["--look-at"]),
+        (&["--width", "48", "--height", "40", "--view-dir", "1,2"], 2, &["--view-dir", "3"]),
+        (&["--width", "48", "--height", "40", "--view-dir", "1,nan,2"], 2, &["--view-dir"]),
+        (&["--width", "48", "--height", "40", "--accel", "kdtree"], 2, &["--accel", "bvh", "brute"]),
+        (&["--width", "48", "--height", "40", "--surface", "nope"], 2, &["--surface", "first-hit"]),
+        (&["--width", "abc"], 2, &["--width"]),
+    ];
+    for (extra, code, words) in cases {
+        let mut args = vec!["-q", "render", "sphere.ply", "-o", "out.png"];
+        args.extend_from_slice(extra);
+        let run = run_in(dir.path(), &args);
+        run.assert_failure(*code);
+        for w in *words {
+            run.assert_stderr_contains(w);
+        }
+        run.assert_stderr_contains("error");
+        assert_dir_contains_exactly(dir.path(), &["sphere.ply"]);
+    }
+}
+
+#[test]
+fn region_outside_frame_message_shows_the_region_as_typed() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let run = render_in(dir.path(), &["sphere.ply", "-o", "out.png", "--region", "100,100,200,200"]);
+    run.assert_failure(1).assert_stderr_contains("100,100,200,200");
+    assert!(!run.stderr.contains("Some("), "{run}");
+    assert!(!run.stderr.contains("Region {"), "{run}");
+}
+
+#[test]
+fn degenerate_camera_is_rejected() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let cases: &[&[&str]] = &[&["--view-dir", "0,0,0"], &["--up", "0,0,0"], &["--eye", "1,1,1", "--look-at", "1,1,1"]];
+    for extra in cases {
+        let mut args = vec!["sphere.ply", "-o", "out.png"];
+        args.extend_from_slice(extra);
+        let run = render_in(dir.path(), &args);
+        run.assert_failure(1).assert_stderr_contains("error");
+        assert!(!dir.path().join("out.png").exists(), "{run}");
+    }
+}
+
+#[test]
+fn huge_frames_are_rejected_up_front() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    for size in ["4000000000", "100000"] {
+        // A memory limit keeps a regression from thrashing the machine; a fixed CLI refuses
+        // these sizes before allocating anything.
+        let script =
+            format!("ulimit -v 2000000; exec \"$0\" -q render sphere.ply -o out.png --width {size} --height {size}");
+        let output = std::process::Command::new("sh")
+            .args(["-c", &script, env!("CARGO_BIN_EXE_pointray")])
+            .current_dir(dir.path())
+            .env("RUST_BACKTRACE", "0")
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(output.status.code(), Some(1), "size {size}: {stderr}");
+        assert!(!stderr.contains("panicked") && !stderr.contains("memory allocation"), "size {size}: {stderr}");
+        assert!(stderr.contains("--width"), "size {size}: {stderr}");
+        assert_dir_contains_exactly(dir.path(), &["sphere.ply"]);
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// 8. A failed run does not clobber an existing output
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn failed_render_keeps_the_existing_output() {
+    let dir = temp_dir();
+    write_file(dir.path(), "empty.ply", b"");
+    write_file(
+        dir.path(),
+        "garbage.ply",
+        "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1\nx\n",
+    );
+    let old_png = b"not really a png, but precious".to_vec();
+    let old_ply = b"an older prepared cloud".to_vec();
+    let old_json = b"{\"old\": true}".to_vec();
+    write_file(dir.path(), "out.png", &old_png);
+    write_file(dir.path(), "out.ply", &old_ply);
+    write_file(dir.path(), "s.json", &old_json);
+
+    let runs = [
+        render_in(dir.path(), &["empty.ply", "-o", "out.png", "--stats", "s.json"]),
+        render_in(dir.path(), &["garbage.ply", "-o", "out.png", "--stats", "s.json"]),
+        render_in(dir.path(), &["missing.ply", "-o", "out.png", "--stats", "s.json"]),
+        render_in(dir.path(), &["-o", "out.png", "--stats", "s.json", "--fov", "0"]),
+        run_in(dir.path(), &["-q", "prepare", "garbage.ply", "-o", "out.ply"]),
+        run_in(dir.path(), &["-q", "prepare", "empty.ply", "-o", "out.ply"]),
+    ];
+    for run in &runs {
+        run.assert_failure(1);
+        assert_eq!(std::fs::read(dir.path().join("out.png")).unwrap(), old_png, "out.png clobbered by {run}");
+        assert_eq!(std::fs::read(dir.path().join("out.ply")).unwrap(), old_ply, "out.ply clobbered by {run}");
+        assert_eq!(std::fs::read(dir.path().join("s.json")).unwrap(), old_json, "s.json clobbered by {run}");
+    }
+    assert_dir_contains_exactly(dir.path(), &["empty.ply", "garbage.ply", "out.png", "out.ply", "s.json"]);
+}
+
+#[test]
+fn unwritable_outputs_fail_without_leftovers() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    std::fs::create_dir(dir.path().join("adir")).unwrap();
+    // -o names an existing directory, or a file in a directory that does not exist.
+    for out in ["adir", "nodir/out.png"] {
+        let run = render_in(dir.path(), &["sphere.ply", "-o", out]);
+        assert_clean_failure(&run, out);
+        let run = run_in(dir.path(), &["-q", "prepare", "sphere.ply", "-o", out]);
+        assert_clean_failure(&run, out);
+    }
+    assert_dir_contains_exactly(dir.path(), &["adir", "sphere.ply"]);
+    assert_dir_contains_exactly(&dir.path().join("adir"), &[]);
+}
+
+#[test]
+fn failed_stats_write_keeps_the_existing_png() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let old = b"precious".to_vec();
+    write_file(dir.path(), "out.png", &old);
+    let run = render_in(dir.path(), &["sphere.ply", "-o", "out.png", "--stats", "nodir/s.json"]);
+    assert_clean_failure(&run, "nodir/s.json");
+    assert_eq!(std::fs::read(dir.path().join("out.png")).unwrap(), old, "the failed run replaced out.png");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 9. A closed pipe on stdout
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn info_into_a_closed_pipe_exits_successfully() {
+    let dir = temp_dir();
+    // 20000 comment lines: ~900 kB of output, far more than a pipe buffer holds.
+    write_file(dir.path(), "big.ply", ascii_ply(&sphere_points(10), 20_000));
+    let mut child = pointray()
+        .args(["info", "big.ply"])
+        .current_dir(dir.path())
+        .stdin(Stdio::null())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdout = BufReader::new(child.stdout.take().unwrap());
+    let mut first = String::new();
+    stdout.read_line(&mut first).unwrap();
+    assert_eq!(first.trim_end(), "file:        big.ply");
+    drop(stdout); // like `| head -1`
+    let mut stderr = String::new();
+    child.stderr.take().unwrap().read_to_string(&mut stderr).unwrap();
+    let status = child.wait().unwrap();
+    assert!(status.success(), "status {status}, stderr: {stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    assert!(!stderr.contains("error"), "a closed pipe is not an error: {stderr}");
+
+    // And the full output really is long: one line per comment.
+    let run = run_in(dir.path(), &["info", "big.ply"]);
+    run.assert_success();
+    assert_eq!(run.stdout.lines().filter(|l| l.starts_with("comment:")).count(), 20_000);
+    assert!(run.stdout.contains("comment:     synthetic test comment number 19999"));
+    run.assert_stdout_contains("points:      10");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 10. Atomic outputs
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn successful_runs_leave_only_their_outputs() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    std::fs::create_dir(dir.path().join("sub")).unwrap();
+    render_in(dir.path(), &["sphere.ply", "-o", "sub/a.png", "--stats", "sub/a.json"]).assert_success();
+    run_in(dir.path(), &["-q", "prepare", "sphere.ply", "-o", "sub/a.ply"]).assert_success();
+    // Overwriting existing outputs is fine and also leaves nothing behind.
+    render_in(dir.path(), &["sub/a.ply", "-o", "sub/a.png", "--stats", "sub/a.json", "--spp", "2"]).assert_success();
+    assert_dir_contains_exactly(dir.path(), &["sphere.ply", "sub"]);
+    assert_dir_contains_exactly(&dir.path().join("sub"), &["a.json", "a.ply", "a.png"]);
+    let image = read_png(&dir.path().join("sub/a.png"));
+    assert_eq!((image.width, image.height), (W, H));
+    assert_eq!(read_stats(&dir.path().join("sub/a.json"))["samples_per_pixel"], 2);
+
+    // Outputs get ordinary permissions (not the 0600 of a temporary file).
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        let mode = std::fs::metadata(dir.path().join("sub/a.png")).unwrap().permissions().mode();
+        assert_ne!(mode & 0o044, 0, "out.png is readable only by its owner: {mode:o}");
+    }
+}
+
+#[test]
+fn render_reports_on_stderr_unless_quiet() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let run = run_in(dir.path(), &["render", "sphere.ply", "-o", "a.png", "--width", "48", "--height", "40"]);
+    run.assert_success().assert_stderr_contains("3000 points").assert_stderr_contains("a.png");
+    assert!(run.stdout.is_empty(), "{run}");
+    let run = run_in(dir.path(), &["-q", "render", "sphere.ply", "-o", "b.png", "--width", "48", "--height", "40"]);
+    run.assert_success();
+    assert!(run.stderr.is_empty() && run.stdout.is_empty(), "-q prints nothing: {run}");
+    assert!(read_png(&dir.path().join("a.png")) == read_png(&dir.path().join("b.png")));
+}
