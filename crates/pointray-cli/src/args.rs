@@ -80,6 +80,10 @@ pub struct RenderArgs {
     /// SJ interpolation window, in radii of the first disk hit.
     #[arg(long, default_value_t = 1.0)]
     pub sj_window: f32,
+    /// SJ: least coverage Σ(1 − d/r) of the disks in a window for it to count as surface
+    /// (lone disks crossed at their rims are skipped).
+    #[arg(long, default_value_t = pointray::splat::scheme::SurfaceScheme::sj().min_coverage)]
+    pub sj_min_coverage: f32,
     /// Samples per pixel (jittered, anti-aliasing).
     #[arg(long, default_value_t = 1)]
     pub spp: u32,
@@ -88,19 +92,19 @@ pub struct RenderArgs {
     pub seed: u64,
 
     /// Camera position (then --look-at is needed).
-    #[arg(long, value_parser = parse_vec3, requires = "look_at")]
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, requires = "look_at")]
     pub eye: Option<glam::Vec3>,
-    #[arg(long, value_parser = parse_vec3, requires = "eye")]
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, requires = "eye")]
     pub look_at: Option<glam::Vec3>,
     /// Camera up vector.
-    #[arg(long, value_parser = parse_vec3, default_value = "0,1,0")]
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, default_value = "0,1,0")]
     pub up: glam::Vec3,
     /// Vertical field of view, degrees.
     #[arg(long, default_value_t = 60.0)]
     pub fov: f32,
     /// Direction from the model's centre to the camera, when no --eye [default: 0.4,0.3,1;
     /// the demo has its own].
-    #[arg(long, value_parser = parse_vec3, conflicts_with = "eye")]
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, conflicts_with = "eye")]
     pub view_dir: Option<glam::Vec3>,
     /// Camera distance from the model's centre, in bounding-box diagonals, when no --eye
     /// [default: 1; the demo has its own].
@@ -114,10 +118,10 @@ pub struct RenderArgs {
     pub crop_to_model: bool,
 
     /// Directional light: direction towards the light (default: from the camera, raised).
-    #[arg(long, value_parser = parse_vec3, conflicts_with = "light_pos")]
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, conflicts_with = "light_pos")]
     pub light_dir: Option<glam::Vec3>,
     /// Point light position instead.
-    #[arg(long, value_parser = parse_vec3)]
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3)]
     pub light_pos: Option<glam::Vec3>,
     #[arg(long, default_value_t = 1.0)]
     pub light_intensity: f32,

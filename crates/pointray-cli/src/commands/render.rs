@@ -134,6 +134,7 @@ fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     ensure!(a.spp >= 1, "--spp must be at least 1");
     ensure!(a.threads.is_none_or(|t| (1..=1024).contains(&t)), "--threads must be between 1 and 1024");
     ensure!(a.sj_window >= 0.0 && a.sj_window.is_finite(), "--sj-window must be a non-negative number");
+    ensure!(a.sj_min_coverage >= 0.0 && a.sj_min_coverage.is_finite(), "--sj-min-coverage must be non-negative");
     ensure!(a.shadow_offset >= 0.0 && a.shadow_offset.is_finite(), "--shadow-offset must be non-negative");
     ensure!(a.up.length_squared() > 0.0, "--up must not be the zero vector");
     ensure!(a.view_dir.is_none_or(|v| v.length_squared() > 0.0), "--view-dir must not be the zero vector");
@@ -206,6 +207,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     }
     let scheme = SurfaceScheme {
         window: a.sj_window,
+        min_coverage: if matches!(a.surface, SurfaceArg::Sj) { a.sj_min_coverage } else { 0.0 },
         ..SurfaceScheme::of_kind(match a.surface {
             SurfaceArg::Sj => SurfaceKind::Sj,
             SurfaceArg::FirstHit => SurfaceKind::FirstHit,

@@ -13,6 +13,10 @@
 //! within a fraction of r of each other, while a surface behind it is farther away. Only disks
 //! facing the same way as the first one are blended, so the back side of a thin part (closer
 //! than δ) never leaks into the front.
+//!
+//! A window must also be *covered*: Σ(1 − dᵢ/rᵢ) ≥ `min_coverage`. A lone disk crossed near its
+//! rim, sticking out past an edge or a silhouette, otherwise shows as a speck with a normal
+//! from elsewhere; a weakly covered window is skipped and the ray goes on behind it.
 
 use glam::Vec3;
 
@@ -42,15 +46,20 @@ pub struct SurfaceScheme {
     pub kind: SurfaceKind,
     /// SJ window δ in units of the first disk's radius.
     pub window: f32,
+    /// SJ: least coverage Σ(1 − dᵢ/rᵢ) a window must have to count as surface. On a covered
+    /// surface about eight disks overlap a point and the sum is near 2.5; a lone disk crossed at
+    /// its rim, sticking out past an edge or a silhouette, scores near 0, and the ray goes on
+    /// behind it.
+    pub min_coverage: f32,
 }
 
 impl SurfaceScheme {
     pub fn sj() -> Self {
-        Self { kind: SurfaceKind::Sj, window: 1.0 }
+        Self { kind: SurfaceKind::Sj, window: 1.0, min_coverage: 0.15 }
     }
 
     pub fn first_hit() -> Self {
-        Self { kind: SurfaceKind::FirstHit, window: 0.0 }
+        Self { kind: SurfaceKind::FirstHit, window: 0.0, min_coverage: 0.0 }
     }
 
     pub fn of_kind(kind: SurfaceKind) -> Self {
@@ -103,12 +112,26 @@ pub fn intersect<A: Accel + ?Sized>(
             })
         }
         SurfaceKind::Sj => {
-            let mut v = SjWindow::new(scheme.window);
-            accel.traverse(ray, &mut v, stats);
-            v.blend(ray, splats)
+            let mut ray = *ray;
+            let mut weak = None;
+            for _ in 0..MAX_WEAK_WINDOWS {
+                let mut v = SjWindow::new(scheme.window);
+                accel.traverse(&ray, &mut v, stats);
+                let (hit, coverage) = v.blend(&ray, splats)?;
+                if coverage >= scheme.min_coverage {
+                    return Some(hit);
+                }
+                weak = Some(hit);
+                ray.t_min = v.end;
+            }
+            // Several weak windows in a row: keep the last rather than open a hole.
+            weak
         }
     }
 }
+
+/// Most windows an SJ ray skips as too weakly covered before it settles for one.
+const MAX_WEAK_WINDOWS: usize = 4;
 
 /// Whether anything lies on `ray` before `t_max` (shadow rays). Any disk counts: a blocker
 /// needs no interpolation.
@@ -208,7 +231,8 @@ impl SjWindow {
         self.crossings[..self.len].iter().min_by(|a, b| a.t.total_cmp(&b.t))
     }
 
-    fn blend(&mut self, ray: &Ray, splats: &[Splat]) -> Option<SurfaceHit> {
+    /// The blended hit and the window's coverage Σ(1 − dᵢ/rᵢ) over the blended disks.
+    fn blend(&mut self, ray: &Ray, splats: &[Splat]) -> Option<(SurfaceHit, f32)> {
         let list = &mut self.crossings[..self.len];
         // Sum in a fixed order (by t, then by splat contents) so that every accelerator, which
         // visits disks in its own order, blends to the same bits.
@@ -218,9 +242,12 @@ impl SjWindow {
         });
         let first = *list.first()?;
         let first_splat = &splats[first.index as usize];
+        // Blend the disks facing the same way as the first: the back of a thin part may lie
+        // within the window.
         let side = first_splat.normal.dot(ray.dir) > 0.0;
         let (mut wsum, mut t, mut n, mut c) = (0.0f32, 0.0f32, Vec3::ZERO, Vec3::ZERO);
         let mut blended = 0;
+        let mut coverage = 0.0;
         for x in list.iter() {
             let s = &splats[x.index as usize];
             if (s.normal.dot(ray.dir) > 0.0) != side {
@@ -228,6 +255,7 @@ impl SjWindow {
             }
             // SJ Eq. 1: wᵢ = rᵢ − dᵢ. Positive for every accepted crossing (dᵢ < rᵢ).
             let w = s.radius - x.dist2.sqrt();
+            coverage += w / s.radius;
             wsum += w;
             t += w * x.t;
             n += w * s.normal;
@@ -240,7 +268,7 @@ impl SjWindow {
             // Crossings exactly on the rims carry no weight: fall back to the first disk.
             (first.t, first_splat.normal, Vec3::from(first_splat.color_linear()))
         };
-        Some(SurfaceHit {
+        let hit = SurfaceHit {
             t,
             position: ray.at(t),
             normal: facing(n, ray.dir),
@@ -248,7 +276,8 @@ impl SjWindow {
             radius: first_splat.radius,
             splat: first.index,
             blended: blended.max(1),
-        })
+        };
+        Some((hit, coverage))
     }
 }
 
@@ -282,5 +311,43 @@ impl SplatVisitor for SjWindow {
         {
             *far = c;
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::BruteForce;
+    use crate::math::RayCone;
+
+    /// A densely covered plane z = 0 and one disk floating at z = 0.5 in front of it.
+    fn plane_and_lone_disk() -> BruteForce {
+        let mut splats = Vec::new();
+        for i in -20..=20 {
+            for j in -20..=20 {
+                let center = Vec3::new(i as f32 * 0.05, j as f32 * 0.05, 0.0);
+                splats.push(Splat { center, radius: 0.1, normal: Vec3::Z, color: 0 });
+            }
+        }
+        splats.push(Splat { center: Vec3::new(0.0, 0.0, 0.5), radius: 0.2, normal: Vec3::Z, color: 0 });
+        BruteForce::new(splats)
+    }
+
+    fn hit_z(accel: &BruteForce, x: f32, scheme: SurfaceScheme) -> f32 {
+        let ray = Ray::new(Vec3::new(x, 0.0, 3.0), -Vec3::Z, RayCone::default());
+        intersect(accel, &ray, &scheme, &mut TraversalStats::default()).unwrap().position.z
+    }
+
+    #[test]
+    fn sj_skips_a_lone_disk_crossed_at_its_rim_but_keeps_one_crossed_centrally() {
+        let accel = plane_and_lone_disk();
+        // Crossed at d/r = 0.95: coverage 0.05, below the threshold.
+        assert!((hit_z(&accel, 0.19, SurfaceScheme::first_hit()) - 0.5).abs() < 1e-5);
+        assert!(hit_z(&accel, 0.19, SurfaceScheme::sj()).abs() < 1e-5);
+        // Crossed at d/r = 0.25: a surface, even alone.
+        assert!((hit_z(&accel, 0.05, SurfaceScheme::sj()) - 0.5).abs() < 1e-5);
+        // With no threshold SJ keeps the rim hit.
+        let lax = SurfaceScheme { min_coverage: 0.0, ..SurfaceScheme::sj() };
+        assert!((hit_z(&accel, 0.19, lax) - 0.5).abs() < 1e-5);
     }
 }
