@@ -13,7 +13,7 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
   pointray prepare scan.ply -o scan_prepared.ply      compute normals and radii once
   pointray info scan.ply")]
 pub struct Cli {
-    /// More log output (-v: debug, -vv: trace).
+    /// More log output (-v: info, -vv: debug, -vvv: trace).
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]
     pub verbose: u8,
     /// Only errors; no progress bars.
@@ -91,7 +91,7 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
 
-    /// Camera position (then --look-at is needed).
+    /// Camera position, in the file's coordinates (then --look-at is needed).
     #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, requires = "look_at")]
     pub eye: Option<glam::Vec3>,
     #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, requires = "eye")]
@@ -120,7 +120,7 @@ pub struct RenderArgs {
     /// Directional light: direction towards the light (default: from the camera, raised).
     #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, conflicts_with = "light_pos")]
     pub light_dir: Option<glam::Vec3>,
-    /// Point light position instead.
+    /// Point light position instead, in the file's coordinates.
     #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3)]
     pub light_pos: Option<glam::Vec3>,
     #[arg(long, default_value_t = 1.0)]

@@ -159,6 +159,12 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     let bounds = cloud.bounds();
 
     // 2. The accelerator.
+    anyhow::ensure!(
+        cloud.len() <= pointray::accel::bvh::MAX_SPLATS,
+        "{input_name}: {} points is more than the {} a BVH can index",
+        cloud.len(),
+        pointray::accel::bvh::MAX_SPLATS
+    );
     let splats = splats_from_cloud(&cloud);
     let mean_radius = splats.iter().map(|s| f64::from(s.radius)).sum::<f64>() / splats.len() as f64;
     let t = Instant::now();
@@ -183,12 +189,15 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         tracing::warn!("{input_name}: the model has no extent; framing a unit box around it");
         pointray::math::Aabb::new(bounds.center() - 0.5, bounds.center() + 0.5)
     };
-    let camera = match (a.eye, a.look_at) {
+    // Positions the user gives are in the file's coordinates; the cloud is stored relative to
+    // its origin (see `PointCloud`).
+    let local = |p: glam::Vec3| (p.as_dvec3() - cloud.origin).as_vec3();
+    let camera = match (a.eye.map(local), a.look_at.map(local)) {
         (Some(eye), Some(target)) => Camera::look_at(eye, target, a.up, a.fov, a.width, a.height),
         _ => Camera::orbit(&bounds, a.view_dir.unwrap_or(default_view), a.up, distance, a.fov, a.width, a.height),
     };
     let light = match (a.light_pos, a.light_dir) {
-        (Some(position), _) => Light::Point { position, intensity: a.light_intensity },
+        (Some(position), _) => Light::Point { position: local(position), intensity: a.light_intensity },
         (None, Some(direction)) => Light::Directional { direction, intensity: a.light_intensity },
         (None, None) if a.input.is_none() => pointray::demo::demo_light(),
         // A headlight raised and shifted right, as in the Embree bench.

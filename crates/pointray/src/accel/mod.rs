@@ -61,11 +61,3 @@ pub trait Accel: Send + Sync {
     /// roughly front to back, until the visitor is `done`.
     fn traverse<V: SplatVisitor>(&self, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats);
 }
-
-/// Which accelerator to build (the closed set the CLI offers).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum AccelKind {
-    Bvh,
-    Brute,
-}

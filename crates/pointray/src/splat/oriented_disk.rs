@@ -53,6 +53,11 @@ mod tests {
     }
 
     #[test]
+    fn splat_is_32_bytes() {
+        assert_eq!(size_of::<Splat>(), 32);
+    }
+
+    #[test]
     fn hits_inside_and_misses_outside() {
         let d = disk();
         for (x, hit) in [(0.10, true), (0.49, true), (0.51, false)] {

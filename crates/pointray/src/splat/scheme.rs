@@ -117,14 +117,16 @@ pub fn intersect<A: Accel + ?Sized>(
             for _ in 0..MAX_WEAK_WINDOWS {
                 let mut v = SjWindow::new(scheme.window);
                 accel.traverse(&ray, &mut v, stats);
-                let (hit, coverage) = v.blend(&ray, splats)?;
+                // Nothing behind a weak window: it was the surface after all (a thinly covered
+                // spot), not a disk sticking out in front of one.
+                let Some((hit, coverage)) = v.blend(&ray, splats) else { return weak };
                 if coverage >= scheme.min_coverage {
                     return Some(hit);
                 }
-                weak = Some(hit);
+                weak.get_or_insert(hit);
                 ray.t_min = v.end;
             }
-            // Several weak windows in a row: keep the last rather than open a hole.
+            // Weak windows all the way: keep the first rather than open a hole.
             weak
         }
     }
@@ -164,7 +166,7 @@ impl SplatVisitor for Nearest {
         self.t_max
     }
 
-    #[inline]
+    #[inline(always)]
     fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32) {
         let Some(h) = oriented_disk::intersect(ray, splat, self.t_max) else { return };
         let better = match self.best {
@@ -189,7 +191,7 @@ impl SplatVisitor for AnyHit {
         self.t_max
     }
 
-    #[inline]
+    #[inline(always)]
     fn visit(&mut self, ray: &Ray, splat: &Splat, _index: u32) {
         if oriented_disk::intersect(ray, splat, self.t_max).is_some() {
             self.hit = true;
@@ -202,7 +204,8 @@ impl SplatVisitor for AnyHit {
 }
 
 /// Most disks a window holds; on a smooth surface a ray crosses a handful (about the mean
-/// overlap, πr²·density). Past the cap the farthest crossing is dropped.
+/// overlap, πr²·density). Past the cap the farthest crossing is dropped (the one place where
+/// the visiting order could matter: only with more than this many crossings tied for last).
 const WINDOW_CAPACITY: usize = 24;
 
 #[derive(Clone, Copy, Default)]
@@ -290,7 +293,11 @@ impl SplatVisitor for SjWindow {
     fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32) {
         let Some(h) = oriented_disk::intersect(ray, splat, self.end) else { return };
         let first_t = self.first().map_or(f32::INFINITY, |c| c.t);
-        if h.t < first_t {
+        if h.t == first_t {
+            // A tie for nearest: the window reaches as far as the widest of them allows,
+            // whatever order they arrive in.
+            self.end = self.end.max(h.t + self.window * splat.radius);
+        } else if h.t < first_t {
             self.end = h.t + self.window * splat.radius;
             let end = self.end;
             let mut kept = 0;

@@ -19,26 +19,63 @@ use glam::{Vec3, Vec4};
 use crate::math::Aabb;
 use crate::splat::Splat;
 
-/// A child reference is a node index, or for a leaf `LEAF | (count − 1) << FIRST_BITS | first`:
-/// one word on the traversal stack says everything about a child.
+/// A child reference is a node index, or for a leaf
+/// `LEAF | (packets − 1) << FIRST_BITS | first packet`: one word on the traversal stack says
+/// everything about a child.
 const LEAF: u32 = 1 << 31;
 const FIRST_BITS: u32 = 27;
-/// Most splats a leaf can hold (its count takes the 4 bits between `LEAF` and the index).
+/// Splats tested together: a leaf's splats are stored again in packets of this many lanes.
+pub(crate) const LANES: usize = 4;
+/// Most splats a leaf can hold (its packet count takes the bits between `LEAF` and the index).
 pub(crate) const MAX_LEAF_SIZE: usize = 16;
 /// Most splats a BVH can index (2²⁷ ≈ 134 million).
 pub const MAX_SPLATS: usize = 1 << FIRST_BITS;
 
-fn leaf_ref(first: usize, count: usize) -> u32 {
-    debug_assert!((1..=MAX_LEAF_SIZE).contains(&count) && first < MAX_SPLATS);
-    LEAF | ((count - 1) as u32) << FIRST_BITS | first as u32
+fn leaf_ref(first_packet: usize, packets: usize) -> u32 {
+    debug_assert!((1..=MAX_LEAF_SIZE / LANES).contains(&packets) && first_packet < MAX_SPLATS);
+    LEAF | ((packets - 1) as u32) << FIRST_BITS | first_packet as u32
 }
 
-/// The splat range of a leaf reference.
+/// The packet range of a leaf reference.
 #[inline(always)]
-fn leaf_range(child: u32) -> std::ops::Range<usize> {
+fn leaf_packets(child: u32) -> std::ops::Range<usize> {
     let first = (child & ((1 << FIRST_BITS) - 1)) as usize;
     let count = ((child & !LEAF) >> FIRST_BITS) as usize + 1;
     first..first + count
+}
+
+/// Up to four consecutive splats of one leaf in structure-of-arrays form, so that one SSE
+/// pass rejects the disks a ray misses (most of them) before the surface scheme sees the rest.
+/// Unused lanes have radius 0, which no ray hits.
+#[repr(C, align(64))]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SplatPacket {
+    pub(crate) center: [Vec4; 3],
+    pub(crate) normal: [Vec4; 3],
+    pub(crate) radius: Vec4,
+    /// Index in `Bvh::splats` of the splat in lane 0; lane i holds splat `first + i`.
+    pub(crate) first: u32,
+    /// Lanes in use.
+    pub(crate) count: u32,
+}
+
+impl SplatPacket {
+    fn new(splats: &[Splat], first: usize) -> Self {
+        debug_assert!((1..=LANES).contains(&splats.len()));
+        let lane = |i: usize| splats.get(i).copied().unwrap_or(Splat { radius: 0.0, ..splats[0] });
+        let get = |f: &dyn Fn(&Splat) -> f32| Vec4::from_array(std::array::from_fn(|i| f(&lane(i))));
+        Self {
+            center: [get(&|s| s.center.x), get(&|s| s.center.y), get(&|s| s.center.z)],
+            normal: [get(&|s| s.normal.x), get(&|s| s.normal.y), get(&|s| s.normal.z)],
+            radius: get(&|s| s.radius),
+            first: first as u32,
+            count: splats.len() as u32,
+        }
+    }
+
+    pub(crate) fn indices(&self) -> std::ops::Range<usize> {
+        self.first as usize..(self.first + self.count) as usize
+    }
 }
 
 /// The deepest a build may go: traversal stacks are sized from it.
@@ -83,6 +120,8 @@ impl Node {
 pub struct Bvh {
     pub(crate) nodes: Vec<Node>,
     pub(crate) splats: Vec<Splat>,
+    /// The leaves' splats again, in packets (see [`SplatPacket`]).
+    pub(crate) packets: Vec<SplatPacket>,
     pub(crate) bounds: Aabb,
     /// For each splat of `splats`, its index in the input the BVH was built from.
     pub(crate) input_index: Vec<u32>,
@@ -118,7 +157,9 @@ impl super::Accel for Bvh {
     }
 
     fn memory_bytes(&self) -> usize {
-        self.nodes.len() * size_of::<Node>() + self.input_index.len() * size_of::<u32>()
+        self.nodes.len() * size_of::<Node>()
+            + self.packets.len() * size_of::<SplatPacket>()
+            + self.input_index.len() * size_of::<u32>()
     }
 
     fn traverse<V: super::SplatVisitor>(
@@ -146,9 +187,8 @@ pub fn check_invariants(bvh: &Bvh) -> Result<(), String> {
                 continue;
             }
             let below = if n.child[i] & LEAF != 0 {
-                let range = leaf_range(n.child[i]);
                 let mut b = Vec::new();
-                for j in range {
+                for j in leaf_packets(n.child[i]).flat_map(|p| bvh.packets[p].indices()) {
                     let flag = seen.get_mut(j).ok_or(format!("leaf of node {node} points past the splats"))?;
                     if std::mem::replace(flag, true) {
                         return Err(format!("splat {j} is in two leaves"));
@@ -182,7 +222,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn node_is_two_cache_lines() {
+    fn node_and_packet_are_two_cache_lines() {
         assert_eq!(size_of::<Node>(), 128);
+        assert_eq!(size_of::<SplatPacket>(), 128);
     }
 }

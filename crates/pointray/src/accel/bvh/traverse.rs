@@ -4,7 +4,7 @@
 
 use glam::Vec4;
 
-use super::{Bvh, LEAF, Node, WIDTH, leaf_range};
+use super::{Bvh, LEAF, Node, SplatPacket, WIDTH, leaf_packets};
 use crate::accel::{SplatVisitor, TraversalStats};
 use crate::math::Ray;
 
@@ -13,6 +13,7 @@ use crate::math::Ray;
 /// plane is its `hi` side).
 struct SlabRay {
     origin: [Vec4; 3],
+    dir: [Vec4; 3],
     inv_dir: [Vec4; 3],
     backwards: [bool; 3],
 }
@@ -21,6 +22,7 @@ impl SlabRay {
     fn new(ray: &Ray) -> Self {
         Self {
             origin: std::array::from_fn(|k| Vec4::splat(ray.origin[k])),
+            dir: std::array::from_fn(|k| Vec4::splat(ray.dir[k])),
             inv_dir: std::array::from_fn(|k| Vec4::splat(ray.inv_dir[k])),
             backwards: std::array::from_fn(|k| ray.inv_dir[k] < 0.0),
         }
@@ -38,6 +40,28 @@ impl SlabRay {
         let far = plane(0, false).min(plane(1, false)).min(plane(2, false)).min(Vec4::splat(t1));
         (near, near.cmple(far).bitmask() & node.used)
     }
+
+    /// The lanes of `packet` whose disk the ray may cross in `[t0, t1]`. The arithmetic is the
+    /// scalar test's (`splat::oriented_disk::intersect`) lane by lane, in the same order, with
+    /// a little more slack: a pre-filter that never rejects a disk the exact test accepts.
+    #[inline(always)]
+    fn packet_candidates(&self, packet: &SplatPacket, t0: f32, t1: f32) -> u32 {
+        let dot = |a: &[Vec4; 3], b: &[Vec4; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let den = dot(&self.dir, &packet.normal);
+        let to_center: [Vec4; 3] = std::array::from_fn(|k| packet.center[k] - self.origin[k]);
+        let num = dot(&to_center, &packet.normal);
+        let negative = den.cmplt(Vec4::ZERO);
+        let num_s = Vec4::select(negative, -num, num);
+        let den_a = den.abs();
+        const SLACK: f32 = 1.0 / 16384.0;
+        let in_range = num_s.cmpge(Vec4::splat(t0 * (1.0 - SLACK)) * den_a)
+            & num_s.cmple(Vec4::splat(t1 * (1.0 + SLACK)) * den_a)
+            & den_a.cmpgt(Vec4::ZERO);
+        let q: [Vec4; 3] = std::array::from_fn(|k| self.dir[k] * num - to_center[k] * den);
+        let q2 = dot(&q, &q);
+        let r2_den2 = packet.radius * packet.radius * den * den * (1.0 + SLACK);
+        (in_range & q2.cmplt(r2_den2)).bitmask()
+    }
 }
 
 /// Widens the visitor's `t_max` for culling by a few ulps: a box's entry distance and the hit
@@ -48,22 +72,28 @@ fn cull_limit(t_max: f32) -> f32 {
     t_max * (1.0 + 1.0 / 65536.0)
 }
 
-/// Stack entries for trees up to this deep live in a fixed array on the machine stack; deeper
-/// (pathological) trees get a heap-allocated stack. Real scans give depths of 10–20.
-const INLINE_DEPTH: usize = 32;
+thread_local! {
+    /// Each thread's traversal stack, reused from ray to ray: a fresh array per ray would cost
+    /// a memset of the whole stack every time.
+    static STACK: std::cell::RefCell<Vec<(u32, f32)>> = const { std::cell::RefCell::new(Vec::new()) };
+}
 
 pub(super) fn traverse<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
     if bvh.nodes.is_empty() {
         return;
     }
     // Each level pushes at most WIDTH − 1 entries.
-    if bvh.depth <= INLINE_DEPTH {
-        let mut stack = [(0u32, 0f32); (WIDTH - 1) * INLINE_DEPTH + 1];
-        traverse_with(bvh, ray, visitor, stats, &mut stack);
-    } else {
-        let mut stack = vec![(0u32, 0f32); (WIDTH - 1) * bvh.depth + 1];
-        traverse_with(bvh, ray, visitor, stats, &mut stack);
-    }
+    let need = (WIDTH - 1) * bvh.depth + 1;
+    STACK.with(|cell| match cell.try_borrow_mut() {
+        Ok(mut stack) => {
+            if stack.len() < need {
+                stack.resize(need, (0, 0.0));
+            }
+            traverse_with(bvh, ray, visitor, stats, &mut stack);
+        }
+        // Re-entered from inside a visitor (a traversal that starts another): its own stack.
+        Err(_) => traverse_with(bvh, ray, visitor, stats, &mut vec![(0, 0.0); need]),
+    });
 }
 
 /// The traversal proper, with `stack` large enough for the tree: entries are
@@ -83,9 +113,14 @@ fn traverse_with<V: SplatVisitor>(
         let (child, entry) = current;
         if entry <= cull_limit(visitor.t_max()) {
             if child & LEAF != 0 {
-                for i in leaf_range(child) {
-                    stats.splat_tests += 1;
-                    visitor.visit(ray, &bvh.splats[i], i as u32);
+                for packet in &bvh.packets[leaf_packets(child)] {
+                    stats.splat_tests += u64::from(packet.count);
+                    let mut lanes = slab.packet_candidates(packet, ray.t_min, visitor.t_max());
+                    while lanes != 0 {
+                        let i = packet.first as usize + lanes.trailing_zeros() as usize;
+                        lanes &= lanes - 1;
+                        visitor.visit(ray, &bvh.splats[i], i as u32);
+                    }
                 }
                 if visitor.done() {
                     return;

@@ -1,0 +1,57 @@
+#!/usr/bin/env python3
+"""pointray beside Embree's oriented-disc points, back to back on the same file and camera.
+
+Usage: scripts/bench_vs_embree.py MODEL.ply [--dist 1,4,16] [--threads 2] [--reps 10] [--size 1024]
+
+The model is first run through `pointray prepare`, so both renderers see the same normals and
+radii. For each distance it runs one pointray benchmark (`--surface first-hit --no-shadows
+--crop-to-model --bench-frames REPS`: primary rays only, like Embree's |N.L| shading) and then
+Embree's bench (`--geom oriented --crop --reps REPS`), and prints a Markdown table of median
+frame times. Needs `cargo build --release` and ../shared/bench/embree built (see its README).
+"""
+import argparse, json, os, subprocess, sys, tempfile
+
+here = os.path.dirname(os.path.abspath(__file__))
+root = os.path.dirname(here)
+pointray = os.path.join(root, "target", "release", "pointray")
+embree = os.path.join(root, "..", "shared", "bench", "embree", "bin", "embree_points_bench")
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("model")
+    ap.add_argument("--dist", default="1,4,16")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--reps", type=int, default=10)
+    ap.add_argument("--size", type=int, default=1024)
+    a = ap.parse_args()
+    for exe in (pointray, embree):
+        if not os.path.exists(exe):
+            sys.exit(f"missing {exe}")
+    tmp = tempfile.mkdtemp()
+    prepared = os.path.join(tmp, "prepared.ply")
+    subprocess.run([pointray, "-q", "prepare", a.model, "-o", prepared], check=True)
+    print(f"model {os.path.basename(a.model)}, {a.size}x{a.size}, {a.threads} threads, crop, median of {a.reps} frames\n")
+    print("| k | rays | pointray build s | Embree build s | pointray Mrays/s | Embree Mrays/s | ratio | nodes/ray | splat tests/ray | pointray B/splat | Embree BVH MB |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for k in a.dist.split(","):
+        stats = os.path.join(tmp, "s.json")
+        subprocess.run([pointray, "-q", "render", prepared, "-o", os.path.join(tmp, "p.png"), "--distance", k,
+                        "--crop-to-model", "--surface", "first-hit", "--no-shadows", "--threads", str(a.threads),
+                        "--width", str(a.size), "--height", str(a.size), "--bench-frames", str(a.reps),
+                        "--stats", stats], check=True)
+        p = json.load(open(stats))
+        out = subprocess.run([embree, prepared, "--geom", "oriented", "--threads", str(a.threads), "--dist", k,
+                              "--crop", "--reps", str(a.reps), "--size", f"{a.size}x{a.size}"],
+                             check=True, capture_output=True, text=True).stdout
+        e = json.loads(out.strip().splitlines()[-1])
+        if e["rays"] != p["primary_rays"]:
+            print(f"warning: k={k}: Embree traced {e['rays']} rays, pointray {p['primary_rays']}", file=sys.stderr)
+        ratio = p["mrays_per_second"] / e["mrays_s"]
+        print(f"| {k} | {p['primary_rays']} | {p['build_seconds']:.3f} | {e['build_s']:.3f} | {p['mrays_per_second']:.2f} | "
+              f"{e['mrays_s']:.2f} | {ratio:.2f} | {p['nodes_visited_per_ray']:.1f} | {p['splat_tests_per_ray']:.1f} | "
+              f"{p['bytes_per_splat']:.1f} | {e['bvh_mb']:.1f} |")
+
+
+if __name__ == "__main__":
+    main()
