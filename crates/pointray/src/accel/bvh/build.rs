@@ -73,7 +73,7 @@ impl Bvh {
     /// # Panics
     /// With more than [`MAX_SPLATS`] splats, or parameters out of range.
     pub fn build(splats: Vec<Splat>, params: &BvhParams) -> Bvh {
-        assert!(params.bins >= 2 && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
+        assert!((2..=MAX_BINS).contains(&params.bins) && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
         assert!(splats.len() <= MAX_SPLATS, "a BVH indexes at most {MAX_SPLATS} splats");
         let mut prims: Vec<Prim> = splats
             .iter()
@@ -194,28 +194,31 @@ fn bin_index(x: f32, lo: f32, scale: f32, bins: usize) -> usize {
     (((x - lo) * scale) as usize).min(bins - 1)
 }
 
+/// Most bins per axis (the binning arrays live on the stack).
+pub(crate) const MAX_BINS: usize = 32;
+
 /// The cheapest binned SAH split over all three axes, or `None` when all centroids coincide.
+/// One pass over the primitives bins all three axes at once.
 fn best_sah_split(prims: &[Prim], bounds: &Aabb, params: &BvhParams) -> Option<Split> {
     let cb = prims.iter().fold(Aabb::EMPTY, |b, p| b.grow(p.centroid));
     let bins = params.bins;
+    let lo = cb.min;
+    let extent = cb.extent();
+    let scale = Vec3::select(extent.cmpgt(Vec3::ZERO), Vec3::splat(bins as f32) / extent, Vec3::ZERO);
+    let mut bin_bounds = [[Aabb::EMPTY; MAX_BINS]; 3];
+    let mut bin_counts = [[0usize; MAX_BINS]; 3];
+    for p in prims {
+        for axis in 0..3 {
+            let b = bin_index(p.centroid[axis], lo[axis], scale[axis], bins);
+            bin_bounds[axis][b] = bin_bounds[axis][b].union(p.bounds);
+            bin_counts[axis][b] += 1;
+        }
+    }
     let parent_area = bounds.half_area().max(f32::MIN_POSITIVE);
     let mut best: Option<Split> = None;
-    let mut bin_bounds = vec![Aabb::EMPTY; bins];
-    let mut bin_counts = vec![0usize; bins];
-    let mut right_area = vec![0f32; bins];
-    for axis in 0..3 {
-        let (lo, hi) = (cb.min[axis], cb.max[axis]);
-        if hi <= lo {
-            continue;
-        }
-        let scale = bins as f32 / (hi - lo);
-        bin_bounds.fill(Aabb::EMPTY);
-        bin_counts.fill(0);
-        for p in prims {
-            let b = bin_index(p.centroid[axis], lo, scale, bins);
-            bin_bounds[b] = bin_bounds[b].union(p.bounds);
-            bin_counts[b] += 1;
-        }
+    let mut right_area = [0f32; MAX_BINS];
+    for axis in (0..3).filter(|&a| extent[a] > 0.0) {
+        let (bin_bounds, bin_counts) = (&bin_bounds[axis], &bin_counts[axis]);
         // Sweep from the right for the areas of the right-hand sides …
         let mut acc = Aabb::EMPTY;
         for b in (1..bins).rev() {
@@ -236,7 +239,7 @@ fn best_sah_split(prims: &[Prim], bounds: &Aabb, params: &BvhParams) -> Option<S
                     * (left.half_area() * packets(left_count) + right_area[b] * packets(right_count))
                     / parent_area;
             if best.as_ref().is_none_or(|s| cost < s.cost) {
-                best = Some(Split { axis, bin: b, bins, lo, scale, cost });
+                best = Some(Split { axis, bin: b, bins, lo: lo[axis], scale: scale[axis], cost });
             }
         }
     }
