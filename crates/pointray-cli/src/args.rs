@@ -92,10 +92,10 @@ pub struct RenderArgs {
     pub seed: u64,
 
     /// Camera position, in the file's coordinates (then --look-at is needed).
-    #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, requires = "look_at")]
-    pub eye: Option<glam::Vec3>,
-    #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, requires = "eye")]
-    pub look_at: Option<glam::Vec3>,
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_dvec3, requires = "look_at")]
+    pub eye: Option<glam::DVec3>,
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_dvec3, requires = "eye")]
+    pub look_at: Option<glam::DVec3>,
     /// Camera up vector.
     #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, default_value = "0,1,0")]
     pub up: glam::Vec3,
@@ -121,8 +121,8 @@ pub struct RenderArgs {
     #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, conflicts_with = "light_pos")]
     pub light_dir: Option<glam::Vec3>,
     /// Point light position instead, in the file's coordinates.
-    #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3)]
-    pub light_pos: Option<glam::Vec3>,
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_dvec3)]
+    pub light_pos: Option<glam::DVec3>,
     #[arg(long, default_value_t = 1.0)]
     pub light_intensity: f32,
     /// No shadow rays.
@@ -171,14 +171,15 @@ pub enum SurfaceArg {
     FirstHit,
 }
 
-fn parse_floats<const N: usize>(s: &str) -> Result<[f32; N], String> {
+/// Parses `N` comma-separated finite numbers, in f64 (file coordinates may be large).
+fn parse_floats<const N: usize>(s: &str) -> Result<[f64; N], String> {
     let parts: Vec<&str> = s.split(',').map(str::trim).collect();
     if parts.len() != N {
         return Err(format!("expected {N} comma-separated numbers, got {:?}", s));
     }
     let mut out = [0.0; N];
     for (o, p) in out.iter_mut().zip(parts) {
-        *o = p.parse::<f32>().map_err(|_| format!("{p:?} is not a number"))?;
+        *o = p.parse::<f64>().map_err(|_| format!("{p:?} is not a number"))?;
         if !o.is_finite() {
             return Err(format!("{p:?} is not finite"));
         }
@@ -187,7 +188,12 @@ fn parse_floats<const N: usize>(s: &str) -> Result<[f32; N], String> {
 }
 
 fn parse_vec3(s: &str) -> Result<glam::Vec3, String> {
-    parse_floats::<3>(s).map(glam::Vec3::from)
+    parse_floats::<3>(s).map(|v| glam::DVec3::from(v).as_vec3())
+}
+
+/// A position in the file's coordinates: kept in f64 until the cloud's origin is subtracted.
+fn parse_dvec3(s: &str) -> Result<glam::DVec3, String> {
+    parse_floats::<3>(s).map(glam::DVec3::from)
 }
 
 fn parse_region(s: &str) -> Result<pointray::camera::Region, String> {

@@ -57,7 +57,8 @@ impl Camera {
         let forward = (target - eye).normalize();
         let mut up_hint = up.normalize();
         if forward.dot(up_hint).abs() > 0.999 {
-            up_hint = Vec3::Z; // looking along `up`: any other up will do
+            // Looking along `up`: any up not parallel to the view will do.
+            up_hint = if forward.z.abs() < 0.9 { Vec3::Z } else { Vec3::X };
         }
         let right = forward.cross(up_hint).normalize();
         let up = right.cross(forward);
@@ -116,7 +117,8 @@ impl Camera {
     }
 
     /// The pixels inside the projection of `bounds`, grown by one pixel (the Embree bench's
-    /// `--crop`). The full frame when a corner lies behind the camera.
+    /// `--crop`). The full frame when a corner lies behind the camera; empty when the box
+    /// projects outside the frame.
     pub fn region_of(&self, bounds: &Aabb) -> Region {
         let full = Region::full(self.width, self.height);
         let mut lo = (f32::INFINITY, f32::INFINITY);
@@ -127,13 +129,12 @@ impl Camera {
             hi = (hi.0.max(x), hi.1.max(y));
         }
         let clampi = |v: f32, max: u32| v.clamp(0.0, max as f32) as u32;
-        let r = Region {
+        Region {
             x0: clampi(lo.0.floor() - 1.0, self.width),
             y0: clampi(lo.1.floor() - 1.0, self.height),
             x1: clampi(hi.0.ceil() + 1.0, self.width),
             y1: clampi(hi.1.ceil() + 1.0, self.height),
-        };
-        if r.pixel_count() == 0 { Region { x0: 0, y0: 0, x1: 1, y1: 1 } } else { r }
+        }
     }
 
     pub fn forward(&self) -> Vec3 {
@@ -164,11 +165,29 @@ mod tests {
     }
 
     #[test]
+    fn looking_along_up_still_gives_a_frame() {
+        for (eye, up) in [(Vec3::new(0.0, 0.0, 5.0), Vec3::Z), (Vec3::new(0.0, 5.0, 0.0), Vec3::Y)] {
+            let cam = Camera::look_at(eye, Vec3::ZERO, up, 60.0, 8, 8);
+            assert!(cam.right().is_finite() && cam.up().is_finite());
+            assert!(cam.ray(4.0, 4.0).dir.dot(-eye.normalize()) > 0.9999);
+        }
+    }
+
+    #[test]
     fn orbit_at_distance_one_frames_the_bounding_sphere() {
         let b = Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0));
         let cam = Camera::orbit(&b, Vec3::new(0.4, 0.3, 1.0), Vec3::Y, 1.0, 60.0, 100, 100);
         assert!((cam.eye.length() - b.diagonal()).abs() < 1e-4);
-        let r = cam.region_of(&b);
-        assert!(r.x0 > 0 && r.x1 < 100 && r.y0 > 0 && r.y1 < 100, "{r:?}");
+        // The bounding sphere (radius diagonal/2, seen from distance diagonal under a 60° field
+        // of view) subtends exactly 60°: its outline touches the top and bottom of the frame.
+        let (r, d) = (b.diagonal() / 2.0, cam.eye.length());
+        let a = (r / d).asin();
+        let (f, u) = (cam.forward(), cam.up());
+        let touch_top = cam.eye + (f * a.cos() + u * a.sin()) * (d * d - r * r).sqrt();
+        let touch_bottom = cam.eye + (f * a.cos() - u * a.sin()) * (d * d - r * r).sqrt();
+        assert!(cam.project(touch_top).unwrap().1.abs() < 0.01);
+        assert!((cam.project(touch_bottom).unwrap().1 - 100.0).abs() < 0.01);
+        let region = cam.region_of(&b);
+        assert!(region.x0 > 0 && region.x1 < 100 && region.y0 > 0 && region.y1 < 100, "{region:?}");
     }
 }

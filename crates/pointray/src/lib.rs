@@ -3,12 +3,12 @@
 //! The pipeline, one module per stage:
 //!
 //! ```text
-//! PointCloud ──preprocess──▶ PointCloud with normals + radii ──Splat::from_cloud──▶ [Splat]
+//! PointCloud ──preprocess──▶ PointCloud with normals + radii ──splats_from_cloud──▶ [Splat]
 //!     ──accel (BruteForce | Bvh)──▶ Accel ──render (camera, surface scheme, shading)──▶ Film + Stats
 //! ```
 //!
 //! File formats live in `pointray-io`, the command line in `pointray-cli`; this crate has no
-//! I/O and no global state.
+//! I/O and no global state (but for each thread's reusable BVH traversal stack).
 
 pub mod accel;
 pub mod camera;

@@ -40,10 +40,6 @@ impl Material {
         Self { ambient: 0.12, specular: 0.15, shininess: 40.0 }
     }
 
-    pub fn matte() -> Self {
-        Self { ambient: 0.12, specular: 0.0, shininess: 1.0 }
-    }
-
     /// Linear radiance towards `view` (unit, from the surface towards the eye) with light
     /// arriving along `to_light` at `irradiance`; `lit` is false in shadow.
     pub fn shade(&self, hit: &SurfaceHit, view: Vec3, to_light: Vec3, irradiance: f32, lit: bool) -> [f32; 3] {

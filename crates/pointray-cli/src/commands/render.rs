@@ -154,17 +154,18 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         }
         None => (pointray::demo::demo_cloud(a.demo_points, a.seed), "demo".to_string(), 0.0),
     };
+    // Preprocessing only removes points: refuse an oversized cloud before spending on it.
+    anyhow::ensure!(
+        cloud.len() <= pointray::accel::bvh::MAX_SPLATS,
+        "{input_name}: {} points is more than pointray can index ({})",
+        cloud.len(),
+        pointray::accel::bvh::MAX_SPLATS
+    );
     let pre = super::prepare_cloud(&mut cloud, &a.preprocess, quiet)
         .with_context(|| format!("{input_name}: preprocessing"))?;
     let bounds = cloud.bounds();
 
     // 2. The accelerator.
-    anyhow::ensure!(
-        cloud.len() <= pointray::accel::bvh::MAX_SPLATS,
-        "{input_name}: {} points is more than the {} a BVH can index",
-        cloud.len(),
-        pointray::accel::bvh::MAX_SPLATS
-    );
     let splats = splats_from_cloud(&cloud);
     let mean_radius = splats.iter().map(|s| f64::from(s.radius)).sum::<f64>() / splats.len() as f64;
     let t = Instant::now();
@@ -191,7 +192,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     };
     // Positions the user gives are in the file's coordinates; the cloud is stored relative to
     // its origin (see `PointCloud`).
-    let local = |p: glam::Vec3| (p.as_dvec3() - cloud.origin).as_vec3();
+    let local = |p: glam::DVec3| (p - cloud.origin).as_vec3();
     let camera = match (a.eye.map(local), a.look_at.map(local)) {
         (Some(eye), Some(target)) => Camera::look_at(eye, target, a.up, a.fov, a.width, a.height),
         _ => Camera::orbit(&bounds, a.view_dir.unwrap_or(default_view), a.up, distance, a.fov, a.width, a.height),
@@ -207,7 +208,9 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         },
     };
     let region = if a.crop_to_model {
-        camera.region_of(&bounds)
+        let r = camera.region_of(&bounds);
+        anyhow::ensure!(r.pixel_count() > 0, "{input_name}: --crop-to-model: the model lies outside the view");
+        r
     } else {
         a.region.map_or(Region::full(a.width, a.height), |r| r.clamp_to(a.width, a.height))
     };

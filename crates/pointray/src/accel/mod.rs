@@ -38,7 +38,8 @@ pub trait SplatVisitor {
 pub struct TraversalStats {
     /// Nodes whose bounds were tested.
     pub nodes_visited: u64,
-    /// Splats handed to the visitor (ray–disk tests).
+    /// Ray–disk tests: splats handed to the visitor (brute force), or splats in the packets
+    /// the BVH tested with its SIMD pre-filter.
     pub splat_tests: u64,
 }
 

@@ -7,7 +7,7 @@ pub mod morton;
 mod ray;
 
 pub use bounds::Aabb;
-pub use glam::{DVec3, Vec3, Vec3A};
+pub use glam::{DVec3, Vec3};
 pub use ray::{Ray, RayCone};
 
 /// Two unit vectors orthogonal to `n` and to each other (Duff et al. 2017, branchless).

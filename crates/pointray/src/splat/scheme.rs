@@ -117,6 +117,12 @@ pub fn intersect<A: Accel + ?Sized>(
             for _ in 0..MAX_WEAK_WINDOWS {
                 let mut v = SjWindow::new(scheme.window);
                 accel.traverse(&ray, &mut v, stats);
+                if v.grew {
+                    // Crossings beyond an earlier, shorter end were turned away: collect the
+                    // final window again, now that its extent is known.
+                    v = SjWindow::fixed(scheme.window, v.end);
+                    accel.traverse(&ray, &mut v, stats);
+                }
                 // Nothing behind a weak window: it was the surface after all (a thinly covered
                 // spot), not a disk sticking out in front of one.
                 let Some((hit, coverage)) = v.blend(&ray, splats) else { return weak };
@@ -204,8 +210,8 @@ impl SplatVisitor for AnyHit {
 }
 
 /// Most disks a window holds; on a smooth surface a ray crosses a handful (about the mean
-/// overlap, πr²·density). Past the cap the farthest crossing is dropped (the one place where
-/// the visiting order could matter: only with more than this many crossings tied for last).
+/// overlap, πr²·density). Past the cap the farthest crossing is dropped; only then can the
+/// order in which disks arrive matter (with more than this many crossings, ties for last).
 const WINDOW_CAPACITY: usize = 24;
 
 #[derive(Clone, Copy, Default)]
@@ -221,13 +227,31 @@ struct Crossing {
 struct SjWindow {
     window: f32,
     end: f32,
+    /// The end is known in advance and never moves (a second pass).
+    fixed: bool,
+    /// The end moved outwards during the walk (a tie at the first crossing with a wider disk,
+    /// or a nearer first crossing with a wider disk): crossings may have been turned away
+    /// against the shorter end, so the window must be collected again.
+    grew: bool,
     len: usize,
     crossings: [Crossing; WINDOW_CAPACITY],
 }
 
 impl SjWindow {
     fn new(window: f32) -> Self {
-        Self { window, end: f32::INFINITY, len: 0, crossings: [Crossing::default(); WINDOW_CAPACITY] }
+        Self {
+            window,
+            end: f32::INFINITY,
+            fixed: false,
+            grew: false,
+            len: 0,
+            crossings: [Crossing::default(); WINDOW_CAPACITY],
+        }
+    }
+
+    /// A window that collects every crossing up to `end`.
+    fn fixed(window: f32, end: f32) -> Self {
+        Self { end, fixed: true, ..Self::new(window) }
     }
 
     fn first(&self) -> Option<&Crossing> {
@@ -293,21 +317,24 @@ impl SplatVisitor for SjWindow {
     fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32) {
         let Some(h) = oriented_disk::intersect(ray, splat, self.end) else { return };
         let first_t = self.first().map_or(f32::INFINITY, |c| c.t);
-        if h.t == first_t {
-            // A tie for nearest: the window reaches as far as the widest of them allows,
-            // whatever order they arrive in.
-            self.end = self.end.max(h.t + self.window * splat.radius);
-        } else if h.t < first_t {
-            self.end = h.t + self.window * splat.radius;
-            let end = self.end;
-            let mut kept = 0;
-            for i in 0..self.len {
-                if self.crossings[i].t <= end {
-                    self.crossings[kept] = self.crossings[i];
-                    kept += 1;
+        if !self.fixed && h.t <= first_t {
+            // The window reaches `window` radii past the first crossing; of disks tied for
+            // first, the widest decides, whatever order they arrive in.
+            let end = h.t + self.window * splat.radius;
+            let end = if h.t == first_t { end.max(self.end) } else { end };
+            if end > self.end {
+                self.grew |= self.end.is_finite();
+            } else {
+                let mut kept = 0;
+                for i in 0..self.len {
+                    if self.crossings[i].t <= end {
+                        self.crossings[kept] = self.crossings[i];
+                        kept += 1;
+                    }
                 }
+                self.len = kept;
             }
-            self.len = kept;
+            self.end = end;
         }
         let c = Crossing { t: h.t, dist2: h.dist2, index };
         if self.len < WINDOW_CAPACITY {
@@ -343,6 +370,31 @@ mod tests {
     fn hit_z(accel: &BruteForce, x: f32, scheme: SurfaceScheme) -> f32 {
         let ray = Ray::new(Vec3::new(x, 0.0, 3.0), -Vec3::Z, RayCone::default());
         intersect(accel, &ray, &scheme, &mut TraversalStats::default()).unwrap().position.z
+    }
+
+    /// Three disks on one ray in every order: the window and the blend must not depend on the
+    /// order (the BVH and brute force visit disks in different orders).
+    #[test]
+    fn sj_window_does_not_depend_on_visiting_order() {
+        let disk = |z: f32, r: f32| Splat { center: Vec3::new(0.0, 0.0, z), radius: r, normal: Vec3::Z, color: 0 };
+        // The nearest disk (z = 1.05) is wide, so its window reaches the disk at z = 0.5,
+        // which a narrow disk found first (z = 1) would have cut off. And a tie at z = 1.05.
+        let cases = [
+            vec![disk(1.0, 0.1), disk(0.5, 0.3), disk(1.05, 1.0)],
+            vec![disk(1.05, 0.1), disk(0.5, 0.3), disk(1.05, 1.0)],
+        ];
+        let ray = Ray::new(Vec3::new(0.01, 0.0, 10.0), -Vec3::Z, RayCone::default());
+        let scheme = SurfaceScheme { min_coverage: 0.0, ..SurfaceScheme::sj() };
+        for splats in cases {
+            let mut results = Vec::new();
+            for order in [[0, 1, 2], [0, 2, 1], [1, 0, 2], [1, 2, 0], [2, 0, 1], [2, 1, 0]] {
+                let accel = BruteForce::new(order.iter().map(|&i| splats[i]).collect());
+                let hit = intersect(&accel, &ray, &scheme, &mut TraversalStats::default()).unwrap();
+                results.push((hit.t.to_bits(), hit.blended));
+            }
+            assert_eq!(results[0].1, 3, "the wide first disk's window holds all three");
+            assert!(results.iter().all(|r| *r == results[0]), "{results:?}");
+        }
     }
 
     #[test]

@@ -24,7 +24,8 @@ pub struct BvhParams {
 }
 
 impl BvhParams {
-    /// The default: 16 bins, leaves of up to 8 splats.
+    /// The default: 16 bins, leaves of up to 16 splats, a traversal step priced at two
+    /// packet tests (measured fastest on the dragon among 1/2/4 and leaves of 8/16).
     pub fn standard() -> Self {
         Self { bins: 16, max_leaf_size: 16, traversal_cost: 2.0, intersection_cost: 1.0 }
     }

@@ -78,7 +78,8 @@ impl SplatPacket {
     }
 }
 
-/// The deepest a build may go: traversal stacks are sized from it.
+/// Below this depth of the binary build tree, splits are object medians (see `build_node`),
+/// which bounds the depth of any tree by about this plus log₂ n.
 pub(crate) const MAX_DEPTH: usize = 96;
 
 /// Children per node.

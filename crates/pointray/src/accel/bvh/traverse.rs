@@ -157,3 +157,46 @@ fn traverse_with<V: SplatVisitor>(
         current = stack[sp];
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use glam::Vec3;
+    use rand::{RngExt, SeedableRng};
+
+    use super::*;
+    use crate::math::RayCone;
+    use crate::splat::{Splat, oriented_disk};
+
+    /// The SIMD pre-filter may pass disks the exact test rejects, never the other way round:
+    /// otherwise the BVH would miss hits that brute force finds.
+    #[test]
+    fn packet_prefilter_never_rejects_an_exact_hit() {
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
+        let mut v =
+            |lo: f32, hi: f32| Vec3::new(rng.random_range(lo..hi), rng.random_range(lo..hi), rng.random_range(lo..hi));
+        let (mut hits, mut rejected) = (0, 0);
+        for _ in 0..20_000 {
+            let splats: Vec<Splat> = (0..4)
+                .map(|_| Splat {
+                    center: v(-1.0, 1.0),
+                    radius: v(0.05, 1.0).x,
+                    normal: v(-1.0, 1.0).normalize(),
+                    color: 0,
+                })
+                .collect();
+            let packet = SplatPacket::new(&splats, 0);
+            let origin = v(-3.0, 3.0);
+            let ray = Ray::new(origin, v(-1.0, 1.0) - origin, RayCone::default()).with_t_min(v(0.0, 0.5).x);
+            let t_max = if v(0.0, 1.0).x < 0.5 { f32::INFINITY } else { v(0.5, 6.0).x };
+            let candidates = SlabRay::new(&ray).packet_candidates(&packet, ray.t_min, t_max);
+            for (lane, s) in splats.iter().enumerate() {
+                let exact = oriented_disk::intersect(&ray, s, t_max).is_some();
+                let passed = candidates & (1 << lane) != 0;
+                assert!(!exact || passed, "lane {lane} of {splats:?} rejected for {ray:?} up to {t_max}");
+                hits += usize::from(exact);
+                rejected += usize::from(!passed);
+            }
+        }
+        assert!(hits > 1_000 && rejected > 10_000, "the test must see both: {hits} hits, {rejected} rejections");
+    }
+}
