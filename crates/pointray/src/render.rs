@@ -34,9 +34,6 @@ pub struct RenderConfig {
     pub seed: u64,
 }
 
-/// A finished tile: its pixels (radiance, nodes visited) in row order, and its counters.
-type RenderedTile = (Region, Vec<([f32; 3], u32)>, RenderStats);
-
 /// Pixels per tile edge: small enough to balance 2–64 threads, big enough for coherence.
 const TILE: u32 = 16;
 
@@ -50,43 +47,37 @@ pub fn render<A: Accel>(
 ) -> (Film, RenderStats) {
     let region = config.region.clamp_to(camera.width, camera.height);
     let mut film = Film::new(region);
-    let tiles_x = region.width().div_ceil(TILE);
-    let tiles_y = region.height().div_ceil(TILE);
-    let tiles: Vec<Region> = (0..tiles_y)
-        .flat_map(|ty| (0..tiles_x).map(move |tx| (tx, ty)))
-        .map(|(tx, ty)| {
-            let x0 = region.x0 + tx * TILE;
-            let y0 = region.y0 + ty * TILE;
-            Region { x0, y0, x1: (x0 + TILE).min(region.x1), y1: (y0 + TILE).min(region.y1) }
-        })
-        .collect();
-    let rendered: Vec<RenderedTile> = tiles
-        .into_par_iter()
-        .map(|tile| {
+    let width = region.width() as usize;
+    if width == 0 || region.height() == 0 {
+        return (film, RenderStats::default());
+    }
+    // One task per band of TILE rows, written straight into the film; within a band, pixels
+    // go tile by tile (TILE × TILE) so that neighbouring rays share nodes in cache.
+    let band = TILE as usize * width;
+    let total = film
+        .rgb
+        .par_chunks_mut(band)
+        .zip(film.nodes_visited.par_chunks_mut(band))
+        .enumerate()
+        .map(|(b, (rgb, nodes))| {
             let mut stats = RenderStats::default();
-            let mut pixels = Vec::with_capacity(tile.pixel_count() as usize);
-            for y in tile.y0..tile.y1 {
-                for x in tile.x0..tile.x1 {
-                    pixels.push(render_pixel(accel, camera, config, x, y, &mut stats));
+            let y0 = region.y0 + b as u32 * TILE;
+            let rows = (rgb.len() / width) as u32;
+            for tx in (region.x0..region.x1).step_by(TILE as usize) {
+                for y in y0..y0 + rows {
+                    for x in tx..(tx + TILE).min(region.x1) {
+                        let i = (y - y0) as usize * width + (x - region.x0) as usize;
+                        (rgb[i], nodes[i]) = render_pixel(accel, camera, config, x, y, &mut stats);
+                    }
                 }
             }
-            progress(tile.pixel_count());
-            (tile, pixels, stats)
+            progress(rgb.len() as u64);
+            stats
         })
-        .collect();
-    let mut total = RenderStats::default();
-    for (tile, pixels, stats) in rendered {
-        total += stats;
-        let mut it = pixels.into_iter();
-        for y in tile.y0..tile.y1 {
-            for x in tile.x0..tile.x1 {
-                let (rgb, nodes) = it.next().expect("one value per pixel");
-                let i = film.index(x, y);
-                film.rgb[i] = rgb;
-                film.nodes_visited[i] = nodes;
-            }
-        }
-    }
+        .reduce(RenderStats::default, |mut a, b| {
+            a += b;
+            a
+        });
     (film, total)
 }
 
