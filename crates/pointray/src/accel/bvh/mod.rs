@@ -87,14 +87,14 @@ pub(crate) const WIDTH: usize = 4;
 
 /// An inner node: the bounds of its up to four children and how to reach them.
 ///
-/// Structure of arrays: `lo[k]` holds the four children's minimum along axis `k`, `hi[k]` the
-/// maxima, so one SSE subtract and multiply per plane give the slab distances of all four.
-/// Unused slots have empty bounds (`lo = +∞`, `hi = −∞`), which no ray enters.
+/// Structure of arrays: `planes[k]` holds the four children's minimum along axis `k`,
+/// `planes[3 + k]` the maxima, so one SSE subtract and multiply per plane give the slab
+/// distances of all four, and a ray picks its near and far planes by index, without branches.
+/// Unused slots have empty bounds (minimum +∞, maximum −∞), which no ray enters.
 #[repr(C, align(64))]
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Node {
-    pub(crate) lo: [Vec4; 3],
-    pub(crate) hi: [Vec4; 3],
+    pub(crate) planes: [Vec4; 6],
     /// Inner child: its node index. Leaf child: see [`leaf_ref`].
     pub(crate) child: [u32; WIDTH],
     /// Bit i set iff slot i holds a child. Traversal masks hits with it: a ray with NaN
@@ -108,12 +108,12 @@ impl Node {
         let get = |i: usize| b.get(i).copied().unwrap_or(Aabb::EMPTY);
         let lo = |k: usize| Vec4::from_array(std::array::from_fn(|i| get(i).min[k]));
         let hi = |k: usize| Vec4::from_array(std::array::from_fn(|i| get(i).max[k]));
-        Self { lo: [lo(0), lo(1), lo(2)], hi: [hi(0), hi(1), hi(2)], child: [0; WIDTH], used: (1 << b.len()) - 1 }
+        Self { planes: [lo(0), lo(1), lo(2), hi(0), hi(1), hi(2)], child: [0; WIDTH], used: (1 << b.len()) - 1 }
     }
 
     pub(crate) fn child_bounds(&self, i: usize) -> Aabb {
-        let (lo, hi) = (self.lo, self.hi);
-        Aabb::new(Vec3::new(lo[0][i], lo[1][i], lo[2][i]), Vec3::new(hi[0][i], hi[1][i], hi[2][i]))
+        let p = &self.planes;
+        Aabb::new(Vec3::new(p[0][i], p[1][i], p[2][i]), Vec3::new(p[3][i], p[4][i], p[5][i]))
     }
 }
 

@@ -9,13 +9,14 @@ use crate::accel::{SplatVisitor, TraversalStats};
 use crate::math::Ray;
 
 /// The ray in the form the four-box slab test wants: per axis the origin and inverse
-/// direction splatted to four lanes, and whether the axis runs backwards (then a box's near
-/// plane is its `hi` side).
+/// direction splatted to four lanes, and per axis which of a node's planes is near (the
+/// minimum, or the maximum when the axis runs backwards) and which is far.
 struct SlabRay {
     origin: [Vec4; 3],
     dir: [Vec4; 3],
     inv_dir: [Vec4; 3],
-    backwards: [bool; 3],
+    near_plane: [usize; 3],
+    far_plane: [usize; 3],
 }
 
 impl SlabRay {
@@ -24,7 +25,8 @@ impl SlabRay {
             origin: std::array::from_fn(|k| Vec4::splat(ray.origin[k])),
             dir: std::array::from_fn(|k| Vec4::splat(ray.dir[k])),
             inv_dir: std::array::from_fn(|k| Vec4::splat(ray.inv_dir[k])),
-            backwards: std::array::from_fn(|k| ray.inv_dir[k] < 0.0),
+            near_plane: std::array::from_fn(|k| if ray.inv_dir[k] < 0.0 { k + 3 } else { k }),
+            far_plane: std::array::from_fn(|k| if ray.inv_dir[k] < 0.0 { k } else { k + 3 }),
         }
     }
 
@@ -32,12 +34,10 @@ impl SlabRay {
     /// the children the ray enters.
     #[inline(always)]
     fn entries(&self, node: &Node, t0: f32, t1: f32) -> (Vec4, u32) {
-        let plane = |k: usize, near: bool| {
-            let b = if near != self.backwards[k] { node.lo[k] } else { node.hi[k] };
-            (b - self.origin[k]) * self.inv_dir[k]
-        };
-        let near = plane(0, true).max(plane(1, true)).max(plane(2, true)).max(Vec4::splat(t0));
-        let far = plane(0, false).min(plane(1, false)).min(plane(2, false)).min(Vec4::splat(t1));
+        let near = |k: usize| (node.planes[self.near_plane[k]] - self.origin[k]) * self.inv_dir[k];
+        let far = |k: usize| (node.planes[self.far_plane[k]] - self.origin[k]) * self.inv_dir[k];
+        let near = near(0).max(near(1)).max(near(2)).max(Vec4::splat(t0));
+        let far = far(0).min(far(1)).min(far(2)).min(Vec4::splat(t1));
         (near, near.cmple(far).bitmask() & node.used)
     }
 
@@ -129,6 +129,12 @@ fn traverse_with<V: SplatVisitor>(
                 let node = &bvh.nodes[child as usize];
                 stats.nodes_visited += 1;
                 let (t, mut mask) = slab.entries(node, ray.t_min, cull_limit(visitor.t_max()));
+                if mask.is_power_of_two() {
+                    // One child hit (the common case deep in the tree): no stack traffic.
+                    let i = mask.trailing_zeros() as usize;
+                    current = (node.child[i], t[i]);
+                    continue;
+                }
                 if mask != 0 {
                     // Push the children hit, keeping the nearest at `base`, then move it to the
                     // top and take it: the rest of the stack needs no order (each entry is
