@@ -59,29 +59,12 @@ impl CloudBuilder {
     /// kept as they are (they become non-finite local positions) so the core decides what to
     /// do with them; they must not drag the origin to infinity.
     pub(crate) fn finish(self) -> PointCloud {
-        let all_finite = self.world.iter().all(|p| p.is_finite());
-        let mut cloud = if all_finite {
-            PointCloud::from_world_positions(&self.world)
-        } else {
-            let origin = finite_bounds_centre(&self.world);
-            let positions = self.world.iter().map(|p| (*p - origin).as_vec3()).collect();
-            PointCloud { positions, origin, ..PointCloud::default() }
-        };
+        let mut cloud = PointCloud::from_world_positions(&self.world);
         cloud.normals = self.normals;
         cloud.radii = self.radii;
         cloud.colors = self.colors;
         cloud
     }
-}
-
-fn finite_bounds_centre(world: &[DVec3]) -> DVec3 {
-    let mut finite = world.iter().filter(|p| p.is_finite()).peekable();
-    if finite.peek().is_none() {
-        return DVec3::ZERO;
-    }
-    let (lo, hi) = finite
-        .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
-    (lo + hi) * 0.5
 }
 
 #[cfg(test)]

@@ -29,18 +29,17 @@ impl PointCloud {
         Self { positions, ..Self::default() }
     }
 
-    /// Builds a cloud from world coordinates in `f64`: recentres them on their bounding-box
-    /// centre and stores `f32` offsets from it.
+    /// Builds a cloud from world coordinates in `f64`: recentres them on the bounding-box
+    /// centre of the finite ones and stores `f32` offsets from it. Non-finite coordinates stay
+    /// non-finite (preprocessing drops them); they do not move the origin.
     pub fn from_world_positions(world: &[DVec3]) -> Self {
-        let origin = if world.is_empty() {
-            DVec3::ZERO
-        } else {
-            let (lo, hi) =
-                world.iter().fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), p| {
-                    (lo.min(*p), hi.max(*p))
-                });
-            (lo + hi) * 0.5
-        };
+        let (lo, hi) = world
+            .iter()
+            .filter(|p| p.is_finite())
+            .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), p| {
+                (lo.min(*p), hi.max(*p))
+            });
+        let origin = if lo.x <= hi.x { (lo + hi) * 0.5 } else { DVec3::ZERO };
         let positions = world.iter().map(|p| (*p - origin).as_vec3()).collect();
         Self { positions, origin, ..Self::default() }
     }
@@ -85,5 +84,21 @@ impl PointCloud {
         check("normals", self.normals.as_ref().map(Vec::len))?;
         check("radii", self.radii.as_ref().map(Vec::len))?;
         check("colors", self.colors.as_ref().map(Vec::len))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recentres_on_the_finite_points() {
+        let world =
+            [DVec3::new(636_000.0, 10.0, 5.0), DVec3::new(636_002.0, 12.0, 7.0), DVec3::new(f64::INFINITY, 0.0, 0.0)];
+        let cloud = PointCloud::from_world_positions(&world);
+        assert_eq!(cloud.origin, DVec3::new(636_001.0, 11.0, 6.0));
+        assert_eq!(cloud.positions[0], Vec3::new(-1.0, -1.0, -1.0));
+        assert!(!cloud.positions[2].is_finite());
+        assert_eq!(PointCloud::from_world_positions(&[DVec3::NAN]).origin, DVec3::ZERO);
     }
 }
