@@ -65,13 +65,16 @@ pub struct RenderArgs {
     /// Output PNG (written atomically).
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Image width in pixels.
     #[arg(long, default_value_t = 1024)]
     pub width: u32,
+    /// Image height in pixels.
     #[arg(long, default_value_t = 1024)]
     pub height: u32,
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Acceleration structure (brute force tests every splat: the reference for tests).
     #[arg(long, value_enum, default_value_t = AccelArg::Bvh)]
     pub accel: AccelArg,
     /// How the disks a ray crosses become a surface point.
@@ -94,6 +97,7 @@ pub struct RenderArgs {
     /// Camera position, in the file's coordinates (then --look-at is needed).
     #[arg(long, allow_hyphen_values = true, value_parser = parse_dvec3, requires = "look_at")]
     pub eye: Option<glam::DVec3>,
+    /// The point the camera looks at, in the file's coordinates.
     #[arg(long, allow_hyphen_values = true, value_parser = parse_dvec3, requires = "eye")]
     pub look_at: Option<glam::DVec3>,
     /// Camera up vector.
@@ -123,6 +127,7 @@ pub struct RenderArgs {
     /// Point light position instead, in the file's coordinates.
     #[arg(long, allow_hyphen_values = true, value_parser = parse_dvec3)]
     pub light_pos: Option<glam::DVec3>,
+    /// Light intensity (a point light's falls off with the squared distance).
     #[arg(long, default_value_t = 1.0)]
     pub light_intensity: f32,
     /// No shadow rays.
@@ -147,7 +152,9 @@ pub struct RenderArgs {
 
 #[derive(Args, Debug)]
 pub struct PrepareArgs {
+    /// PLY or XYZ file.
     pub input: PathBuf,
+    /// Output PLY (binary, with normals, radii and any colours; written atomically).
     #[arg(short, long)]
     pub output: PathBuf,
     #[command(flatten)]
@@ -156,6 +163,7 @@ pub struct PrepareArgs {
 
 #[derive(Args, Debug)]
 pub struct InfoArgs {
+    /// PLY or XYZ file.
     pub input: PathBuf,
 }
 
