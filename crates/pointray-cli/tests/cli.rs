@@ -815,3 +815,35 @@ fn render_reports_on_stderr_unless_quiet() {
     assert!(run.stderr.is_empty() && run.stdout.is_empty(), "-q prints nothing: {run}");
     assert!(read_png(&dir.path().join("a.png")) == read_png(&dir.path().join("b.png")));
 }
+
+/// `--eye`/`--look-at` are in the file's coordinates, even when the cloud lies far from the
+/// origin (it is stored relative to its centre): an explicit camera at the orbit camera's
+/// position gives the orbit camera's image.
+#[test]
+fn eye_and_look_at_are_in_file_coordinates_far_from_the_origin() {
+    let dir = temp_dir();
+    let offset = [636_000.0f64, 849_000.0, 400.0];
+    let world: Vec<[f64; 3]> =
+        sphere_points(3000).iter().map(|p| std::array::from_fn(|k| offset[k] + f64::from(p[k]))).collect();
+    let text: String = world.iter().map(|p| format!("{:.6} {:.6} {:.6}\n", p[0], p[1], p[2])).collect();
+    write_file(dir.path(), "far.xyz", text);
+    let (lo, hi) = world.iter().fold(([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]), |(lo, hi), p| {
+        (std::array::from_fn(|k| lo[k].min(p[k])), std::array::from_fn(|k| hi[k].max(p[k])))
+    });
+    let centre: [f64; 3] = std::array::from_fn(|k| (lo[k] + hi[k]) / 2.0);
+    let diagonal = (0..3).map(|k| (hi[k] - lo[k]).powi(2)).sum::<f64>().sqrt();
+    let view = [0.4f64, 0.3, 1.0];
+    let norm = view.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let eye: [f64; 3] = std::array::from_fn(|k| centre[k] + view[k] / norm * diagonal);
+    let csv = |p: [f64; 3]| format!("{},{},{}", p[0], p[1], p[2]);
+    render_in(dir.path(), &["far.xyz", "-o", "orbit.png", "--distance", "1", "--no-shadows"]).assert_success();
+    render_in(dir.path(), &["far.xyz", "-o", "eye.png", "--eye", &csv(eye), "--look-at", &csv(centre), "--no-shadows"])
+        .assert_success();
+    let (a, b) = (read_png(&dir.path().join("orbit.png")), read_png(&dir.path().join("eye.png")));
+    let bg = background_srgb8();
+    let covered = a.rgb.chunks(3).filter(|p| *p != bg).count();
+    assert!(covered > 100, "the orbit view must show the sphere ({covered} pixels)");
+    let differ =
+        a.rgb.chunks(3).zip(b.rgb.chunks(3)).filter(|(p, q)| p.iter().zip(*q).any(|(x, y)| x.abs_diff(*y) > 8)).count();
+    assert!(differ * 50 < covered, "{differ} of {covered} pixels differ");
+}
