@@ -9,7 +9,7 @@ use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
-use crate::accel::{Accel, TraversalStats};
+use crate::accel::Accel;
 use crate::camera::{Camera, Region};
 use crate::film::Film;
 use crate::math::Ray;
@@ -115,10 +115,9 @@ fn pixel_rng(seed: u64, x: u32, y: u32) -> Pcg64Mcg {
 fn trace<A: Accel>(accel: &A, ray: &Ray, config: &RenderConfig, stats: &mut RenderStats) -> [f32; 3] {
     stats.rays += 1;
     stats.primary_rays += 1;
-    let mut ts = TraversalStats::default();
-    let hit = scheme::intersect(accel, ray, &config.scheme, &mut ts);
-    stats.traversal += ts;
-    let Some(hit) = hit else { return config.background };
+    let Some(hit) = scheme::intersect(accel, ray, &config.scheme, &mut stats.traversal) else {
+        return config.background;
+    };
     stats.primary_hits += 1;
     stats.blended_splats += u64::from(hit.blended);
     let (to_light, light_dist, irradiance) = config.light.towards(hit.position);
@@ -146,8 +145,5 @@ fn in_shadow<A: Accel>(
     let footprint = primary.cone.width_at(hit.t);
     let ray =
         Ray::new(origin, to_light, crate::math::RayCone { width0: footprint, spread: 0.0 }).with_t_min(hit.radius);
-    let mut ts = TraversalStats::default();
-    let blocked = scheme::occluded(accel, &ray, light_dist, &mut ts);
-    stats.traversal += ts;
-    blocked
+    scheme::occluded(accel, &ray, light_dist, &mut stats.traversal)
 }

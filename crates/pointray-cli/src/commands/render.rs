@@ -99,11 +99,8 @@ struct StatsReport {
 #[derive(Serialize)]
 struct PreprocessSeconds {
     total: f64,
-    sort: f64,
-    knn: f64,
-    normals: f64,
-    orient: f64,
-    radii: f64,
+    #[serde(flatten)]
+    stages: pointray::preprocess::StageSeconds,
 }
 
 /// Largest frame accepted: 2²⁸ pixels (16k × 16k), so that films and PNG buffers fit.
@@ -289,18 +286,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
             surface: scheme.kind.name(),
             samples_per_pixel: a.spp,
             load_seconds,
-            preprocess_seconds: PreprocessSeconds {
-                total: pre.sort_seconds
-                    + pre.knn_seconds
-                    + pre.normals_seconds
-                    + pre.orient_seconds
-                    + pre.radii_seconds,
-                sort: pre.sort_seconds,
-                knn: pre.knn_seconds,
-                normals: pre.normals_seconds,
-                orient: pre.orient_seconds,
-                radii: pre.radii_seconds,
-            },
+            preprocess_seconds: PreprocessSeconds { total: pre.seconds.total(), stages: pre.seconds },
             preprocess: pre,
             build_seconds,
             render_seconds,

@@ -49,15 +49,29 @@ impl PreprocessConfig {
     }
 }
 
+/// Seconds spent in each stage of [`preprocess`] (0 for a stage that did not run).
+#[derive(Debug, Clone, Copy, Default, serde::Serialize)]
+pub struct StageSeconds {
+    pub sort: f64,
+    pub knn: f64,
+    pub normals: f64,
+    pub orient: f64,
+    pub radii: f64,
+}
+
+impl StageSeconds {
+    pub fn total(&self) -> f64 {
+        self.sort + self.knn + self.normals + self.orient + self.radii
+    }
+}
+
 /// What [`preprocess`] did and how long each stage took.
 #[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct PreprocessStats {
     pub dropped_non_finite: usize,
-    pub sort_seconds: f64,
-    pub knn_seconds: f64,
-    pub normals_seconds: f64,
-    pub orient_seconds: f64,
-    pub radii_seconds: f64,
+    /// Reported on its own (`--stats` writes it as `preprocess_seconds`).
+    #[serde(skip)]
+    pub seconds: StageSeconds,
     /// Some normals (possibly all) were estimated by PCA.
     pub computed_normals: bool,
     /// Some radii (possibly all) were computed.
@@ -81,8 +95,8 @@ pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> PreprocessS
     if cfg.sort && cloud.len() > 1 {
         let start = Instant::now();
         cloud.permute(&morton::sort_order(&cloud.positions));
-        stats.sort_seconds = start.elapsed().as_secs_f64();
-        debug!(seconds = stats.sort_seconds, "Morton sort");
+        stats.seconds.sort = start.elapsed().as_secs_f64();
+        debug!(seconds = stats.seconds.sort, "Morton sort");
     }
     let n = cloud.len();
     let normals_missing = invalid_normals(cloud);
@@ -104,8 +118,8 @@ pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> PreprocessS
     };
     let start = Instant::now();
     let nbrs = k_nearest(&cloud.positions, k);
-    stats.knn_seconds = start.elapsed().as_secs_f64();
-    debug!(k = nbrs.k, seconds = stats.knn_seconds, "kNN");
+    stats.seconds.knn = start.elapsed().as_secs_f64();
+    debug!(k = nbrs.k, seconds = stats.seconds.knn, "kNN");
 
     if need_normals {
         fill_normals(cloud, &nbrs, cfg.k_normals, &normals_missing, &mut stats);
@@ -119,8 +133,8 @@ pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> PreprocessS
                 *r = c;
             }
         }
-        stats.radii_seconds = start.elapsed().as_secs_f64();
-        debug!(seconds = stats.radii_seconds, "radii");
+        stats.seconds.radii = start.elapsed().as_secs_f64();
+        debug!(seconds = stats.seconds.radii, "radii");
     }
     info!(
         points = n,
@@ -128,8 +142,7 @@ pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> PreprocessS
         degenerate = stats.degenerate_normals,
         flipped = stats.flipped_normals,
         components = stats.orientation_components,
-        seconds =
-            stats.sort_seconds + stats.knn_seconds + stats.normals_seconds + stats.orient_seconds + stats.radii_seconds,
+        seconds = stats.seconds.total(),
         "preprocess done"
     );
     stats
@@ -200,8 +213,8 @@ fn fill_normals(
         })
         .sum();
     stats.degenerate_normals = degenerate;
-    stats.normals_seconds = start.elapsed().as_secs_f64();
-    debug!(degenerate, seconds = stats.normals_seconds, "PCA normals");
+    stats.seconds.normals = start.elapsed().as_secs_f64();
+    debug!(degenerate, seconds = stats.seconds.normals, "PCA normals");
 
     let start = Instant::now();
     let fixed: Vec<bool> = missing.iter().map(|m| !m).collect();
@@ -209,8 +222,8 @@ fn fill_normals(
     let orientation = orient::orient_normals_from(positions, normals, nbrs, some_given.then_some(&fixed[..]));
     stats.flipped_normals = orientation.flipped;
     stats.orientation_components = orientation.components;
-    stats.orient_seconds = start.elapsed().as_secs_f64();
-    debug!(?orientation, seconds = stats.orient_seconds, "orientation");
+    stats.seconds.orient = start.elapsed().as_secs_f64();
+    debug!(?orientation, seconds = stats.seconds.orient, "orientation");
 }
 
 #[cfg(test)]
@@ -315,11 +328,11 @@ mod tests {
             "1M torus, {} threads: sort {:.3} s, kNN {:.3} s, normals {:.3} s, orient {:.3} s, \
              radii {:.3} s, total {total:.3} s",
             rayon::current_num_threads(),
-            stats.sort_seconds,
-            stats.knn_seconds,
-            stats.normals_seconds,
-            stats.orient_seconds,
-            stats.radii_seconds,
+            stats.seconds.sort,
+            stats.seconds.knn,
+            stats.seconds.normals,
+            stats.seconds.orient,
+            stats.seconds.radii,
         );
         println!("{stats:?}");
         let inward = cloud

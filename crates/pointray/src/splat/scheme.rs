@@ -227,6 +227,8 @@ struct Crossing {
 struct SjWindow {
     window: f32,
     end: f32,
+    /// Nearest crossing so far (the window's start).
+    first_t: f32,
     /// The end is known in advance and never moves (a second pass).
     fixed: bool,
     /// The end moved outwards during the walk (a tie at the first crossing with a wider disk,
@@ -242,6 +244,7 @@ impl SjWindow {
         Self {
             window,
             end: f32::INFINITY,
+            first_t: f32::INFINITY,
             fixed: false,
             grew: false,
             len: 0,
@@ -252,10 +255,6 @@ impl SjWindow {
     /// A window that collects every crossing up to `end`.
     fn fixed(window: f32, end: f32) -> Self {
         Self { end, fixed: true, ..Self::new(window) }
-    }
-
-    fn first(&self) -> Option<&Crossing> {
-        self.crossings[..self.len].iter().min_by(|a, b| a.t.total_cmp(&b.t))
     }
 
     /// The blended hit and the window's coverage Σ(1 − dᵢ/rᵢ) over the blended disks.
@@ -316,8 +315,9 @@ impl SplatVisitor for SjWindow {
     #[inline]
     fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32) {
         let Some(h) = oriented_disk::intersect(ray, splat, self.end) else { return };
-        let first_t = self.first().map_or(f32::INFINITY, |c| c.t);
+        let first_t = self.first_t;
         if !self.fixed && h.t <= first_t {
+            self.first_t = h.t;
             // The window reaches `window` radii past the first crossing; of disks tied for
             // first, the widest decides, whatever order they arrive in.
             let end = h.t + self.window * splat.radius;

@@ -5,7 +5,7 @@
 use glam::Vec3;
 use rayon::join;
 
-use super::{Bvh, LANES, MAX_DEPTH, MAX_LEAF_SIZE, MAX_SPLATS, Node, SplatPacket, WIDTH, leaf_ref};
+use super::{Bvh, LANES, MAX_LEAF_SIZE, MAX_SPLATS, MEDIAN_SPLIT_DEPTH, Node, SplatPacket, WIDTH, leaf_ref};
 use crate::math::Aabb;
 use crate::splat::Splat;
 
@@ -147,7 +147,7 @@ fn build_node(prims: &mut [Prim], offset: usize, params: &BvhParams, depth: usiz
     if n <= 1 {
         return leaf();
     }
-    let split = if depth >= MAX_DEPTH - 8 {
+    let split = if depth >= MEDIAN_SPLIT_DEPTH {
         // Pathological distributions (SAH peeling one primitive at a time) end here: object
         // median splits bound the remaining depth by log2(n).
         None

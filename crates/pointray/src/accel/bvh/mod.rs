@@ -78,9 +78,9 @@ impl SplatPacket {
     }
 }
 
-/// Below this depth of the binary build tree, splits are object medians (see `build_node`),
-/// which bounds the depth of any tree by about this plus log₂ n.
-pub(crate) const MAX_DEPTH: usize = 96;
+/// From this depth of the binary build tree on, splits are object medians (see `build_node`),
+/// which bounds the depth of any tree by this plus log₂ n.
+pub(crate) const MEDIAN_SPLIT_DEPTH: usize = 88;
 
 /// Children per node.
 pub(crate) const WIDTH: usize = 4;
