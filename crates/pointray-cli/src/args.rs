@@ -40,6 +40,11 @@ pub enum Command {
     #[command(after_help = "Example:
   pointray info dragon.ply")]
     Info(InfoArgs),
+    /// Compare two PNGs of the same size: PSNR, RMSE, largest channel difference, pixels that differ.
+    #[command(after_help = "Examples:
+  pointray compare bvh.png brute.png
+  pointray compare new.png golden.png --json")]
+    Compare(CompareArgs),
 }
 
 #[derive(Args, Debug)]
@@ -137,6 +142,28 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 1.0)]
     pub shadow_offset: f32,
 
+    /// Level of detail: a subtree narrower than this many pixels (its bounding sphere's
+    /// radius against the ray's footprint) is drawn as its representative splat.
+    #[arg(long, default_value_t = DEFAULT_LOD_THRESHOLD)]
+    pub lod_threshold: f32,
+    /// Level of detail on or off (off: every ray descends to the input splats).
+    #[arg(long, value_enum, default_value_t = Switch::On)]
+    pub lod: Switch,
+    /// Normal-cone backface culling for camera rays; auto turns it on when rays from around
+    /// the model meet almost no back faces first (a closed, consistently oriented surface).
+    /// Off by default: front-to-back traversal already skips what lies behind the first hit,
+    /// and culling measured slower (docs/multires.md).
+    #[arg(long, value_enum, default_value_t = CullArg::Off)]
+    pub cull: CullArg,
+    /// Bounding volumes: boxes above this level of the tree (the root is 0), spheres from it
+    /// down; "never" for boxes only, "auto" to choose per node by surface area.
+    #[arg(long, value_parser = parse_sphere_level, default_value = "never")]
+    pub sphere_from_level: pointray::accel::NodeBounds,
+    /// Extra images beside the output: "nodes" writes OUTPUT.nodes.png, a heat map of the
+    /// nodes visited per pixel.
+    #[arg(long, value_enum)]
+    pub aov: Vec<AovArg>,
+
     /// Write statistics (timings, rays, traversal work, memory) as JSON.
     #[arg(long)]
     pub stats: Option<PathBuf>,
@@ -167,6 +194,21 @@ pub struct InfoArgs {
     pub input: PathBuf,
 }
 
+#[derive(Args, Debug)]
+pub struct CompareArgs {
+    /// First PNG (any colour type; alpha is ignored).
+    pub a: PathBuf,
+    /// Second PNG, of the same size.
+    pub b: PathBuf,
+    /// Print the result as one JSON object (`psnr_db` is null for identical images).
+    #[arg(long)]
+    pub json: bool,
+    /// Compare only this pixel rectangle: X0,Y0,X1,Y1 (X1, Y1 exclusive), e.g. the `region`
+    /// of a `--crop-to-model` render's stats, so that background does not inflate the PSNR.
+    #[arg(long, value_parser = parse_region)]
+    pub region: Option<pointray::camera::Region>,
+}
+
 #[derive(Copy, Clone, Debug, ValueEnum)]
 pub enum AccelArg {
     Bvh,
@@ -177,6 +219,43 @@ pub enum AccelArg {
 pub enum SurfaceArg {
     Sj,
     FirstHit,
+}
+
+#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
+pub enum Switch {
+    On,
+    Off,
+}
+
+#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum CullArg {
+    Auto,
+    On,
+    Off,
+}
+
+#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
+pub enum AovArg {
+    Nodes,
+}
+
+/// `--lod-threshold`'s default, in pixels: subtrees up to one pixel across are drawn as their
+/// representative. On the dragon at 16 diagonals that is 1.8× faster than full detail and
+/// closer to the converged image (24.0 dB against 23.3 dB at 1 spp, docs/multires.md D); τ = 1
+/// is 2.6× faster but 1 dB further off.
+pub const DEFAULT_LOD_THRESHOLD: f32 = 0.5;
+
+fn parse_sphere_level(s: &str) -> Result<pointray::accel::NodeBounds, String> {
+    use pointray::accel::NodeBounds;
+    match s {
+        "never" => Ok(NodeBounds::Boxes),
+        "auto" => Ok(NodeBounds::Auto),
+        level => level
+            .parse()
+            .map(NodeBounds::SpheresFrom)
+            .map_err(|_| format!("{level:?}: expected a level (0, 1, 2, …), \"never\" or \"auto\"")),
+    }
 }
 
 /// Parses `N` comma-separated finite numbers, in f64 (file coordinates may be large).

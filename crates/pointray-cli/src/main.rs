@@ -19,6 +19,7 @@ fn main() -> ExitCode {
         Command::Render(a) => commands::render::run(a, cli.quiet),
         Command::Prepare(a) => commands::prepare::run(a, cli.quiet),
         Command::Info(a) => commands::info::run(a),
+        Command::Compare(a) => commands::compare::run(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -218,8 +218,9 @@ fn assert_accels_agree(dir: &std::path::Path, input: &str) {
         for accel in ["brute", "bvh"] {
             let out = format!("{input}.{surface}.{accel}.png");
             let stats = format!("{input}.{surface}.{accel}.json");
-            render_in(dir, &[input, "-o", &out, "--accel", accel, "--surface", surface, "--stats", &stats])
-                .assert_success();
+            // Full detail: brute force has no level of detail or culling to agree with.
+            let args = [input, "-o", &out, "--accel", accel, "--surface", surface, "--stats", &stats];
+            render_in(dir, &[&args[..], &["--lod", "off", "--cull", "off"]].concat()).assert_success();
             let s = read_stats(&dir.join(&stats));
             assert_eq!(
                 s["accel"].as_str().map(str::to_ascii_lowercase).as_deref().map(|a| a.contains(accel)),
@@ -606,6 +607,12 @@ fn bad_flags_are_rejected_with_clear_messages() {
         (&["--width", "48", "--height", "40", "--accel", "kdtree"], 2, &["--accel", "bvh", "brute"]),
         (&["--width", "48", "--height", "40", "--surface", "nope"], 2, &["--surface", "first-hit"]),
         (&["--width", "abc"], 2, &["--width"]),
+        (&["--width", "48", "--height", "40", "--lod-threshold", "0"], 1, &["--lod-threshold", "positive"]),
+        (&["--width", "48", "--height", "40", "--lod-threshold", "inf"], 1, &["--lod-threshold", "positive"]),
+        (&["--width", "48", "--height", "40", "--lod", "maybe"], 2, &["--lod", "on", "off"]),
+        (&["--width", "48", "--height", "40", "--cull", "always"], 2, &["--cull", "auto"]),
+        (&["--width", "48", "--height", "40", "--sphere-from-level", "deep"], 2, &["--sphere-from-level", "never"]),
+        (&["--width", "48", "--height", "40", "--aov", "depth"], 2, &["--aov", "nodes"]),
     ];
     for (extra, code, words) in cases {
         let mut args = vec!["-q", "render", "sphere.ply", "-o", "out.png"];
@@ -839,4 +846,155 @@ fn eye_and_look_at_are_in_file_coordinates_far_from_the_origin() {
     let differ =
         a.rgb.chunks(3).zip(b.rgb.chunks(3)).filter(|(p, q)| p.iter().zip(*q).any(|(x, y)| x.abs_diff(*y) > 8)).count();
     assert!(differ * 50 < covered, "{differ} of {covered} pixels differ");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 11. compare
+// ---------------------------------------------------------------------------------------------
+
+/// Writes a `width`×`height` PNG whose every channel value is `value`.
+fn write_flat_png(dir: &std::path::Path, name: &str, width: u32, height: u32, value: u8) {
+    pointray_io::write_png(&dir.join(name), width, height, &vec![value; (width * height * 3) as usize]).unwrap();
+}
+
+#[test]
+fn compare_identical_and_different_images() {
+    let dir = temp_dir();
+    write_flat_png(dir.path(), "a.png", 8, 4, 100);
+    write_flat_png(dir.path(), "b.png", 8, 4, 100);
+    write_flat_png(dir.path(), "c.png", 8, 4, 101);
+
+    let run = run_in(dir.path(), &["compare", "a.png", "b.png"]);
+    run.assert_success();
+    assert_eq!(run.stdout, "PSNR inf dB, RMSE 0.0000, max diff 0, 0 of 32 pixels differ\n", "{run}");
+    let run = run_in(dir.path(), &["compare", "a.png", "b.png", "--json"]);
+    run.assert_success();
+    let json: serde_json::Value = serde_json::from_str(&run.stdout).unwrap_or_else(|e| panic!("{e}: {run}"));
+    assert_eq!(
+        json,
+        serde_json::json!({"psnr_db": null, "rmse": 0.0, "max_abs_diff": 0, "differing_pixels": 0, "pixels": 32})
+    );
+
+    // Every channel off by one: PSNR 20·log10(255).
+    let run = run_in(dir.path(), &["compare", "a.png", "c.png"]);
+    run.assert_success();
+    assert_eq!(run.stdout, "PSNR 48.13 dB, RMSE 0.0039, max diff 1, 32 of 32 pixels differ\n", "{run}");
+    let run = run_in(dir.path(), &["compare", "c.png", "a.png", "--json"]);
+    run.assert_success();
+    let json: serde_json::Value = serde_json::from_str(&run.stdout).unwrap_or_else(|e| panic!("{e}: {run}"));
+    assert!((stat_f64(&json, "psnr_db") - 48.1308).abs() < 1e-4, "{json}");
+    assert_eq!(stat_u64(&json, "differing_pixels"), 32);
+    assert_dir_contains_exactly(dir.path(), &["a.png", "b.png", "c.png"]);
+}
+
+#[test]
+fn compare_refuses_images_of_different_sizes() {
+    let dir = temp_dir();
+    write_flat_png(dir.path(), "wide.png", 8, 4, 0);
+    write_flat_png(dir.path(), "tall.png", 4, 8, 0);
+    let run = run_in(dir.path(), &["compare", "wide.png", "tall.png", "--json"]);
+    run.assert_failure(1).assert_stderr_contains("wide.png is 8x4").assert_stderr_contains("tall.png is 4x8");
+    assert!(run.stdout.is_empty(), "{run}");
+}
+
+#[test]
+fn compare_missing_or_broken_files_are_named() {
+    let dir = temp_dir();
+    write_flat_png(dir.path(), "a.png", 8, 4, 0);
+    let run = run_in(dir.path(), &["compare", "a.png", "missing.png"]);
+    run.assert_failure(1).assert_stderr_contains("pointray: error: missing.png");
+    let run = run_in(dir.path(), &["compare", "missing.png", "a.png"]);
+    run.assert_failure(1).assert_stderr_contains("pointray: error: missing.png");
+    let bytes = std::fs::read(dir.path().join("a.png")).unwrap();
+    write_file(dir.path(), "cut.png", &bytes[..bytes.len() - 20]);
+    let run = run_in(dir.path(), &["compare", "cut.png", "a.png"]);
+    run.assert_failure(1).assert_stderr_contains("cut.png");
+    assert!(run.stdout.is_empty(), "{run}");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 12. Level of detail, culling, bounding volumes, --aov nodes
+// ---------------------------------------------------------------------------------------------
+
+/// Renders the demo (a few pixels per feature at this frame size) with `extra` flags; returns
+/// the stats.
+fn render_demo_small(dir: &std::path::Path, out: &str, extra: &[&str]) -> serde_json::Value {
+    let stats = format!("{out}.json");
+    let args = [&["-o", out, "--demo-points", "40000", "--distance", "2", "--stats", &stats][..], extra].concat();
+    render_in(dir, &args).assert_success();
+    read_stats(&dir.join(stats))
+}
+
+#[test]
+fn level_of_detail_saves_work_far_away_and_costs_little_image() {
+    let dir = temp_dir();
+    let full = render_demo_small(dir.path(), "full.png", &["--lod", "off"]);
+    let coarse = render_demo_small(dir.path(), "coarse.png", &["--lod-threshold", "1"]);
+    assert!(full["lod_threshold"].is_null() && stat_f64(&coarse, "lod_threshold") == 1.0);
+    assert_eq!(stat_f64(&full, "lod_stops_per_ray"), 0.0);
+    assert!(stat_f64(&coarse, "lod_stops_per_ray") > 0.1, "{coarse:#}");
+    let (a, b) = (stat_f64(&full, "splat_tests_per_ray"), stat_f64(&coarse, "splat_tests_per_ray"));
+    assert!(b < 0.5 * a, "splat tests per ray: {a} without, {b} with level of detail");
+    assert!(stat_f64(&coarse, "nodes_visited_per_ray") < stat_f64(&full, "nodes_visited_per_ray"));
+    // The same picture, smoothed: `compare` measures how far apart over the model's pixels.
+    let r = &coarse["region"];
+    let region = format!("{},{},{},{}", r["x0"], r["y0"], r["x1"], r["y1"]);
+    let run = run_in(dir.path(), &["compare", "full.png", "coarse.png", "--region", &region, "--json"]);
+    run.assert_success();
+    let diff: serde_json::Value = serde_json::from_str(&run.stdout).unwrap();
+    let psnr = stat_f64(&diff, "psnr_db");
+    assert!(psnr > 20.0 && stat_u64(&diff, "differing_pixels") > 0, "PSNR {psnr}: {diff}");
+}
+
+#[test]
+fn culling_and_bounding_volumes_are_reported_and_change_no_full_detail_pixel() {
+    let dir = temp_dir();
+    let base = render_demo_small(dir.path(), "base.png", &["--lod", "off"]);
+    assert_eq!(base["culling"]["mode"], "off", "culling is off by default");
+    assert_eq!(base["culling"]["enabled"], false);
+    assert_eq!(stat_f64(&base, "culled_per_ray"), 0.0);
+    assert_eq!(stat_u64(&base, "sphere_nodes"), 0);
+    let spheres =
+        render_demo_small(dir.path(), "spheres.png", &["--lod", "off", "--cull", "off", "--sphere-from-level", "1"]);
+    assert!(stat_u64(&spheres, "sphere_nodes") > 0 && stat_f64(&spheres, "sphere_tests_per_ray") > 0.0);
+    let same = read_png(&dir.path().join("base.png")) == read_png(&dir.path().join("spheres.png"));
+    assert!(same, "bounding spheres changed the image");
+    // The demo's sphere and torus are closed, but its floor is an open sheet seen from above
+    // only: auto decides from the rays around the model, and says why.
+    let auto = render_demo_small(dir.path(), "auto.png", &["--lod", "off", "--cull", "auto"]);
+    let fraction = stat_f64(&auto["culling"], "backfacing_fraction");
+    assert_eq!(auto["culling"]["enabled"], fraction <= 0.01, "{auto:#}");
+    let on = render_demo_small(dir.path(), "on.png", &["--lod", "off", "--cull", "on"]);
+    assert_eq!(on["culling"]["enabled"], true);
+    assert!(stat_f64(&on, "culled_per_ray") > 0.0, "{on:#}");
+}
+
+#[test]
+fn aov_nodes_writes_a_heat_map_beside_the_image() {
+    let dir = temp_dir();
+    let s = render_demo_small(dir.path(), "out.png", &["--aov", "nodes"]);
+    assert_dir_contains_exactly(dir.path(), &["out.png", "out.nodes.png", "out.png.json"]);
+    let heat = read_png(&dir.path().join("out.nodes.png"));
+    assert_eq!((heat.width, heat.height), (W, H));
+    let colours: std::collections::BTreeSet<[u8; 3]> = heat.pixels().map(|(_, _, p)| p).collect();
+    assert!(colours.len() >= 3, "a heat map of a scene has several levels: {colours:?}");
+    assert!(stat_u64(&s, "nodes_visited_max_per_pixel") > 0);
+}
+
+#[test]
+fn compare_region_counts_only_its_pixels() {
+    let dir = temp_dir();
+    write_flat_png(dir.path(), "a.png", 8, 4, 100);
+    let mut half = vec![100u8; 8 * 4 * 3];
+    half[..4 * 3].fill(90); // the first four pixels of the top row differ
+    pointray_io::write_png(&dir.path().join("b.png"), 8, 4, &half).unwrap();
+    let run = run_in(dir.path(), &["compare", "a.png", "b.png", "--region", "0,0,2,1", "--json"]);
+    run.assert_success();
+    let json: serde_json::Value = serde_json::from_str(&run.stdout).unwrap();
+    assert_eq!((stat_u64(&json, "pixels"), stat_u64(&json, "differing_pixels")), (2, 2), "{json}");
+    let run = run_in(dir.path(), &["compare", "a.png", "b.png", "--region", "4,0,8,4"]);
+    run.assert_success().assert_stdout_contains("PSNR inf");
+    run_in(dir.path(), &["compare", "a.png", "b.png", "--region", "0,0,9,4"])
+        .assert_failure(1)
+        .assert_stderr_contains("outside");
 }

@@ -1,4 +1,4 @@
-//! PNG output for rendered images.
+//! PNG output for rendered images, and PNG input for comparing them.
 
 use std::path::Path;
 
@@ -23,4 +23,54 @@ pub fn write_png(path: &Path, width: u32, height: u32, rgb8: &[u8]) -> Result<()
         writer.finish()?;
         Ok(())
     })
+}
+
+/// The most a deflate stream can expand (zlib's documented limit is 1032:1): a header that
+/// declares more raw image data than its file could hold is refused before allocating.
+const MAX_DEFLATE_RATIO: u128 = 1032;
+
+/// Reads a PNG as `(width, height, rgb8)`, rows top to bottom, 3 bytes per pixel. Gray, gray +
+/// alpha, RGB, RGBA and palette images of any bit depth are accepted: 16-bit samples keep their
+/// high byte, gray is replicated into all three channels, and alpha is dropped (not composited).
+/// Only the first frame of an animated PNG is read.
+pub fn read_png(path: &Path) -> Result<(u32, u32, Vec<u8>), IoError> {
+    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    let decode_error = |e: png::DecodingError| match e {
+        png::DecodingError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            IoError::invalid(path, "the PNG ends early (truncated file?)")
+        }
+        e => IoError::invalid(path, format!("not a readable PNG: {e}")),
+    };
+    let mut decoder = png::Decoder::new(std::io::Cursor::new(&bytes[..]));
+    decoder.set_transformations(png::Transformations::normalize_to_color8());
+    let mut reader = decoder.read_info().map_err(decode_error)?;
+
+    let info = reader.info();
+    let (width, height) = (info.width, info.height);
+    let bits_per_pixel = info.color_type.samples() as u128 * info.bit_depth as u128;
+    // One filter byte per row, then the packed samples.
+    let raw_bytes = u128::from(height) * (1 + (u128::from(width) * bits_per_pixel).div_ceil(8));
+    if raw_bytes > bytes.len() as u128 * MAX_DEFLATE_RATIO {
+        return Err(IoError::invalid(
+            path,
+            format!("declares {width}x{height} pixels, more than its {} bytes can hold", bytes.len()),
+        ));
+    }
+    let size = reader
+        .output_buffer_size()
+        .ok_or_else(|| IoError::invalid(path, format!("{width}x{height} pixels do not fit in memory")))?;
+    let mut buffer = vec![0; size];
+    let frame = reader.next_frame(&mut buffer).map_err(decode_error)?;
+    buffer.truncate(frame.buffer_size());
+
+    let rgb8 = match frame.color_type {
+        png::ColorType::Rgb => buffer,
+        png::ColorType::Rgba => buffer.chunks_exact(4).flat_map(|p| [p[0], p[1], p[2]]).collect(),
+        png::ColorType::Grayscale => buffer.iter().flat_map(|&g| [g; 3]).collect(),
+        png::ColorType::GrayscaleAlpha => buffer.chunks_exact(2).flat_map(|p| [p[0]; 3]).collect(),
+        // `normalize_to_color8` expands palettes, so this would be a bug in the png crate.
+        png::ColorType::Indexed => return Err(IoError::invalid(path, "palette was not expanded")),
+    };
+    debug_assert_eq!(rgb8.len() as u64, u64::from(width) * u64::from(height) * 3);
+    Ok((width, height, rgb8))
 }

@@ -1,4 +1,4 @@
-//! File formats for pointray: point clouds in (PLY, XYZ text), rendered images out (PNG).
+//! File formats for pointray: point clouds in (PLY, XYZ text), rendered images out and back in (PNG).
 //!
 //! Everything is read into memory first and parsed from the byte slice; every error names
 //! the file and, where there is one, the line or byte offset (see [`IoError`]). No input
@@ -16,7 +16,7 @@ use std::io::Write;
 use std::path::Path;
 
 pub use error::IoError;
-pub use image::write_png;
+pub use image::{read_png, write_png};
 pub use ply::{read_ply, write_ply};
 pub use xyz::read_xyz;
 

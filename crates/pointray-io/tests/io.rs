@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use glam::{DVec3, Vec3};
 use pointray::PointCloud;
-use pointray_io::{FileInfo, IoError, atomic_write, read_cloud, write_ply, write_png};
+use pointray_io::{FileInfo, IoError, atomic_write, read_cloud, read_png, write_ply, write_png};
 
 // ---------------------------------------------------------------- hand-written PLY
 
@@ -695,4 +695,100 @@ fn png_round_trip() {
 
     let message = write_png(&dir.path().join("wrong.png"), 4, 4, &pixels).unwrap_err().to_string();
     assert!(message.contains("wrong.png") && message.contains("4x4"), "{message}");
+}
+
+#[test]
+fn read_png_round_trips_write_png() {
+    let dir = temp_dir();
+    let (width, height) = (7u32, 5u32);
+    let pixels: Vec<u8> = (0..width * height * 3).map(|i| (i * 53 % 256) as u8).collect();
+    let path = dir.path().join("image.png");
+    write_png(&path, width, height, &pixels).unwrap();
+    assert_eq!(read_png(&path).unwrap(), (width, height, pixels));
+}
+
+/// Encodes a 2x1 image in any colour type and depth with the png crate itself.
+fn encode_png(color: png::ColorType, depth: png::BitDepth, palette: Option<&[u8]>, data: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut encoder = png::Encoder::new(&mut out, 2, 1);
+    encoder.set_color(color);
+    encoder.set_depth(depth);
+    if let Some(palette) = palette {
+        encoder.set_palette(palette.to_vec());
+    }
+    let mut writer = encoder.write_header().unwrap();
+    writer.write_image_data(data).unwrap();
+    writer.finish().unwrap();
+    out
+}
+
+#[test]
+fn read_png_converts_every_colour_type_to_rgb8() {
+    use png::{BitDepth, ColorType};
+    let dir = temp_dir();
+    let rgb = [10, 20, 30, 200, 100, 0];
+    let gray = [7, 7, 7, 250, 250, 250];
+    let palette: [u8; 9] = [1, 2, 3, 10, 20, 30, 200, 100, 0];
+    let cases = [
+        ("gray.png", ColorType::Grayscale, BitDepth::Eight, None, vec![7, 250], gray),
+        ("gray1.png", ColorType::Grayscale, BitDepth::One, None, vec![0b0100_0000], [0, 0, 0, 255, 255, 255]),
+        ("gray_alpha.png", ColorType::GrayscaleAlpha, BitDepth::Eight, None, vec![7, 0, 250, 128], gray),
+        ("rgb.png", ColorType::Rgb, BitDepth::Eight, None, rgb.to_vec(), rgb),
+        ("rgba.png", ColorType::Rgba, BitDepth::Eight, None, vec![10, 20, 30, 0, 200, 100, 0, 255], rgb),
+        // 16-bit samples keep their high byte.
+        ("rgb16.png", ColorType::Rgb, BitDepth::Sixteen, None, rgb.iter().flat_map(|&c| [c, 0xff - c]).collect(), rgb),
+        ("palette.png", ColorType::Indexed, BitDepth::Eight, Some(&palette), vec![1, 2], rgb),
+    ];
+    for (name, color, depth, palette, data, expected) in cases {
+        let path = write_file(dir.path(), name, &encode_png(color, depth, palette.map(|p| p.as_slice()), &data));
+        assert_eq!(read_png(&path).unwrap(), (2, 1, expected.to_vec()), "{name}");
+    }
+}
+
+#[test]
+fn read_png_errors_name_the_file() {
+    let dir = temp_dir();
+    let path = dir.path().join("whole.png");
+    write_png(&path, 16, 16, &[99; 16 * 16 * 3]).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let cases = [
+        ("truncated.png", &bytes[..bytes.len() / 2], "ends early"),
+        ("header_only.png", &bytes[..20], "ends early"),
+        ("not_a.png", b"P6 1 1 255\n\0\0\0".as_slice(), "not a readable PNG"),
+    ];
+    for (name, contents, fragment) in cases {
+        let path = write_file(dir.path(), name, contents);
+        let message = read_png(&path).unwrap_err().to_string();
+        assert!(message.contains(name) && message.contains(fragment), "{message}");
+    }
+    let message = read_png(&dir.path().join("missing.png")).unwrap_err().to_string();
+    assert!(message.contains("missing.png"), "{message}");
+}
+
+#[test]
+fn read_png_refuses_a_header_larger_than_the_file() {
+    let dir = temp_dir();
+    let path = dir.path().join("big.png");
+    write_png(&path, 1, 1, &[0, 0, 0]).unwrap();
+    let mut bytes = std::fs::read(&path).unwrap();
+    // IHDR data starts at byte 16 (signature 8, length 4, type 4): claim 60000 x 60000 and
+    // fix the chunk's CRC so only the size check can object.
+    bytes[16..24].copy_from_slice(&[0, 0, 0xea, 0x60, 0, 0, 0xea, 0x60]);
+    let crc = crc32(&bytes[12..29]);
+    bytes[29..33].copy_from_slice(&crc.to_be_bytes());
+    let path = write_file(dir.path(), "big.png", &bytes);
+    let message = read_png(&path).unwrap_err().to_string();
+    assert!(message.contains("big.png") && message.contains("60000x60000"), "{message}");
+}
+
+/// The PNG chunk checksum (CRC-32, ISO 3309), bit by bit: only a few bytes are checked here.
+fn crc32(bytes: &[u8]) -> u32 {
+    let mut crc = !0u32;
+    for &b in bytes {
+        crc ^= u32::from(b);
+        for _ in 0..8 {
+            crc = if crc & 1 == 1 { (crc >> 1) ^ 0xedb8_8320 } else { crc >> 1 };
+        }
+    }
+    !crc
 }

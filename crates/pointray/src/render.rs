@@ -32,6 +32,11 @@ pub struct RenderConfig {
     /// Samples per pixel: 1 traces the pixel centre; more jitter within the pixel.
     pub samples: u32,
     pub seed: u64,
+    /// Level-of-detail threshold τ in pixels for every ray (see `Ray::lod_threshold`); 0 = off.
+    pub lod_threshold: f32,
+    /// Cull back-facing subtrees for camera rays (only right for closed, consistently
+    /// oriented surfaces; see `accel::backfacing_fraction`).
+    pub cull_backfaces: bool,
 }
 
 /// Pixels per tile edge: small enough to balance 2–64 threads, big enough for coherence.
@@ -92,13 +97,20 @@ fn render_pixel<A: Accel>(
     let nodes_before = stats.traversal.nodes_visited;
     let mut sum = Vec3::ZERO;
     let samples = config.samples.max(1);
+    let footprint_scale = (samples as f32).sqrt().recip();
     let mut rng = (samples > 1).then(|| pixel_rng(config.seed, x, y));
     for _ in 0..samples {
         let (dx, dy) = match &mut rng {
             Some(r) => (r.random::<f32>(), r.random::<f32>()),
             None => (0.5, 0.5),
         };
-        let ray = camera.ray(x as f32 + dx, y as f32 + dy);
+        let mut ray = camera
+            .ray(x as f32 + dx, y as f32 + dy)
+            .with_lod_threshold(config.lod_threshold)
+            .with_backface_culling(config.cull_backfaces);
+        // Each of n samples stands for 1/n of the pixel, a beam 1/√n as wide (as pbrt scales
+        // its ray differentials): more samples resolve finer detail.
+        ray.cone.spread *= footprint_scale;
         sum += Vec3::from(trace(accel, &ray, config, stats));
     }
     let nodes = (stats.traversal.nodes_visited - nodes_before).min(u32::MAX as u64) as u32;
@@ -143,7 +155,10 @@ fn in_shadow<A: Accel>(
     let offset = config.shadow_offset * hit.radius;
     let origin = hit.position + hit.normal * offset;
     let footprint = primary.cone.width_at(hit.t);
-    let ray =
-        Ray::new(origin, to_light, crate::math::RayCone { width0: footprint, spread: 0.0 }).with_t_min(hit.radius);
+    // The shadow ray's beam starts as wide as the pixel's footprint at the hit (a directional
+    // light keeps it that wide), and takes its level of detail from it.
+    let ray = Ray::new(origin, to_light, crate::math::RayCone { width0: footprint, spread: 0.0 })
+        .with_t_min(hit.radius)
+        .with_lod_threshold(config.lod_threshold);
     scheme::occluded(accel, &ray, light_dist, &mut stats.traversal)
 }

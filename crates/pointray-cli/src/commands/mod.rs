@@ -1,3 +1,4 @@
+pub mod compare;
 pub mod info;
 pub mod prepare;
 pub mod render;

@@ -4,7 +4,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 
-use pointray::accel::{Accel, BruteForce, Bvh, BvhParams};
+use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, NodeBounds, backfacing_fraction};
 use pointray::camera::{Camera, Region};
 use pointray::film::Film;
 use pointray::render::{RenderConfig, render};
@@ -14,7 +14,7 @@ use pointray::splat::{Splat, splats_from_cloud};
 use pointray::stats::RenderStats;
 use serde::Serialize;
 
-use crate::args::{AccelArg, RenderArgs, SurfaceArg};
+use crate::args::{AccelArg, AovArg, CullArg, RenderArgs, SurfaceArg, Switch};
 
 /// The accelerators the CLI can build; the render loop is monomorphised for each.
 enum AnyAccel {
@@ -23,9 +23,9 @@ enum AnyAccel {
 }
 
 impl AnyAccel {
-    fn build(kind: AccelArg, splats: Vec<Splat>) -> Self {
+    fn build(kind: AccelArg, splats: Vec<Splat>, node_bounds: NodeBounds) -> Self {
         match kind {
-            AccelArg::Bvh => AnyAccel::Bvh(Bvh::build(splats, &BvhParams::standard())),
+            AccelArg::Bvh => AnyAccel::Bvh(Bvh::build(splats, &BvhParams { node_bounds, ..BvhParams::standard() })),
             AccelArg::Brute => AnyAccel::Brute(BruteForce::new(splats)),
         }
     }
@@ -51,6 +51,21 @@ impl AnyAccel {
         }
     }
 
+    fn backfacing_fraction(&self) -> Option<f64> {
+        match self {
+            AnyAccel::Bvh(a) => backfacing_fraction(a, CULL_CHECK_RAYS, 0),
+            AnyAccel::Brute(a) => backfacing_fraction(a, CULL_CHECK_RAYS / 16, 0),
+        }
+    }
+
+    /// Nodes, the nodes that test spheres, and bytes per node (none for brute force).
+    fn node_summary(&self) -> (usize, usize, usize) {
+        match self {
+            AnyAccel::Bvh(a) => (a.node_count(), a.sphere_node_count(), Bvh::NODE_BYTES),
+            AnyAccel::Brute(_) => (0, 0, 0),
+        }
+    }
+
     fn render(&self, camera: &Camera, config: &RenderConfig, progress: &(dyn Fn(u64) + Sync)) -> (Film, RenderStats) {
         match self {
             AnyAccel::Bvh(a) => render(a, camera, config, progress),
@@ -58,6 +73,13 @@ impl AnyAccel {
         }
     }
 }
+
+/// Rays of the `--cull auto` check (a few milliseconds on the BVH).
+const CULL_CHECK_RAYS: usize = 4096;
+/// `--cull auto` culls when at most this fraction of rays from around the model meets a back
+/// face first. Closed scans measure 0.1–0.4 % (stray disks at silhouettes and creases), open
+/// ones several percent and more.
+const CULL_AUTO_MAX_BACKFACING: f64 = 0.01;
 
 /// What `--stats` writes.
 #[derive(Serialize)]
@@ -86,7 +108,20 @@ struct StatsReport {
     hit_fraction: f64,
     nodes_visited_per_ray: f64,
     splat_tests_per_ray: f64,
+    box_tests_per_ray: f64,
+    sphere_tests_per_ray: f64,
+    lod_stops_per_ray: f64,
+    culled_per_ray: f64,
     blended_splats_per_hit: f64,
+    /// Level-of-detail threshold in pixels; null with `--lod off`.
+    lod_threshold: Option<f32>,
+    culling: CullingReport,
+    node_bounds: NodeBounds,
+    nodes: usize,
+    sphere_nodes: usize,
+    bytes_per_node: usize,
+    /// Most nodes visited by one pixel (the top of the `--aov nodes` scale).
+    nodes_visited_max_per_pixel: u32,
     accel_bytes: usize,
     bytes_per_splat: f64,
     splat_bytes: usize,
@@ -94,6 +129,14 @@ struct StatsReport {
     bounds_diagonal: f32,
     camera_distance: Option<f32>,
     counters: RenderStats,
+}
+
+#[derive(Serialize)]
+struct CullingReport {
+    mode: CullArg,
+    enabled: bool,
+    /// Fraction of rays from around the model whose first disk faces away (the auto check).
+    backfacing_fraction: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -112,6 +155,9 @@ pub fn run(a: &RenderArgs, quiet: bool) -> anyhow::Result<()> {
     super::check_output_path(&a.output)?;
     if let Some(stats) = &a.stats {
         super::check_output_path(stats)?;
+    }
+    if !a.aov.is_empty() {
+        super::check_output_path(&aov_path(&a.output, "nodes"))?;
     }
     let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads.unwrap_or(0)).build()?;
     pool.install(|| run_in_pool(a, quiet, pool.current_num_threads()))
@@ -133,6 +179,7 @@ fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     ensure!(a.sj_window >= 0.0 && a.sj_window.is_finite(), "--sj-window must be a non-negative number");
     ensure!(a.sj_min_coverage >= 0.0 && a.sj_min_coverage.is_finite(), "--sj-min-coverage must be non-negative");
     ensure!(a.shadow_offset >= 0.0 && a.shadow_offset.is_finite(), "--shadow-offset must be non-negative");
+    ensure!(a.lod_threshold > 0.0 && a.lod_threshold.is_finite(), "--lod-threshold must be a positive number");
     ensure!(a.up.length_squared() > 0.0, "--up must not be the zero vector");
     ensure!(a.view_dir.is_none_or(|v| v.length_squared() > 0.0), "--view-dir must not be the zero vector");
     ensure!(a.light_dir.is_none_or(|v| v.length_squared() > 0.0), "--light-dir must not be the zero vector");
@@ -167,7 +214,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     let mean_radius = splats.iter().map(|s| f64::from(s.radius)).sum::<f64>() / splats.len() as f64;
     let t = Instant::now();
     let spinner = crate::progress::spinner("build", quiet);
-    let accel = AnyAccel::build(a.accel, splats);
+    let accel = AnyAccel::build(a.accel, splats, a.sphere_from_level);
     spinner.finish_and_clear();
     let build_seconds = t.elapsed().as_secs_f64();
     tracing::info!("built {} over {} splats in {build_seconds:.3} s", accel.name(), cloud.len());
@@ -222,7 +269,17 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
             SurfaceArg::FirstHit => SurfaceKind::FirstHit,
         })
     };
+    let backfacing = (a.cull == CullArg::Auto).then(|| accel.backfacing_fraction()).flatten();
+    let cull_backfaces = match a.cull {
+        CullArg::On => true,
+        CullArg::Off => false,
+        CullArg::Auto => backfacing.is_some_and(|f| f <= CULL_AUTO_MAX_BACKFACING),
+    };
+    tracing::info!("backface culling {cull_backfaces} (back faces first: {backfacing:?})");
+    let lod_threshold = if a.lod == Switch::On { a.lod_threshold } else { 0.0 };
     let config = RenderConfig {
+        lod_threshold,
+        cull_backfaces,
         scheme,
         light,
         material: Material::standard(),
@@ -258,6 +315,18 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         a.height,
         &film.frame_srgb8(a.width, a.height, config.background),
     )?;
+    let nodes_max = film.nodes_visited.iter().copied().max().unwrap_or(0);
+    if a.aov.contains(&AovArg::Nodes) {
+        let mut heat = vec![0u8; a.width as usize * a.height as usize * 3];
+        let colours = pointray::metrics::heat_map_rgb8(&film.nodes_visited, nodes_max);
+        let r = film.region;
+        for (row, y) in (r.y0..r.y1).enumerate() {
+            let src = row * r.width() as usize * 3;
+            let dst = (y as usize * a.width as usize + r.x0 as usize) * 3;
+            heat[dst..dst + r.width() as usize * 3].copy_from_slice(&colours[src..src + r.width() as usize * 3]);
+        }
+        pointray_io::image::write_png(&aov_path(&a.output, "nodes"), a.width, a.height, &heat)?;
+    }
     let mrays = stats.rays as f64 / render_seconds / 1e6;
     if !quiet {
         eprintln!(
@@ -275,6 +344,8 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     }
 
     if let Some(path) = &a.stats {
+        let per_ray = |n: u64| if stats.rays == 0 { 0.0 } else { n as f64 / stats.rays as f64 };
+        let (nodes, sphere_nodes, bytes_per_node) = accel.node_summary();
         let report = StatsReport {
             input: input_name,
             points: cloud.len(),
@@ -300,6 +371,17 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
             hit_fraction: stats.hit_fraction(),
             nodes_visited_per_ray: stats.nodes_visited_per_ray(),
             splat_tests_per_ray: stats.splat_tests_per_ray(),
+            box_tests_per_ray: per_ray(stats.traversal.box_tests),
+            sphere_tests_per_ray: per_ray(stats.traversal.sphere_tests),
+            lod_stops_per_ray: per_ray(stats.traversal.lod_stops),
+            culled_per_ray: per_ray(stats.traversal.culled),
+            lod_threshold: (lod_threshold > 0.0).then_some(lod_threshold),
+            culling: CullingReport { mode: a.cull, enabled: cull_backfaces, backfacing_fraction: backfacing },
+            node_bounds: a.sphere_from_level,
+            nodes,
+            sphere_nodes,
+            bytes_per_node,
+            nodes_visited_max_per_pixel: nodes_max,
             blended_splats_per_hit: if stats.primary_hits == 0 {
                 0.0
             } else {
@@ -317,4 +399,10 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         pointray_io::atomic_write(path, |w| w.write_all(json.as_bytes()))?;
     }
     Ok(())
+}
+
+/// Where an extra image goes: beside the output, `NAME.png` → `NAME.KIND.png`.
+fn aov_path(output: &std::path::Path, kind: &str) -> std::path::PathBuf {
+    let stem = output.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    output.with_file_name(format!("{stem}.{kind}.png"))
 }

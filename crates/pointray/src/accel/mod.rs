@@ -4,18 +4,21 @@
 //! the ray front to back and hands every splat whose bounds the ray may cross to a
 //! [`SplatVisitor`] (the surface scheme of `splat::scheme`), which decides what a hit is and how
 //! far the walk must still go (`t_max`). The same walk serves closest-hit, the SJ window and
-//! shadow rays. Level of detail will hook in here: rays already carry their footprint
-//! (`Ray::cone`), and a multiresolution accelerator will hand the visitor a node's
-//! representative splat instead of descending when the node is smaller than the footprint.
+//! shadow rays. Level of detail hooks in here too: rays carry their footprint (`Ray::cone`) and
+//! a threshold, and a multiresolution accelerator hands the visitor a node's representative
+//! splat instead of descending when the node is smaller than the footprint.
 //!
-//! * [`BruteForce`]: every splat, every ray — the test oracle.
-//! * [`Bvh`]: binned-SAH bounding volume hierarchy.
+//! * [`BruteForce`]: every splat, every ray — the test oracle (no level of detail).
+//! * [`Bvh`]: binned-SAH bounding volume hierarchy with level of detail, bounding spheres and
+//!   normal cones in its nodes (thesis ch. 3).
 
 mod brute;
 pub mod bvh;
+mod culling;
 
 pub use brute::BruteForce;
-pub use bvh::{Bvh, BvhParams};
+pub use bvh::{Bvh, BvhParams, NodeBounds};
+pub use culling::backfacing_fraction;
 
 use crate::math::{Aabb, Ray};
 use crate::splat::Splat;
@@ -24,7 +27,7 @@ use crate::splat::Splat;
 pub trait SplatVisitor {
     /// Nodes and splats beyond this ray parameter cannot matter any more.
     fn t_max(&self) -> f32;
-    /// Tests one splat (`index` is its position in [`Accel::splats`]).
+    /// Tests one splat (`index` is what [`Accel::splat`] takes).
     fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32);
     /// True once the answer is known (any-hit queries stop early).
     fn done(&self) -> bool {
@@ -36,24 +39,42 @@ pub trait SplatVisitor {
 /// depend on the thread count).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct TraversalStats {
-    /// Nodes whose bounds were tested.
+    /// Nodes whose children's bounds were tested.
     pub nodes_visited: u64,
+    /// Child bounding boxes tested (slab tests).
+    pub box_tests: u64,
+    /// Child bounding spheres tested.
+    pub sphere_tests: u64,
     /// Ray–disk tests: splats handed to the visitor (brute force), or splats in the packets
-    /// the BVH tested with its SIMD pre-filter.
+    /// the BVH tested with its SIMD pre-filter; representative splats included.
     pub splat_tests: u64,
+    /// Subtrees replaced by their representative splat (level of detail).
+    pub lod_stops: u64,
+    /// Subtrees skipped because all their disks face away from the ray's origin.
+    pub culled: u64,
 }
 
 impl std::ops::AddAssign for TraversalStats {
     fn add_assign(&mut self, o: Self) {
         self.nodes_visited += o.nodes_visited;
+        self.box_tests += o.box_tests;
+        self.sphere_tests += o.sphere_tests;
         self.splat_tests += o.splat_tests;
+        self.lod_stops += o.lod_stops;
+        self.culled += o.culled;
     }
 }
 
 /// An acceleration structure over splats. It owns its splats, in whatever order suits it.
 pub trait Accel: Send + Sync {
     fn name(&self) -> &'static str;
+    /// The input splats, in the accelerator's order.
     fn splats(&self) -> &[Splat];
+    /// The splat a visitor was handed as `index`: an input splat (`index < splats().len()`)
+    /// or a level-of-detail representative.
+    fn splat(&self, index: u32) -> &Splat {
+        &self.splats()[index as usize]
+    }
     /// Bounds of all the disks.
     fn bounds(&self) -> Aabb;
     /// Bytes of the structure itself, excluding the splats.

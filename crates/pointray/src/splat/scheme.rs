@@ -81,7 +81,8 @@ pub struct SurfaceHit {
     pub color: [f32; 3],
     /// Radius of the nearest disk: the local sampling scale, used for self-intersection offsets.
     pub radius: f32,
-    /// Index (in the accelerator's splat order) of the nearest disk.
+    /// Index of the nearest disk, as [`Accel::splat`] takes it (a level-of-detail
+    /// representative when `≥ accel.splats().len()`).
     pub splat: u32,
     /// Number of disks blended (1 for first-hit).
     pub blended: u32,
@@ -94,13 +95,12 @@ pub fn intersect<A: Accel + ?Sized>(
     scheme: &SurfaceScheme,
     stats: &mut TraversalStats,
 ) -> Option<SurfaceHit> {
-    let splats = accel.splats();
     match scheme.kind {
         SurfaceKind::FirstHit => {
             let mut v = Nearest { t_max: f32::INFINITY, best: None, best_key: [0; 8] };
             accel.traverse(ray, &mut v, stats);
             let (t, i) = v.best?;
-            let s = &splats[i as usize];
+            let s = accel.splat(i);
             Some(SurfaceHit {
                 t,
                 position: ray.at(t),
@@ -125,7 +125,7 @@ pub fn intersect<A: Accel + ?Sized>(
                 }
                 // Nothing behind a weak window: it was the surface after all (a thinly covered
                 // spot), not a disk sticking out in front of one.
-                let Some((hit, coverage)) = v.blend(&ray, splats) else { return weak };
+                let Some((hit, coverage)) = v.blend(&ray, accel) else { return weak };
                 if coverage >= scheme.min_coverage {
                     return Some(hit);
                 }
@@ -258,16 +258,15 @@ impl SjWindow {
     }
 
     /// The blended hit and the window's coverage Σ(1 − dᵢ/rᵢ) over the blended disks.
-    fn blend(&mut self, ray: &Ray, splats: &[Splat]) -> Option<(SurfaceHit, f32)> {
+    fn blend<A: Accel + ?Sized>(&mut self, ray: &Ray, accel: &A) -> Option<(SurfaceHit, f32)> {
         let list = &mut self.crossings[..self.len];
         // Sum in a fixed order (by t, then by splat contents) so that every accelerator, which
         // visits disks in its own order, blends to the same bits.
         list.sort_unstable_by(|a, b| {
-            a.t.total_cmp(&b.t)
-                .then_with(|| tie_key(&splats[a.index as usize]).cmp(&tie_key(&splats[b.index as usize])))
+            a.t.total_cmp(&b.t).then_with(|| tie_key(accel.splat(a.index)).cmp(&tie_key(accel.splat(b.index))))
         });
         let first = *list.first()?;
-        let first_splat = &splats[first.index as usize];
+        let first_splat = accel.splat(first.index);
         // Blend the disks facing the same way as the first: the back of a thin part may lie
         // within the window.
         let side = first_splat.normal.dot(ray.dir) > 0.0;
@@ -275,7 +274,7 @@ impl SjWindow {
         let mut blended = 0;
         let mut coverage = 0.0;
         for x in list.iter() {
-            let s = &splats[x.index as usize];
+            let s = accel.splat(x.index);
             if (s.normal.dot(ray.dir) > 0.0) != side {
                 continue;
             }

@@ -1,7 +1,8 @@
-//! Every accelerator returns exactly the hits of the brute-force oracle (full detail).
+//! Every accelerator returns exactly the hits of the brute-force oracle (full detail: level of
+//! detail and culling off), whatever bounds its nodes test.
 
 use glam::Vec3;
-use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, TraversalStats};
+use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, NodeBounds, TraversalStats};
 use pointray::math::Aabb;
 use pointray::splat::Splat;
 use pointray::splat::scheme::{self, SurfaceScheme};
@@ -13,6 +14,7 @@ use crate::util::{random_rays, sphere_splats, torus_splats};
 fn check_agreement(splats: &[Splat], params: &BvhParams, rays: usize, seed: u64) -> usize {
     let brute = BruteForce::new(splats.to_vec());
     let bvh = Bvh::build(splats.to_vec(), params);
+    pointray::accel::bvh::check_invariants(&bvh).expect("BVH invariants");
     let target = if splats.is_empty() { Aabb::new(Vec3::splat(-1.0), Vec3::ONE) } else { brute.bounds() };
     let mut hits = 0;
     for (i, ray) in random_rays(rays, &target, seed).iter().enumerate() {
@@ -45,17 +47,25 @@ fn check_agreement(splats: &[Splat], params: &BvhParams, rays: usize, seed: u64)
     hits
 }
 
+/// The node bounds every preset is checked with: the foundation's boxes, spheres from the
+/// root or from level 2 (the mixed volumes of thesis ch. 3), and the per-node choice.
+const NODE_BOUNDS: [NodeBounds; 4] =
+    [NodeBounds::Boxes, NodeBounds::SpheresFrom(0), NodeBounds::SpheresFrom(2), NodeBounds::Auto];
+
 #[test]
 fn bvh_matches_brute_force_on_sphere_and_torus_for_every_preset() {
     let sphere = sphere_splats(20_000, 1.0, 1);
     let torus = torus_splats(20_000, 2);
     for (name, params) in BvhParams::presets() {
-        // 10⁴ rays for the default preset; fewer for the others keep the suite short.
-        let rays = if name == "standard" { 10_000 } else { 2_000 };
-        let hits = check_agreement(&sphere, &params, rays, 11);
-        assert!(hits > rays / 2, "{name}: too few hits ({hits}) to mean anything");
-        let hits = check_agreement(&torus, &params, rays, 12);
-        assert!(hits > rays / 3, "{name}: too few hits ({hits}) on the torus");
+        for node_bounds in NODE_BOUNDS {
+            let params = BvhParams { node_bounds, ..params };
+            // 10⁴ rays for the default; fewer for the other variants keep the suite short.
+            let rays = if name == "standard" && node_bounds == NodeBounds::Boxes { 10_000 } else { 2_000 };
+            let hits = check_agreement(&sphere, &params, rays, 11);
+            assert!(hits > rays / 2, "{name} {node_bounds:?}: too few hits ({hits}) to mean anything");
+            let hits = check_agreement(&torus, &params, rays, 12);
+            assert!(hits > rays / 3, "{name} {node_bounds:?}: too few hits ({hits}) on the torus");
+        }
     }
 }
 
@@ -69,13 +79,16 @@ fn bvh_matches_brute_force_on_degenerate_inputs() {
     let duplicates: Vec<Splat> = (0..300).map(|i| disk(Vec3::ONE, Vec3::new(1.0, i as f32 * 0.01, 0.0))).collect();
     let collinear: Vec<Splat> = (0..300).map(|i| disk(Vec3::new(i as f32 * 0.05, 0.0, 0.0), Vec3::Y)).collect();
     for (name, params) in BvhParams::presets() {
-        for (what, splats) in
-            [("one", &one), ("coplanar", &coplanar), ("duplicates", &duplicates), ("collinear", &collinear)]
-        {
-            let hits = check_agreement(splats, &params, 2_000, 5);
-            assert!(hits > 0, "{name}/{what}: no ray hit, the test is vacuous");
+        for node_bounds in [NodeBounds::Boxes, NodeBounds::SpheresFrom(0)] {
+            let params = BvhParams { node_bounds, ..params };
+            for (what, splats) in
+                [("one", &one), ("coplanar", &coplanar), ("duplicates", &duplicates), ("collinear", &collinear)]
+            {
+                let hits = check_agreement(splats, &params, 2_000, 5);
+                assert!(hits > 0, "{name}/{what}: no ray hit, the test is vacuous");
+            }
+            assert_eq!(check_agreement(&[], &params, 100, 5), 0);
         }
-        assert_eq!(check_agreement(&[], &params, 100, 5), 0);
     }
 }
 

@@ -122,6 +122,8 @@ fn sphere_image_matches_the_analytic_image() {
         region: Region::full(64, 64),
         samples: 1,
         seed: 0,
+        lod_threshold: 0.0,
+        cull_backfaces: false,
     };
     let (film, stats) = render(&bvh, &cam, &config, &|_| {});
     let exact = analytic_image(&cam, &config);

@@ -31,6 +31,9 @@ fn image_is_identical_with_one_and_two_threads() {
         region: pointray::camera::Region::full(48, 40),
         samples: 3,
         seed: 42,
+        // Level of detail and culling on: their work must not depend on the threads either.
+        lod_threshold: 1.0,
+        cull_backfaces: true,
     };
     let run = |threads| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
@@ -39,6 +42,7 @@ fn image_is_identical_with_one_and_two_threads() {
     let (a, sa) = run(1);
     let (b, sb) = run(2);
     assert!(sa.primary_hits > 200 && sa.shadow_rays > 0, "the scene must exercise hits and shadows");
+    assert!(sa.traversal.lod_stops > 0 && sa.traversal.culled > 0, "and level of detail and culling: {sa:?}");
     assert_eq!(sa, sb);
     assert!(a.rgb.iter().zip(&b.rgb).all(|(x, y)| x.map(f32::to_bits) == y.map(f32::to_bits)));
     assert_eq!(a.nodes_visited, b.nodes_visited);

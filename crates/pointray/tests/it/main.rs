@@ -4,4 +4,5 @@
 mod accel_agree;
 mod analytic;
 mod determinism;
+mod multires;
 mod util;

@@ -5,7 +5,9 @@
 use glam::Vec3;
 use rayon::join;
 
-use super::{Bvh, LANES, MAX_LEAF_SIZE, MAX_SPLATS, MEDIAN_SPLIT_DEPTH, Node, SplatPacket, WIDTH, leaf_ref};
+use super::{
+    Bvh, LANES, MAX_LEAF_SIZE, MAX_SPLATS, MEDIAN_SPLIT_DEPTH, Node, NodeBounds, SplatPacket, WIDTH, leaf_ref,
+};
 use crate::math::Aabb;
 use crate::splat::Splat;
 
@@ -21,23 +23,31 @@ pub struct BvhParams {
     /// SAH cost of testing one packet of up to four disks (leaves are priced in packets, as
     /// they are tested).
     pub intersection_cost: f32,
+    /// Which bounds the nodes test (it changes no hit, only the work).
+    pub node_bounds: NodeBounds,
 }
 
 impl BvhParams {
     /// The default: 16 bins, leaves of up to 16 splats, a traversal step priced at two
     /// packet tests (measured fastest on the dragon among 1/2/4 and leaves of 8/16).
     pub fn standard() -> Self {
-        Self { bins: 16, max_leaf_size: 16, traversal_cost: 2.0, intersection_cost: 1.0 }
+        Self {
+            bins: 16,
+            max_leaf_size: 16,
+            traversal_cost: 2.0,
+            intersection_cost: 1.0,
+            node_bounds: NodeBounds::Boxes,
+        }
     }
 
     /// Quicker build, somewhat slower rays.
     pub fn fast() -> Self {
-        Self { bins: 8, max_leaf_size: 16, traversal_cost: 1.0, intersection_cost: 1.0 }
+        Self { bins: 8, max_leaf_size: 16, traversal_cost: 1.0, intersection_cost: 1.0, ..Self::standard() }
     }
 
     /// Slower build, small leaves.
     pub fn precise() -> Self {
-        Self { bins: 32, max_leaf_size: 4, traversal_cost: 1.0, intersection_cost: 1.0 }
+        Self { bins: 32, max_leaf_size: 4, traversal_cost: 1.0, intersection_cost: 1.0, ..Self::standard() }
     }
 
     /// Every preset, for tests and benchmarks.
@@ -86,7 +96,8 @@ impl Bvh {
             .collect();
         let root = build_node(&mut prims, 0, params, 0);
         let input_index: Vec<u32> = prims.iter().map(|p| p.index).collect();
-        let splats: Vec<Splat> = input_index.iter().map(|&i| splats[i as usize]).collect();
+        let mut splats: Vec<Splat> = input_index.iter().map(|&i| splats[i as usize]).collect();
+        let splat_count = splats.len();
         let bounds = root.bounds();
         let mut nodes = Vec::with_capacity(splats.len() / params.max_leaf_size.max(2) + 1);
         let mut packets = Vec::with_capacity(splats.len().div_ceil(LANES));
@@ -94,7 +105,23 @@ impl Bvh {
             BuildNode::Leaf { count: 0, .. } => 0, // no splats: no nodes
             root => flatten(root, &splats, &mut nodes, &mut packets),
         };
-        Bvh { nodes, splats, packets, bounds, input_index, depth }
+        let (lod, representatives) = super::lod::build(&mut nodes, &splats, &packets);
+        splats.extend(representatives);
+        let lod_floor = super::lod::radius_quantile(&nodes, super::LOD_FLOOR_QUANTILE);
+        let mut bvh = Bvh {
+            nodes,
+            lod,
+            splats,
+            splat_count,
+            packets,
+            bounds,
+            input_index,
+            depth,
+            node_bounds: NodeBounds::Boxes,
+            lod_floor,
+        };
+        bvh.set_node_bounds(params.node_bounds);
+        bvh
     }
 }
 

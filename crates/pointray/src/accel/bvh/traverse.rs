@@ -1,33 +1,97 @@
-//! Front-to-back traversal: test a node's four child boxes at once, go on with the nearest
+//! Front-to-back traversal: test a node's four child bounds at once, go on with the nearest
 //! child hit, and keep the others on a stack with their entry distances, so that they can be
 //! culled later when the visitor's `t_max` has shrunk below them.
+//!
+//! The multiresolution steps (thesis ch. 3) come between testing the children and descending:
+//! children whose normal cone faces away from the ray's origin are dropped, and children whose
+//! bounding sphere is smaller than the ray's footprint hand their representative splat to the
+//! visitor instead of being entered. Rays that use none of it (and trees without sphere nodes)
+//! run the full-detail loop, compiled without those steps.
 
 use glam::Vec4;
 
-use super::{Bvh, LEAF, Node, SplatPacket, WIDTH, leaf_packets};
-use crate::accel::{SplatVisitor, TraversalStats};
+use super::lod::NodeLod;
+use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, SplatPacket, WIDTH, leaf_packets};
+use crate::accel::{Accel, SplatVisitor, TraversalStats};
 use crate::math::Ray;
 
-/// The ray in the form the four-box slab test wants: per axis the origin and inverse
-/// direction splatted to four lanes, and per axis which of a node's planes is near (the
-/// minimum, or the maximum when the axis runs backwards) and which is far.
+/// The ray in the form the four-wide tests want: per axis the origin, direction and inverse
+/// direction splatted to four lanes, per axis which of a node's planes is near (the minimum,
+/// or the maximum when the axis runs backwards) and which is far, and the footprint scaled by
+/// the level-of-detail threshold.
 struct SlabRay {
     origin: [Vec4; 3],
     dir: [Vec4; 3],
     inv_dir: [Vec4; 3],
     near_plane: [usize; 3],
     far_plane: [usize; 3],
+    /// τ·width0 and τ·spread: a child is below the footprint when R < lod0 + lod_spread·t.
+    lod0: Vec4,
+    lod_spread: Vec4,
+}
+
+#[inline(always)]
+fn dot3(a: &[Vec4; 3], b: &[Vec4; 3]) -> Vec4 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 impl SlabRay {
     fn new(ray: &Ray) -> Self {
+        let tau = ray.lod_threshold;
         Self {
             origin: std::array::from_fn(|k| Vec4::splat(ray.origin[k])),
             dir: std::array::from_fn(|k| Vec4::splat(ray.dir[k])),
             inv_dir: std::array::from_fn(|k| Vec4::splat(ray.inv_dir[k])),
             near_plane: std::array::from_fn(|k| if ray.inv_dir[k] < 0.0 { k + 3 } else { k }),
             far_plane: std::array::from_fn(|k| if ray.inv_dir[k] < 0.0 { k } else { k + 3 }),
+            lod0: Vec4::splat(tau * ray.cone.width0),
+            lod_spread: Vec4::splat(tau * ray.cone.spread),
         }
+    }
+
+    /// Distances along the ray of the projections of the children's sphere centres.
+    #[inline(always)]
+    fn center_distances(&self, lod: &NodeLod) -> Vec4 {
+        let oc: [Vec4; 3] = std::array::from_fn(|k| lod.center[k] - self.origin[k]);
+        dot3(&oc, &self.dir)
+    }
+
+    /// Like [`Self::entries`] for the children's bounding spheres (QSplat's test, A4), given
+    /// their centres' distances `tc`. The entry distance is tc − R, a little before the true
+    /// one, which saves a square root and only delays culling. The radii are widened by a few
+    /// ulps of the distance, the rounding error of the perpendicular distance, so that a disk
+    /// touching its sphere is never missed (hits must not depend on the bounds chosen).
+    #[inline(always)]
+    fn sphere_entries(&self, lod: &NodeLod, tc: Vec4, used: u32, t0: f32, t1: f32) -> (Vec4, u32) {
+        let perp: [Vec4; 3] = std::array::from_fn(|k| lod.center[k] - self.origin[k] - tc * self.dir[k]);
+        let r = lod.radius + tc.abs() * Vec4::splat(1.0 / 262_144.0);
+        let near = (tc - r).max(Vec4::splat(t0));
+        let far = (tc + r).min(Vec4::splat(t1));
+        (near, (dot3(&perp, &perp).cmple(r * r) & near.cmple(far)).bitmask() & used)
+    }
+
+    /// Children whose bounding sphere is narrower than the footprint at its centre, scaled by
+    /// the threshold: R < τ·(width0 + spread·tc).
+    #[inline(always)]
+    fn below_footprint(&self, lod: &NodeLod, tc: Vec4) -> u32 {
+        lod.radius.cmplt(self.lod0 + self.lod_spread * tc.max(Vec4::ZERO)).bitmask()
+    }
+
+    /// Children all of whose disks face away from the ray's origin from every point of their
+    /// sphere (RECONSTRUCTION A7, with the origin as the eye). With v = o − c at angle φ to the
+    /// cone's axis and s = v·axis, the largest v·n over a cone of half-angle θ ≤ 90° is
+    /// |v|·cos(φ − θ) = s·cos θ + √(|v|² − s²)·sin θ, and the subtree faces away when that is
+    /// below −R. Squared to avoid the roots: R + s·cos θ < 0 and
+    /// (|v|² − s²)·sin²θ < (R + s·cos θ)². Cones of 90° or more never cull.
+    #[inline(always)]
+    fn facing_away(&self, lod: &NodeLod) -> u32 {
+        let v: [Vec4; 3] = std::array::from_fn(|k| self.origin[k] - lod.center[k]);
+        let s = dot3(&v, &lod.axis);
+        let cos = lod.cos_angle;
+        // A slightly larger sphere: rounding must not cull a subtree that just faces the ray.
+        let gap = lod.radius * (1.0 + 1.0 / 1024.0) + s * cos;
+        let spread = (dot3(&v, &v) - s * s).max(Vec4::ZERO) * (Vec4::ONE - cos * cos);
+        (gap.cmplt(Vec4::ZERO) & spread.cmplt(gap * gap) & cos.cmpgt(Vec4::ZERO)).bitmask()
     }
 
     /// Entry distances of the four children of `node` within `[t0, t1]`, and a bit mask of
@@ -38,7 +102,7 @@ impl SlabRay {
         let far = |k: usize| (node.planes[self.far_plane[k]] - self.origin[k]) * self.inv_dir[k];
         let near = near(0).max(near(1)).max(near(2)).max(Vec4::splat(t0));
         let far = far(0).min(far(1)).min(far(2)).min(Vec4::splat(t1));
-        (near, near.cmple(far).bitmask() & node.used)
+        (near, near.cmple(far).bitmask() & node.used & SLOTS)
     }
 
     /// The lanes of `packet` whose disk the ray may cross in `[t0, t1]`. The arithmetic is the
@@ -46,7 +110,7 @@ impl SlabRay {
     /// a little more slack: a pre-filter that never rejects a disk the exact test accepts.
     #[inline(always)]
     fn packet_candidates(&self, packet: &SplatPacket, t0: f32, t1: f32) -> u32 {
-        let dot = |a: &[Vec4; 3], b: &[Vec4; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+        let dot = dot3;
         let den = dot(&self.dir, &packet.normal);
         let to_center: [Vec4; 3] = std::array::from_fn(|k| packet.center[k] - self.origin[k]);
         let num = dot(&to_center, &packet.normal);
@@ -62,6 +126,14 @@ impl SlabRay {
         let r2_den2 = packet.radius * packet.radius * den * den * (1.0 + SLACK);
         (in_range & q2.cmplt(r2_den2)).bitmask()
     }
+}
+
+/// Children in use: a table, as the x86-64 baseline has no `popcnt` and `count_ones` would
+/// cost a dozen instructions per node.
+#[inline(always)]
+fn slot_count(used: u32) -> u64 {
+    const COUNT: [u8; 16] = [0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4];
+    u64::from(COUNT[(used & SLOTS) as usize])
 }
 
 /// Widens the visitor's `t_max` for culling by a few ulps: a box's entry distance and the hit
@@ -89,26 +161,70 @@ pub(super) fn traverse<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut V, s
             if stack.len() < need {
                 stack.resize(need, (0, 0.0));
             }
-            traverse_with(bvh, ray, visitor, stats, &mut stack);
+            dispatch(bvh, ray, visitor, stats, &mut stack);
         }
         // Re-entered from inside a visitor (a traversal that starts another): its own stack.
-        Err(_) => traverse_with(bvh, ray, visitor, stats, &mut vec![(0, 0.0); need]),
+        Err(_) => dispatch(bvh, ray, visitor, stats, &mut vec![(0, 0.0); need]),
     });
 }
 
-/// The traversal proper, with `stack` large enough for the tree: entries are
-/// (child reference, entry distance).
-#[inline(always)]
-fn traverse_with<V: SplatVisitor>(
+/// Full-detail rays through a tree of boxes take the loop without the multiresolution steps.
+fn dispatch<V: SplatVisitor>(
     bvh: &Bvh,
     ray: &Ray,
     visitor: &mut V,
     stats: &mut TraversalStats,
     stack: &mut [(u32, f32)],
 ) {
+    // The widest the footprint gets (scaled by τ) before the ray leaves the model: subtrees
+    // no narrower than this never stop it.
+    let lod_reach = if ray.lod_threshold > 0.0 {
+        let b = &bvh.bounds;
+        let exit = ((b.min - ray.origin) * ray.inv_dir).max((b.max - ray.origin) * ray.inv_dir).min_element();
+        ray.lod_threshold * ray.cone.width_at(if exit.is_nan() { f32::INFINITY } else { exit })
+    } else {
+        0.0
+    };
+    // Close up, only the smallest nodes could stop a ray: it takes the full-detail loop.
+    let lod = lod_reach > bvh.lod_floor;
+    let lod_reach = if lod { lod_reach } else { 0.0 };
+    // A node takes the multiresolution step when `reach` exceeds its `multires_below`: always
+    // for culling rays, at sphere nodes, and where a child may be narrower than the footprint.
+    let reach = if ray.cull_backfaces { f32::INFINITY } else { lod_reach };
     let slab = SlabRay::new(ray);
+    let levels = Levels { lod_reach, reach };
+    // Counted in a local, which can live in registers, and added once.
+    let mut counts = TraversalStats::default();
+    if lod || ray.cull_backfaces || bvh.node_bounds != super::NodeBounds::Boxes {
+        traverse_from::<V, true>(bvh, ray, &slab, visitor, &mut counts, stack, &levels);
+    } else {
+        traverse_from::<V, false>(bvh, ray, &slab, visitor, &mut counts, stack, &levels);
+    }
+    *stats += counts;
+}
+
+/// Where the multiresolution steps apply, per ray (see `dispatch`).
+struct Levels {
+    /// Children narrower than this may stop the ray (0: none).
+    lod_reach: f32,
+    /// Nodes whose `multires_below` is under this take the multiresolution step.
+    reach: f32,
+}
+
+/// The traversal proper, with `stack` large enough for the tree: entries are (child
+/// reference, entry distance).
+#[inline(always)]
+fn traverse_from<V: SplatVisitor, const MULTIRES: bool>(
+    bvh: &Bvh,
+    ray: &Ray,
+    slab: &SlabRay,
+    visitor: &mut V,
+    stats: &mut TraversalStats,
+    stack: &mut [(u32, f32)],
+    levels: &Levels,
+) {
     let mut sp = 0;
-    let mut current = (0u32, ray.t_min);
+    let mut current = (0, ray.t_min);
     loop {
         let (child, entry) = current;
         if entry <= cull_limit(visitor.t_max()) {
@@ -126,9 +242,19 @@ fn traverse_with<V: SplatVisitor>(
                     return;
                 }
             } else {
-                let node = &bvh.nodes[child as usize];
+                let k = child as usize;
+                let node = &bvh.nodes[k];
                 stats.nodes_visited += 1;
-                let (t, mut mask) = slab.entries(node, ray.t_min, cull_limit(visitor.t_max()));
+                let t1 = cull_limit(visitor.t_max());
+                let (t, mut mask) = if MULTIRES && node.multires_below < levels.reach {
+                    match multires_children(bvh, slab, ray, k, t1, levels.lod_reach, visitor, stats) {
+                        Some(children) => children,
+                        None => return, // the visitor is done
+                    }
+                } else {
+                    stats.box_tests += slot_count(node.used);
+                    slab.entries(node, ray.t_min, t1)
+                };
                 if mask.is_power_of_two() {
                     // One child hit (the common case deep in the tree): no stack traffic.
                     let i = mask.trailing_zeros() as usize;
@@ -162,6 +288,60 @@ fn traverse_with<V: SplatVisitor>(
         sp -= 1;
         current = stack[sp];
     }
+}
+
+/// The children of node `k` that the ray must enter, with their entry distances, after the
+/// multiresolution steps: spheres instead of boxes for sphere nodes, culling of subtrees that
+/// face away, and representatives handed to the visitor for subtrees narrower than the
+/// footprint. `None` when the visitor is done. Out of line: close up, few nodes need it, and
+/// the loop without it keeps the full-detail loop's registers.
+#[inline(never)]
+#[allow(clippy::too_many_arguments)]
+fn multires_children<V: SplatVisitor>(
+    bvh: &Bvh,
+    slab: &SlabRay,
+    ray: &Ray,
+    k: usize,
+    t1: f32,
+    lod_reach: f32,
+    visitor: &mut V,
+    stats: &mut TraversalStats,
+) -> Option<(Vec4, u32)> {
+    let node = &bvh.nodes[k];
+    let node_lod = &bvh.lod[k];
+    let slots = slot_count(node.used);
+    let spheres = node.used & SPHERE_NODE != 0;
+    let lod = node.min_radius < lod_reach;
+    let tc = if spheres || lod { slab.center_distances(node_lod) } else { Vec4::ZERO };
+    let (t, mut mask) = if spheres {
+        stats.sphere_tests += slots;
+        slab.sphere_entries(node_lod, tc, node.used & SLOTS, ray.t_min, t1)
+    } else {
+        stats.box_tests += slots;
+        slab.entries(node, ray.t_min, t1)
+    };
+    if mask != 0 && ray.cull_backfaces {
+        let away = slab.facing_away(node_lod) & mask;
+        stats.culled += u64::from(away.count_ones());
+        mask &= !away;
+    }
+    if mask != 0 && lod {
+        // Subtrees narrower than the footprint: their representative stands in.
+        let mut coarse = slab.below_footprint(node_lod, tc) & mask & (node.used >> LOD_SLOTS_SHIFT);
+        mask &= !coarse;
+        stats.lod_stops += u64::from(coarse.count_ones());
+        stats.splat_tests += u64::from(coarse.count_ones());
+        while coarse != 0 {
+            let i = coarse.trailing_zeros() as usize;
+            coarse &= coarse - 1;
+            let index = bvh.representative_index(k, i);
+            visitor.visit(ray, bvh.splat(index), index);
+        }
+        if visitor.done() {
+            return None;
+        }
+    }
+    Some((t, mask))
 }
 
 #[cfg(test)]

@@ -1,0 +1,57 @@
+//! `pointray compare`: how far two renders are apart.
+
+use std::io::{self, Write};
+
+use anyhow::Context;
+use pointray::metrics::compare_rgb8;
+
+use crate::args::CompareArgs;
+
+pub fn run(a: &CompareArgs) -> anyhow::Result<()> {
+    let (wa, ha, rgb_a) = pointray_io::read_png(&a.a)?;
+    let (wb, hb, rgb_b) = pointray_io::read_png(&a.b)?;
+    anyhow::ensure!(
+        (wa, ha) == (wb, hb),
+        "the images differ in size: {} is {wa}x{ha}, {} is {wb}x{hb}",
+        a.a.display(),
+        a.b.display()
+    );
+    let (rgb_a, rgb_b) = match a.region {
+        None => (rgb_a, rgb_b),
+        Some(r) => {
+            anyhow::ensure!(
+                r.x1 <= wa && r.y1 <= ha,
+                "--region {},{},{},{} lies outside the {wa}x{ha} images",
+                r.x0,
+                r.y0,
+                r.x1,
+                r.y1
+            );
+            (crop(&rgb_a, wa, r), crop(&rgb_b, wa, r))
+        }
+    };
+    let diff = compare_rgb8(&rgb_a, &rgb_b);
+    let mut out = io::stdout().lock();
+    if a.json {
+        serde_json::to_writer(&mut out, &diff).context("cannot encode the comparison as JSON")?;
+        writeln!(out)?;
+    } else {
+        let psnr = diff.psnr_db.map_or_else(|| "inf".to_string(), |p| format!("{p:.2}"));
+        writeln!(
+            out,
+            "PSNR {psnr} dB, RMSE {:.4}, max diff {}, {} of {} pixels differ",
+            diff.rmse, diff.max_abs_diff, diff.differing_pixels, diff.pixels
+        )?;
+    }
+    out.flush()?;
+    Ok(())
+}
+
+/// The RGB8 pixels of `region` of a `width`-wide image, row by row.
+fn crop(rgb: &[u8], width: u32, region: pointray::camera::Region) -> Vec<u8> {
+    let row = |y: u32| {
+        let start = (y as usize * width as usize + region.x0 as usize) * 3;
+        &rgb[start..start + region.width() as usize * 3]
+    };
+    (region.y0..region.y1).flat_map(row).copied().collect()
+}

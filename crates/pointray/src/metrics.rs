@@ -1,0 +1,172 @@
+//! Image metrics: how far two renders are apart, and per-pixel counts as a colour image.
+//!
+//! Both work on tightly packed sRGB8 (`[r, g, b, r, g, b, …]`), the format `Film::frame_srgb8`
+//! produces and PNGs store; comparing there measures what a viewer of the files would see.
+
+/// How two images of the same size differ. Channel values are compared as stored (sRGB8).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct ImageDiff {
+    /// Peak signal-to-noise ratio, 10·log10(255² / MSE) over all channel values; `None` when the
+    /// images are identical (the ratio is infinite, which JSON cannot hold).
+    pub psnr_db: Option<f64>,
+    /// Root mean squared difference over all channel values, on a 0..1 scale.
+    pub rmse: f64,
+    /// The largest difference of any one channel value.
+    pub max_abs_diff: u8,
+    /// Pixels in which at least one channel differs.
+    pub differing_pixels: usize,
+    pub pixels: usize,
+}
+
+/// Compares two RGB8 images pixel by pixel.
+///
+/// # Panics
+///
+/// If the lengths differ or are not a multiple of 3.
+pub fn compare_rgb8(a: &[u8], b: &[u8]) -> ImageDiff {
+    assert_eq!(a.len(), b.len(), "compare_rgb8: images of {} and {} bytes", a.len(), b.len());
+    assert!(a.len().is_multiple_of(3), "compare_rgb8: {} bytes is not a whole number of RGB pixels", a.len());
+    let mut squared_sum = 0u64;
+    let mut max_abs_diff = 0u8;
+    let mut differing_pixels = 0;
+    for (p, q) in a.chunks_exact(3).zip(b.chunks_exact(3)) {
+        let mut differs = false;
+        for (&x, &y) in p.iter().zip(q) {
+            let d = x.abs_diff(y);
+            squared_sum += u64::from(d) * u64::from(d);
+            max_abs_diff = max_abs_diff.max(d);
+            differs |= d != 0;
+        }
+        differing_pixels += usize::from(differs);
+    }
+    // Empty images count as identical, which also keeps 0/0 out of the MSE.
+    let mse = if a.is_empty() { 0.0 } else { squared_sum as f64 / a.len() as f64 };
+    ImageDiff {
+        psnr_db: (mse > 0.0).then(|| 10.0 * (255.0f64 * 255.0 / mse).log10()),
+        rmse: mse.sqrt() / 255.0,
+        max_abs_diff,
+        differing_pixels,
+        pixels: a.len() / 3,
+    }
+}
+
+/// Control points of the heat map at evenly spaced positions, sRGB8: black through purple, red
+/// and orange to pale yellow, in the manner of matplotlib's "inferno". Their relative luminance
+/// rises strictly from point to point, so darker always means a smaller count, also in grey print.
+const HEAT_POINTS: [[u8; 3]; 9] = [
+    [0, 0, 0],
+    [31, 12, 72],
+    [85, 15, 109],
+    [136, 34, 106],
+    [186, 54, 85],
+    [227, 89, 51],
+    [249, 140, 10],
+    [249, 201, 50],
+    [252, 255, 164],
+];
+
+/// Entries of the quantised map. Interpolating every count directly would let a falling channel
+/// (blue, past purple) round down one step before a rising one rounds up, a tiny dip in
+/// luminance; 256 levels, checked monotone by the tests, avoid that and are finer than the eye.
+const HEAT_LEVELS: usize = 256;
+
+/// Colours per-pixel counts (for example `Film::nodes_visited`) as RGB8, 3 bytes per value: 0 is
+/// black, `scale_max` and above the palest yellow, linear in between (quantised to 256 levels).
+/// With `scale_max == 0` everything is black.
+pub fn heat_map_rgb8(values: &[u32], scale_max: u32) -> Vec<u8> {
+    if scale_max == 0 {
+        return vec![0; values.len() * 3];
+    }
+    let table = heat_table();
+    let max = u64::from(scale_max);
+    let last = HEAT_LEVELS as u64 - 1;
+    values
+        .iter()
+        .flat_map(|&v| {
+            // Rounded to the nearest level, in integers so the mapping is exact and monotone.
+            let level = (u64::from(v).min(max) * last + max / 2) / max;
+            table[level as usize]
+        })
+        .collect()
+}
+
+fn heat_table() -> [[u8; 3]; HEAT_LEVELS] {
+    let segments = (HEAT_POINTS.len() - 1) as f64;
+    std::array::from_fn(|level| {
+        let x = level as f64 / (HEAT_LEVELS - 1) as f64 * segments;
+        let i = (x as usize).min(HEAT_POINTS.len() - 2);
+        let f = x - i as f64;
+        let (lo, hi) = (HEAT_POINTS[i], HEAT_POINTS[i + 1]);
+        std::array::from_fn(|c| (f64::from(lo[c]) + (f64::from(hi[c]) - f64::from(lo[c])) * f).round() as u8)
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn identical_images_have_no_psnr_and_no_differences() {
+        let image: Vec<u8> = (0..300).map(|i| (i * 7 % 256) as u8).collect();
+        let diff = compare_rgb8(&image, &image);
+        assert_eq!(diff, ImageDiff { psnr_db: None, rmse: 0.0, max_abs_diff: 0, differing_pixels: 0, pixels: 100 });
+        assert_eq!(compare_rgb8(&[], &[]).psnr_db, None);
+    }
+
+    #[test]
+    fn known_mse_gives_the_exact_psnr() {
+        let a = vec![100u8; 30];
+        // Every channel off by one: MSE 1, PSNR = 20·log10(255) = 48.1308… dB.
+        let b = vec![101u8; 30];
+        let diff = compare_rgb8(&a, &b);
+        let psnr = diff.psnr_db.unwrap();
+        assert!((psnr - 20.0 * 255f64.log10()).abs() < 1e-12 && (psnr - 48.1308).abs() < 1e-4, "{psnr}");
+        assert_eq!((diff.rmse, diff.max_abs_diff, diff.differing_pixels, diff.pixels), (1.0 / 255.0, 1, 10, 10));
+
+        // One channel of one pixel off by 30 in 4 pixels: MSE 900/12 = 75.
+        let mut c = a[..12].to_vec();
+        c[4] = 130;
+        let diff = compare_rgb8(&a[..12], &c);
+        assert!((diff.psnr_db.unwrap() - 10.0 * (65025.0f64 / 75.0).log10()).abs() < 1e-12);
+        assert!((diff.rmse - 75f64.sqrt() / 255.0).abs() < 1e-15);
+        assert_eq!((diff.max_abs_diff, diff.differing_pixels, diff.pixels), (30, 1, 4));
+    }
+
+    #[test]
+    #[should_panic(expected = "images of 6 and 3 bytes")]
+    fn different_lengths_panic() {
+        compare_rgb8(&[0; 6], &[0; 3]);
+    }
+
+    /// Relative luminance of an sRGB8 colour (Rec. 709 weights on linear values).
+    fn luminance(c: &[u8]) -> f64 {
+        let linear = |v: u8| {
+            let s = f64::from(v) / 255.0;
+            if s <= 0.04045 { s / 12.92 } else { ((s + 0.055) / 1.055).powf(2.4) }
+        };
+        0.2126 * linear(c[0]) + 0.7152 * linear(c[1]) + 0.0722 * linear(c[2])
+    }
+
+    #[test]
+    fn heat_map_is_monotone_in_luminance_and_saturates() {
+        for scale_max in [1u32, 7, 255, 1000, 4096, 65_535] {
+            let values: Vec<u32> = (0..=scale_max).collect();
+            let rgb = heat_map_rgb8(&values, scale_max);
+            assert_eq!(rgb.len(), values.len() * 3);
+            assert_eq!(&rgb[..3], &[0, 0, 0], "0 is black");
+            let lum: Vec<f64> = rgb.chunks_exact(3).map(luminance).collect();
+            for (v, pair) in lum.windows(2).enumerate() {
+                assert!(pair[0] <= pair[1], "scale {scale_max}: luminance falls from {v} to {}", v + 1);
+            }
+            let top = &rgb[rgb.len() - 3..];
+            assert_eq!(top, &HEAT_POINTS[HEAT_POINTS.len() - 1], "scale {scale_max}");
+            let above = heat_map_rgb8(&[scale_max + 1, u32::MAX], scale_max);
+            assert_eq!(above, [top, top].concat(), "values above the scale saturate");
+        }
+        // The full table rises strictly, so no two levels look alike.
+        let table = heat_table();
+        assert!(table.windows(2).all(|w| luminance(&w[0]) < luminance(&w[1])));
+        assert_eq!(heat_map_rgb8(&[0, 5, u32::MAX], 0), vec![0; 9]);
+        assert!(heat_map_rgb8(&[], 10).is_empty());
+    }
+}
