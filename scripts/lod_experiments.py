@@ -1211,12 +1211,24 @@ def write_report(records, out):
             continue
         lines += section_header(sec, secs.get(sec), runs, head)
         lines += builders[sec]()
-    lines += ["## Discussion", "", "TODO(discussion)", ""]
     path = os.path.join(out, REPORT)
+    lines += kept_discussion(path)
     with open(path + ".tmp", "w") as f:
         f.write("\n".join(lines))
     os.replace(path + ".tmp", path)
     return path
+
+
+def kept_discussion(path):
+    """The hand-written "## Discussion" section of the report at `path`, kept across
+    regenerations (it names the run it discusses); a heading for one if there is none yet."""
+    if os.path.exists(path):
+        with open(path) as f:
+            text = f.read()
+        at = text.find("\n## Discussion\n")
+        if at >= 0:
+            return [text[at + 1:].rstrip("\n"), ""]
+    return ["## Discussion", "", "(to be written by whoever ran the experiments: what the tables show, and why)", ""]
 
 
 # ----------------------------------------------------------------------------------------------
