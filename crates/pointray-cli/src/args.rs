@@ -79,7 +79,9 @@ pub struct RenderArgs {
     /// Worker threads (default: all cores).
     #[arg(long)]
     pub threads: Option<usize>,
-    /// Acceleration structure (brute force tests every splat: the reference for tests).
+    /// Acceleration structure: the multiresolution BVH; the SAH kd-tree with level of detail
+    /// (no normal cones: culling and spheres apply to the BVH only); brute force, which tests every
+    /// splat (the reference for tests).
     #[arg(long, value_enum, default_value_t = AccelArg::Bvh)]
     pub accel: AccelArg,
     /// How the disks a ray crosses become a surface point.
@@ -212,6 +214,7 @@ pub struct CompareArgs {
 #[derive(Copy, Clone, Debug, ValueEnum)]
 pub enum AccelArg {
     Bvh,
+    Kdtree,
     Brute,
 }
 

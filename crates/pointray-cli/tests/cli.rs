@@ -209,13 +209,13 @@ fn same_seed_same_image_different_seed_different_image() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// 4. Brute force and BVH agree
+// 4. Brute force, the BVH and the kd-tree agree
 // ---------------------------------------------------------------------------------------------
 
 fn assert_accels_agree(dir: &std::path::Path, input: &str) {
     for surface in ["first-hit", "sj"] {
         let mut renders = Vec::new();
-        for accel in ["brute", "bvh"] {
+        for accel in ["brute", "bvh", "kdtree"] {
             let out = format!("{input}.{surface}.{accel}.png");
             let stats = format!("{input}.{surface}.{accel}.json");
             // Full detail: brute force has no level of detail or culling to agree with.
@@ -229,29 +229,32 @@ fn assert_accels_agree(dir: &std::path::Path, input: &str) {
             );
             renders.push((read_png(&dir.join(&out)), s));
         }
-        let ((brute, sb), (bvh, sv)) = (&renders[0], &renders[1]);
-        let lit = bvh.count_not(background_srgb8());
+        let (brute, sb) = &renders[0];
+        let lit = brute.count_not(background_srgb8());
         assert!(lit > 100, "{input} {surface}: the sphere covers only {lit} pixels");
-        let differing: Vec<_> = brute.pixels().zip(bvh.pixels()).filter(|(a, b)| a.2 != b.2).take(5).collect();
-        assert!(differing.is_empty(), "{input} {surface}: brute force and BVH differ, e.g. {differing:?}");
-        assert_eq!(sb["hit_fraction"], sv["hit_fraction"], "{input} {surface}");
-        assert_eq!(sb["primary_rays"], sv["primary_rays"]);
-        // Brute force tests every splat for every ray; the BVH must do far less work.
+        // Brute force tests every splat for every ray; the others must do far less work.
         let points = stat_f64(sb, "points");
         assert!(stat_f64(sb, "splat_tests_per_ray") >= points * 0.99, "{sb:#}");
-        assert!(stat_f64(sv, "splat_tests_per_ray") < points * 0.25, "{sv:#}");
+        for (image, s) in &renders[1..] {
+            let accel = &s["accel"];
+            let differing: Vec<_> = brute.pixels().zip(image.pixels()).filter(|(a, b)| a.2 != b.2).take(5).collect();
+            assert!(differing.is_empty(), "{input} {surface}: brute force and {accel} differ, e.g. {differing:?}");
+            assert_eq!(sb["hit_fraction"], s["hit_fraction"], "{input} {surface} {accel}");
+            assert_eq!(sb["primary_rays"], s["primary_rays"]);
+            assert!(stat_f64(s, "splat_tests_per_ray") < points * 0.25, "{s:#}");
+        }
     }
 }
 
 #[test]
-fn brute_force_and_bvh_give_identical_pixels_positions_only() {
+fn every_accelerator_gives_identical_pixels_positions_only() {
     let dir = temp_dir();
     write_sphere(dir.path());
     assert_accels_agree(dir.path(), "sphere.ply");
 }
 
 #[test]
-fn brute_force_and_bvh_give_identical_pixels_with_normals() {
+fn every_accelerator_gives_identical_pixels_with_normals() {
     let dir = temp_dir();
     write_file(dir.path(), "normals.ply", ascii_ply_with_normals(&sphere_points(2000)));
     assert_accels_agree(dir.path(), "normals.ply");
@@ -549,10 +552,10 @@ fn write_tiny_clouds(dir: &std::path::Path) {
     write_file(dir, "line.xyz", (0..50).map(|i| format!("{i} 0 0\n")).collect::<String>());
 }
 
-/// Renders `name` with both accelerators; they must succeed and agree.
+/// Renders `name` with every accelerator; they must succeed and agree.
 fn assert_tiny_cloud_renders(dir: &std::path::Path, name: &str) {
     let mut images = Vec::new();
-    for accel in ["brute", "bvh"] {
+    for accel in ["brute", "bvh", "kdtree"] {
         let out = format!("{name}.{accel}.png");
         render_in(dir, &[name, "-o", &out, "--accel", accel]).assert_success();
         let image = read_png(&dir.join(&out));
@@ -560,11 +563,12 @@ fn assert_tiny_cloud_renders(dir: &std::path::Path, name: &str) {
         images.push(image);
     }
     assert!(images[0] == images[1], "{name}: brute force and BVH differ");
+    assert!(images[0] == images[2], "{name}: brute force and kd-tree differ");
     run_in(dir, &["-q", "prepare", name, "-o", &format!("{name}.ply")]).assert_success();
 }
 
 /// One point, two points, 50 coincident points and 50 collinear ones: defined results, the
-/// same with both accelerators, and no panic.
+/// same with every accelerator, and no panic.
 #[test]
 fn tiny_and_degenerate_clouds_render_without_panicking() {
     let dir = temp_dir();
@@ -604,7 +608,7 @@ fn bad_flags_are_rejected_with_clear_messages() {
         (&["--width", "48", "--height", "40", "--eye", "0,0,3"], 2, &["--look-at"]),
         (&["--width", "48", "--height", "40", "--view-dir", "1,2"], 2, &["--view-dir", "3"]),
         (&["--width", "48", "--height", "40", "--view-dir", "1,nan,2"], 2, &["--view-dir"]),
-        (&["--width", "48", "--height", "40", "--accel", "kdtree"], 2, &["--accel", "bvh", "brute"]),
+        (&["--width", "48", "--height", "40", "--accel", "octree"], 2, &["--accel", "bvh", "kdtree", "brute"]),
         (&["--width", "48", "--height", "40", "--surface", "nope"], 2, &["--surface", "first-hit"]),
         (&["--width", "abc"], 2, &["--width"]),
         (&["--width", "48", "--height", "40", "--lod-threshold", "0"], 1, &["--lod-threshold", "positive"]),

@@ -4,7 +4,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 
-use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, NodeBounds, backfacing_fraction};
+use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, backfacing_fraction};
 use pointray::camera::{Camera, Region};
 use pointray::film::Film;
 use pointray::render::{RenderConfig, render};
@@ -19,6 +19,7 @@ use crate::args::{AccelArg, AovArg, CullArg, RenderArgs, SurfaceArg, Switch};
 /// The accelerators the CLI can build; the render loop is monomorphised for each.
 enum AnyAccel {
     Bvh(Bvh),
+    KdTree(KdTree),
     Brute(BruteForce),
 }
 
@@ -26,6 +27,7 @@ impl AnyAccel {
     fn build(kind: AccelArg, splats: Vec<Splat>, node_bounds: NodeBounds) -> Self {
         match kind {
             AccelArg::Bvh => AnyAccel::Bvh(Bvh::build(splats, &BvhParams { node_bounds, ..BvhParams::standard() })),
+            AccelArg::Kdtree => AnyAccel::KdTree(KdTree::build(splats, &KdTreeParams::standard())),
             AccelArg::Brute => AnyAccel::Brute(BruteForce::new(splats)),
         }
     }
@@ -33,6 +35,7 @@ impl AnyAccel {
     fn memory_bytes(&self) -> usize {
         match self {
             AnyAccel::Bvh(a) => a.memory_bytes(),
+            AnyAccel::KdTree(a) => a.memory_bytes(),
             AnyAccel::Brute(a) => a.memory_bytes(),
         }
     }
@@ -40,6 +43,7 @@ impl AnyAccel {
     fn name(&self) -> &'static str {
         match self {
             AnyAccel::Bvh(a) => a.name(),
+            AnyAccel::KdTree(a) => a.name(),
             AnyAccel::Brute(a) => a.name(),
         }
     }
@@ -47,6 +51,7 @@ impl AnyAccel {
     fn bounds(&self) -> pointray::math::Aabb {
         match self {
             AnyAccel::Bvh(a) => a.bounds(),
+            AnyAccel::KdTree(a) => a.bounds(),
             AnyAccel::Brute(a) => a.bounds(),
         }
     }
@@ -54,7 +59,8 @@ impl AnyAccel {
     fn backfacing_fraction(&self) -> Option<f64> {
         match self {
             AnyAccel::Bvh(a) => backfacing_fraction(a, CULL_CHECK_RAYS, 0),
-            AnyAccel::Brute(a) => backfacing_fraction(a, CULL_CHECK_RAYS / 16, 0),
+            // Only the BVH culls.
+            AnyAccel::KdTree(_) | AnyAccel::Brute(_) => None,
         }
     }
 
@@ -62,6 +68,7 @@ impl AnyAccel {
     fn node_summary(&self) -> (usize, usize, usize) {
         match self {
             AnyAccel::Bvh(a) => (a.node_count(), a.sphere_node_count(), Bvh::NODE_BYTES),
+            AnyAccel::KdTree(a) => (a.node_count(), 0, KdTree::NODE_BYTES),
             AnyAccel::Brute(_) => (0, 0, 0),
         }
     }
@@ -69,6 +76,7 @@ impl AnyAccel {
     fn render(&self, camera: &Camera, config: &RenderConfig, progress: &(dyn Fn(u64) + Sync)) -> (Film, RenderStats) {
         match self {
             AnyAccel::Bvh(a) => render(a, camera, config, progress),
+            AnyAccel::KdTree(a) => render(a, camera, config, progress),
             AnyAccel::Brute(a) => render(a, camera, config, progress),
         }
     }
@@ -269,14 +277,19 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
             SurfaceArg::FirstHit => SurfaceKind::FirstHit,
         })
     };
-    let backfacing = (a.cull == CullArg::Auto).then(|| accel.backfacing_fraction()).flatten();
-    let cull_backfaces = match a.cull {
-        CullArg::On => true,
-        CullArg::Off => false,
-        CullArg::Auto => backfacing.is_some_and(|f| f <= CULL_AUTO_MAX_BACKFACING),
-    };
+    // Level of detail lives in the BVH's and the kd-tree's nodes, normal cones in the BVH's
+    // only; brute force traces at full detail. The statistics say what was used.
+    let multires = matches!(a.accel, AccelArg::Bvh | AccelArg::Kdtree);
+    let cones = matches!(a.accel, AccelArg::Bvh);
+    let backfacing = (cones && a.cull == CullArg::Auto).then(|| accel.backfacing_fraction()).flatten();
+    let cull_backfaces = cones
+        && match a.cull {
+            CullArg::On => true,
+            CullArg::Off => false,
+            CullArg::Auto => backfacing.is_some_and(|f| f <= CULL_AUTO_MAX_BACKFACING),
+        };
     tracing::info!("backface culling {cull_backfaces} (back faces first: {backfacing:?})");
-    let lod_threshold = if a.lod == Switch::On { a.lod_threshold } else { 0.0 };
+    let lod_threshold = if multires && a.lod == Switch::On { a.lod_threshold } else { 0.0 };
     let config = RenderConfig {
         lod_threshold,
         cull_backfaces,

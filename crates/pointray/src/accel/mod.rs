@@ -11,14 +11,19 @@
 //! * [`BruteForce`]: every splat, every ray — the test oracle (no level of detail).
 //! * [`Bvh`]: binned-SAH bounding volume hierarchy with level of detail, bounding spheres and
 //!   normal cones in its nodes (thesis ch. 3).
+//! * [`KdTree`]: binned-SAH kd-tree with level of detail in its inner nodes (thesis ch. 4).
 
 mod brute;
 pub mod bvh;
 mod culling;
+pub mod kdtree;
+mod packet;
+mod representative;
 
 pub use brute::BruteForce;
 pub use bvh::{Bvh, BvhParams, NodeBounds};
 pub use culling::backfacing_fraction;
+pub use kdtree::{KdTree, KdTreeParams};
 
 use crate::math::{Aabb, Ray};
 use crate::splat::Splat;
@@ -27,7 +32,9 @@ use crate::splat::Splat;
 pub trait SplatVisitor {
     /// Nodes and splats beyond this ray parameter cannot matter any more.
     fn t_max(&self) -> f32;
-    /// Tests one splat (`index` is what [`Accel::splat`] takes).
+    /// Tests one splat (`index` is what [`Accel::splat`] takes). An accelerator may hand the
+    /// same splat over more than once (a kd-tree, once per cell it straddles): a second visit
+    /// must change nothing.
     fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32);
     /// True once the answer is known (any-hit queries stop early).
     fn done(&self) -> bool {

@@ -335,6 +335,10 @@ impl SplatVisitor for SjWindow {
             }
             self.end = end;
         }
+        // A kd-tree hands a disk that straddles cells over once per cell.
+        if self.crossings[..self.len].iter().any(|c| c.index == index) {
+            return;
+        }
         let c = Crossing { t: h.t, dist2: h.dist2, index };
         if self.len < WINDOW_CAPACITY {
             self.crossings[self.len] = c;

@@ -2,26 +2,38 @@
 //! detail and culling off), whatever bounds its nodes test.
 
 use glam::Vec3;
-use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, NodeBounds, TraversalStats};
+use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, TraversalStats};
 use pointray::math::Aabb;
 use pointray::splat::Splat;
 use pointray::splat::scheme::{self, SurfaceScheme};
 
 use crate::util::{random_rays, sphere_splats, torus_splats};
 
-/// Compares closest hits (first-hit and SJ) and shadow queries of a BVH built with `params`
-/// against brute force, over `rays` random rays. Returns how many rays hit.
-fn check_agreement(splats: &[Splat], params: &BvhParams, rays: usize, seed: u64) -> usize {
-    let brute = BruteForce::new(splats.to_vec());
+/// A BVH built with `params`, its invariants checked.
+fn bvh(splats: &[Splat], params: &BvhParams) -> Bvh {
     let bvh = Bvh::build(splats.to_vec(), params);
     pointray::accel::bvh::check_invariants(&bvh).expect("BVH invariants");
+    bvh
+}
+
+/// A kd-tree built with `params`, its invariants checked.
+fn kdtree(splats: &[Splat], params: &KdTreeParams) -> KdTree {
+    let tree = KdTree::build(splats.to_vec(), params);
+    pointray::accel::kdtree::check_invariants(&tree).expect("kd-tree invariants");
+    tree
+}
+
+/// Compares closest hits (first-hit and SJ) and shadow queries of `accel`, built over
+/// `splats`, against brute force, over `rays` random rays. Returns how many rays hit.
+fn check_agreement(splats: &[Splat], accel: &impl Accel, rays: usize, seed: u64) -> usize {
+    let brute = BruteForce::new(splats.to_vec());
     let target = if splats.is_empty() { Aabb::new(Vec3::splat(-1.0), Vec3::ONE) } else { brute.bounds() };
     let mut hits = 0;
     for (i, ray) in random_rays(rays, &target, seed).iter().enumerate() {
         for scheme in [SurfaceScheme::first_hit(), SurfaceScheme::sj()] {
             let mut s = TraversalStats::default();
             let a = scheme::intersect(&brute, ray, &scheme, &mut s);
-            let b = scheme::intersect(&bvh, ray, &scheme, &mut s);
+            let b = scheme::intersect(accel, ray, &scheme, &mut s);
             match (a, b) {
                 (None, None) => {}
                 (Some(a), Some(b)) => {
@@ -29,17 +41,21 @@ fn check_agreement(splats: &[Splat], params: &BvhParams, rays: usize, seed: u64)
                     assert_eq!(a.normal, b.normal, "ray {i} {scheme:?}: normal differs");
                     assert_eq!(a.color, b.color, "ray {i} {scheme:?}: colour differs");
                     assert_eq!(a.blended, b.blended, "ray {i} {scheme:?}");
-                    assert_eq!(brute.splats()[a.splat as usize], bvh.splats()[b.splat as usize], "ray {i}: other disk");
+                    assert_eq!(
+                        brute.splats()[a.splat as usize],
+                        accel.splats()[b.splat as usize],
+                        "ray {i}: other disk"
+                    );
                     hits += 1;
                 }
-                (a, b) => panic!("ray {i} {scheme:?}: brute {a:?} vs bvh {b:?}"),
+                (a, b) => panic!("ray {i} {scheme:?}: brute {a:?} vs {} {b:?}", accel.name()),
             }
         }
         let mut s = TraversalStats::default();
         for t_max in [0.5 * target.diagonal(), f32::INFINITY] {
             assert_eq!(
                 scheme::occluded(&brute, ray, t_max, &mut s),
-                scheme::occluded(&bvh, ray, t_max, &mut s),
+                scheme::occluded(accel, ray, t_max, &mut s),
                 "ray {i}: occlusion differs"
             );
         }
@@ -61,33 +77,37 @@ fn bvh_matches_brute_force_on_sphere_and_torus_for_every_preset() {
             let params = BvhParams { node_bounds, ..params };
             // 10⁴ rays for the default; fewer for the other variants keep the suite short.
             let rays = if name == "standard" && node_bounds == NodeBounds::Boxes { 10_000 } else { 2_000 };
-            let hits = check_agreement(&sphere, &params, rays, 11);
+            let hits = check_agreement(&sphere, &bvh(&sphere, &params), rays, 11);
             assert!(hits > rays / 2, "{name} {node_bounds:?}: too few hits ({hits}) to mean anything");
-            let hits = check_agreement(&torus, &params, rays, 12);
+            let hits = check_agreement(&torus, &bvh(&torus, &params), rays, 12);
             assert!(hits > rays / 3, "{name} {node_bounds:?}: too few hits ({hits}) on the torus");
         }
     }
 }
 
-#[test]
-fn bvh_matches_brute_force_on_degenerate_inputs() {
+/// Inputs that break naive builds: one disk, coplanar disks, coincident disks, a line.
+fn degenerate_inputs() -> [(&'static str, Vec<Splat>); 4] {
     let disk = |c: Vec3, n: Vec3| Splat { center: c, radius: 0.1, normal: n.normalize(), color: 0 };
     let one = vec![disk(Vec3::ZERO, Vec3::Z)];
     let coplanar: Vec<Splat> =
         (0..500).map(|i| disk(Vec3::new((i % 25) as f32 * 0.08, (i / 25) as f32 * 0.08, 0.0), Vec3::Z)).collect();
-    // Every splat at one place: SAH finds no split, the median split must still terminate.
+    // Every splat at one place: SAH finds no split, the build must still terminate.
     let duplicates: Vec<Splat> = (0..300).map(|i| disk(Vec3::ONE, Vec3::new(1.0, i as f32 * 0.01, 0.0))).collect();
     let collinear: Vec<Splat> = (0..300).map(|i| disk(Vec3::new(i as f32 * 0.05, 0.0, 0.0), Vec3::Y)).collect();
+    [("one", one), ("coplanar", coplanar), ("duplicates", duplicates), ("collinear", collinear)]
+}
+
+#[test]
+fn bvh_matches_brute_force_on_degenerate_inputs() {
+    let inputs = degenerate_inputs();
     for (name, params) in BvhParams::presets() {
         for node_bounds in [NodeBounds::Boxes, NodeBounds::SpheresFrom(0)] {
             let params = BvhParams { node_bounds, ..params };
-            for (what, splats) in
-                [("one", &one), ("coplanar", &coplanar), ("duplicates", &duplicates), ("collinear", &collinear)]
-            {
-                let hits = check_agreement(splats, &params, 2_000, 5);
+            for (what, splats) in &inputs {
+                let hits = check_agreement(splats, &bvh(splats, &params), 2_000, 5);
                 assert!(hits > 0, "{name}/{what}: no ray hit, the test is vacuous");
             }
-            assert_eq!(check_agreement(&[], &params, 100, 5), 0);
+            assert_eq!(check_agreement(&[], &bvh(&[], &params), 100, 5), 0);
         }
     }
 }
@@ -106,6 +126,48 @@ fn bvh_nodes_bound_their_splats_and_visit_fewer_than_brute_force() {
     let rays = random_rays(2_000, &bvh.bounds(), 9);
     for ray in &rays {
         scheme::intersect(&bvh, ray, &SurfaceScheme::sj(), &mut stats);
+    }
+    let per_ray = stats.splat_tests as f64 / rays.len() as f64;
+    assert!(per_ray < 100.0, "{per_ray} splat tests per ray");
+}
+
+#[test]
+fn kdtree_matches_brute_force_on_sphere_and_torus_for_every_preset() {
+    let sphere = sphere_splats(20_000, 1.0, 1);
+    let torus = torus_splats(20_000, 2);
+    for (name, params) in KdTreeParams::presets() {
+        let rays = if name == "standard" { 10_000 } else { 2_000 };
+        let hits = check_agreement(&sphere, &kdtree(&sphere, &params), rays, 11);
+        assert!(hits > rays / 2, "{name}: too few hits ({hits}) to mean anything");
+        let hits = check_agreement(&torus, &kdtree(&torus, &params), rays, 12);
+        assert!(hits > rays / 3, "{name}: too few hits ({hits}) on the torus");
+    }
+}
+
+#[test]
+fn kdtree_matches_brute_force_on_degenerate_inputs() {
+    let inputs = degenerate_inputs();
+    for (name, params) in KdTreeParams::presets() {
+        for (what, splats) in &inputs {
+            let hits = check_agreement(splats, &kdtree(splats, &params), 2_000, 5);
+            assert!(hits > 0, "{name}/{what}: no ray hit, the test is vacuous");
+        }
+        assert_eq!(check_agreement(&[], &kdtree(&[], &params), 100, 5), 0);
+    }
+}
+
+#[test]
+fn kdtree_splits_space_and_tests_few_disks_per_ray() {
+    let splats = sphere_splats(30_000, 1.0, 3);
+    let tree = kdtree(&splats, &KdTreeParams::standard());
+    assert!(tree.depth() > 10 && tree.depth() <= 64, "depth {}", tree.depth());
+    // Overlapping disks straddle many planes (10.1 references per splat measured here), but a build that references splats wholesale would show.
+    let per_splat = tree.reference_count() as f64 / splats.len() as f64;
+    assert!((1.0..12.0).contains(&per_splat), "{per_splat} references per splat");
+    let mut stats = TraversalStats::default();
+    let rays = random_rays(2_000, &tree.bounds(), 9);
+    for ray in &rays {
+        scheme::intersect(&tree, ray, &SurfaceScheme::sj(), &mut stats);
     }
     let per_ray = stats.splat_tests as f64 / rays.len() as f64;
     assert!(per_ray < 100.0, "{per_ray} splat tests per ray");

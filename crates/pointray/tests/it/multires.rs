@@ -1,8 +1,10 @@
-//! The multiresolution BVH (thesis ch. 3): what level of detail and culling may change, and
-//! what they must not.
+//! The multiresolution accelerators, the BVH (thesis ch. 3) and the kd-tree (ch. 4): what
+//! level of detail and culling may change, and what they must not.
 
 use glam::Vec3;
-use pointray::accel::{Accel, Bvh, BvhParams, NodeBounds, SplatVisitor, TraversalStats, backfacing_fraction};
+use pointray::accel::{
+    Accel, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, SplatVisitor, TraversalStats, backfacing_fraction,
+};
 use pointray::camera::Camera;
 use pointray::math::Ray;
 use pointray::splat::Splat;
@@ -33,7 +35,13 @@ fn far_camera_rays(bounds: &pointray::math::Aabb, distance: f32, size: u32) -> V
 
 #[test]
 fn a_coarser_threshold_never_visits_more_nodes() {
-    let bvh = Bvh::build(torus_splats(40_000, 7), &BvhParams::standard());
+    let splats = torus_splats(40_000, 7);
+    check_coarser_threshold(&Bvh::build(splats.clone(), &BvhParams::standard()));
+    check_coarser_threshold(&KdTree::build(splats, &KdTreeParams::standard()));
+}
+
+fn check_coarser_threshold(bvh: &impl Accel) {
+    let name = bvh.name();
     let thresholds = [0.0, 0.25, 0.5, 1.0, 2.0, 4.0, 16.0];
     let mut stops = 0;
     for ray in far_camera_rays(&bvh.bounds(), 3.0, 48) {
@@ -41,12 +49,16 @@ fn a_coarser_threshold_never_visits_more_nodes() {
         for tau in thresholds {
             let mut stats = TraversalStats::default();
             bvh.traverse(&ray.with_lod_threshold(tau), &mut Everything(0), &mut stats);
-            assert!(stats.nodes_visited <= previous, "τ = {tau}: {} nodes, more than before", stats.nodes_visited);
+            assert!(
+                stats.nodes_visited <= previous,
+                "{name} τ = {tau}: {} nodes, more than before",
+                stats.nodes_visited
+            );
             previous = stats.nodes_visited;
             stops += stats.lod_stops;
         }
     }
-    assert!(stops > 1_000, "the rays must stop at coarse nodes to test anything ({stops} stops)");
+    assert!(stops > 1_000, "{name}: the rays must stop at coarse nodes to test anything ({stops} stops)");
     // The surface schemes narrow the walk as they find hits; the totals still fall.
     let rays = far_camera_rays(&bvh.bounds(), 3.0, 48);
     let totals: Vec<u64> = thresholds
@@ -54,13 +66,13 @@ fn a_coarser_threshold_never_visits_more_nodes() {
         .map(|&tau| {
             let mut stats = TraversalStats::default();
             for ray in &rays {
-                scheme::intersect(&bvh, &ray.with_lod_threshold(tau), &SurfaceScheme::sj(), &mut stats);
+                scheme::intersect(bvh, &ray.with_lod_threshold(tau), &SurfaceScheme::sj(), &mut stats);
             }
             stats.nodes_visited
         })
         .collect();
-    assert!(totals.windows(2).all(|w| w[1] <= w[0]), "nodes visited per threshold: {totals:?}");
-    assert!(totals[3] < totals[0] && totals[6] * 2 < totals[0], "level of detail must save work: {totals:?}");
+    assert!(totals.windows(2).all(|w| w[1] <= w[0]), "{name}: nodes visited per threshold: {totals:?}");
+    assert!(totals[3] < totals[0] && totals[6] * 2 < totals[0], "{name}: level of detail must save work: {totals:?}");
 }
 
 /// Exact hit of a ray with the unit sphere at the origin.
@@ -77,7 +89,12 @@ fn unit_sphere_hit(ray: &Ray) -> Option<f32> {
 #[test]
 fn level_of_detail_hits_stay_within_the_footprint_of_the_sphere() {
     let splats = sphere_splats(50_000, 1.0, 4);
-    let bvh = Bvh::build(splats, &BvhParams::standard());
+    check_sphere_hits(&Bvh::build(splats.clone(), &BvhParams::standard()));
+    check_sphere_hits(&KdTree::build(splats, &KdTreeParams::standard()));
+}
+
+fn check_sphere_hits(bvh: &impl Accel) {
+    let name = bvh.name();
     let tau = 1.0;
     let (mut checked, mut stops) = (0, 0);
     let mut normal_err = Vec::new();
@@ -89,22 +106,24 @@ fn level_of_detail_hits_stay_within_the_footprint_of_the_sphere() {
         }
         let ray = ray.with_lod_threshold(tau);
         let mut stats = TraversalStats::default();
-        let hit = scheme::intersect(&bvh, &ray, &SurfaceScheme::sj(), &mut stats).expect("the ray hits the sphere");
+        let hit = scheme::intersect(bvh, &ray, &SurfaceScheme::sj(), &mut stats)
+            .unwrap_or_else(|| panic!("{name}: the ray misses the sphere"));
         let footprint = ray.cone.width_at(t);
         assert!(
             (hit.t - t).abs() <= 0.1 * tau * footprint,
-            "hit {} vs exact {t}: more than 0.1 τ footprints ({footprint}) off",
+            "{name}: hit {} vs exact {t}: more than 0.1 τ footprints ({footprint}) off",
             hit.t
         );
         normal_err.push(hit.normal.dot(exact_n).clamp(-1.0, 1.0).acos().to_degrees());
         checked += 1;
         stops += stats.lod_stops;
     }
-    assert!(checked > 500 && stops > checked as u64, "{checked} rays, {stops} stops: level of detail unused");
+    assert!(checked > 500 && stops > checked as u64, "{name}: {checked} rays, {stops} stops: level of detail unused");
     normal_err.sort_by(f32::total_cmp);
     let mean = normal_err.iter().sum::<f32>() / normal_err.len() as f32;
     let p99 = normal_err[normal_err.len() * 99 / 100];
-    assert!(mean < 1.0 && p99 < 3.0, "normal error: mean {mean}°, p99 {p99}°");
+    eprintln!("{name}: normal error mean {mean}°, p99 {p99}°");
+    assert!(mean < 1.0 && p99 < 3.0, "{name}: normal error: mean {mean}°, p99 {p99}°");
 }
 
 /// Culling drops only subtrees all of whose disks face away from the ray's origin, so a ray

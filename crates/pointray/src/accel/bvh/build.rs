@@ -8,6 +8,7 @@ use rayon::join;
 use super::{
     Bvh, LANES, MAX_LEAF_SIZE, MAX_SPLATS, MEDIAN_SPLIT_DEPTH, Node, NodeBounds, SplatPacket, WIDTH, leaf_ref,
 };
+use crate::accel::representative::{LOD_FLOOR_QUANTILE, radius_quantile};
 use crate::math::Aabb;
 use crate::splat::Splat;
 
@@ -107,7 +108,7 @@ impl Bvh {
         };
         let (lod, representatives) = super::lod::build(&mut nodes, &splats, &packets);
         splats.extend(representatives);
-        let lod_floor = super::lod::radius_quantile(&nodes, super::LOD_FLOOR_QUANTILE);
+        let lod_floor = radius_quantile(nodes.iter().map(|n| n.min_radius).collect(), LOD_FLOOR_QUANTILE);
         let mut bvh = Bvh {
             nodes,
             lod,

@@ -10,14 +10,14 @@
 //! * Cone: the area-weighted mean normal as axis, the widest angle to any normal below.
 //! * Representative: an oriented disk at the area-weighted mean centre, with the cone's axis
 //!   as normal, the area-weighted mean colour, and a radius between covering every disk below
-//!   and matching their spread (see `child_lod`).
+//!   and matching their spread (see `accel::representative`).
 
 use glam::{DVec3, Vec3, Vec4};
 use rayon::prelude::*;
 
 use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, SplatPacket, WIDTH, leaf_packets};
-use crate::film::linear_to_srgb;
-use crate::splat::{Splat, pack_color};
+use crate::accel::representative::{Representative, representative};
+use crate::splat::Splat;
 
 /// What the multiresolution traversal knows of a node's four children besides their boxes,
 /// four lanes side by side like [`Node`]'s planes. Unused slots have radius 0 and a cone that
@@ -101,47 +101,16 @@ fn round_up(x: f64) -> f32 {
 fn child_lod(box_center: Vec3, disks: &[Splat]) -> ChildLod {
     let c = box_center.as_dvec3();
     let radius = round_up(disks.iter().map(|s| farthest(c, s)).fold(0.0, f64::max));
-    let (mut area, mut center, mut normal, mut color) = (0.0, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
-    for s in disks {
-        // Zero-radius disks still count (a little), so that a cloud of them has a centre.
-        let w = f64::from(s.radius).powi(2).max(f64::MIN_POSITIVE);
-        area += w;
-        center += w * s.center.as_dvec3();
-        normal += w * s.normal.as_dvec3();
-        color += w * Vec3::from(s.color_linear()).as_dvec3();
-    }
-    let center = center / area;
-    // Normals that cancel out (both sides of a thin sheet, a tiny closed blob) have no
-    // meaningful mean: such a cone never culls, and the first disk lends its normal.
-    let coherent = normal.length() > 1e-3 * area;
-    let axis = if coherent { normal.normalize() } else { disks[0].normal.as_dvec3() };
+    let Representative { splat: rep, coherent } = representative(disks.iter());
+    let axis = rep.normal.as_dvec3();
     let cos_angle = if coherent {
         let min = disks.iter().map(|s| s.normal.as_dvec3().dot(axis)).fold(1.0, f64::min);
         // A little wider than measured: rounding must never make the cone exclude a normal.
         (min - 1e-5).max(-1.0) as f32
     } else {
-        -1.0
+        -1.0 // normals that cancel out: a cone that never culls
     };
-    // The radius: between the disk that covers every disk below (as seen along the axis),
-    // which fattens silhouettes, and the disk with the same second moment as the area below,
-    // which leaves gaps where neighbouring representatives meet. Their mean measured best on
-    // the dragon at 16 diagonals (PSNR against the full-detail image 28.7 dB against 28.1 and
-    // 27.5; mean brightness +0.4 % against +1.4 % and −2.1 %).
-    let (mut cover, mut moment) = (0.0f64, 0.0);
-    for s in disks {
-        let d = s.center.as_dvec3() - center;
-        let in_plane = (d - d.dot(axis) * axis).length();
-        let r = f64::from(s.radius);
-        cover = cover.max(in_plane + r);
-        // A uniform disk of radius ρ has mean squared distance ρ²/2 from its centre.
-        moment += r * r * (2.0 * in_plane * in_plane + r * r);
-    }
-    let moment = (moment / area).sqrt();
-    let radius_rep = 0.5 * (cover + moment);
-    let color = (color / area).as_vec3().to_array().map(linear_to_srgb);
-    let rep =
-        Splat { center: center.as_vec3(), radius: radius_rep as f32, normal: axis.as_vec3(), color: pack_color(color) };
-    ChildLod { center: box_center, radius, axis: axis.as_vec3(), cos_angle, rep }
+    ChildLod { center: box_center, radius, axis: rep.normal, cos_angle, rep }
 }
 
 /// Level-of-detail payload of every node (`lod[k]` for `nodes[k]`) and the representative
@@ -237,16 +206,6 @@ pub(super) fn check_invariants(bvh: &Bvh) -> Result<(), String> {
         }
     }
     Ok(())
-}
-
-/// The `quantile` of the nodes' `min_radius` (see `Bvh::lod_floor`); +∞ without nodes.
-pub(super) fn radius_quantile(nodes: &[Node], quantile: f64) -> f32 {
-    let mut radii: Vec<f32> = nodes.iter().map(|n| n.min_radius).collect();
-    if radii.is_empty() {
-        return f32::INFINITY;
-    }
-    let at = ((radii.len() - 1) as f64 * quantile) as usize;
-    *radii.select_nth_unstable_by(at, f32::total_cmp).1
 }
 
 #[cfg(test)]

@@ -21,6 +21,7 @@ pub use lod::NodeBounds;
 
 use glam::{Vec3, Vec4};
 
+use crate::accel::packet::{DiskLanes, LANES};
 use crate::math::Aabb;
 use crate::splat::Splat;
 
@@ -29,8 +30,6 @@ use crate::splat::Splat;
 /// everything about a child.
 const LEAF: u32 = 1 << 31;
 const FIRST_BITS: u32 = 27;
-/// Splats tested together: a leaf's splats are stored again in packets of this many lanes.
-pub(crate) const LANES: usize = 4;
 /// Most splats a leaf can hold (its packet count takes the bits between `LEAF` and the index).
 pub(crate) const MAX_LEAF_SIZE: usize = 16;
 /// Most splats a BVH can index (2²⁷ ≈ 134 million).
@@ -49,15 +48,13 @@ fn leaf_packets(child: u32) -> std::ops::Range<usize> {
     first..first + count
 }
 
-/// Up to four consecutive splats of one leaf in structure-of-arrays form, so that one SSE
-/// pass rejects the disks a ray misses (most of them) before the surface scheme sees the rest.
-/// Unused lanes have radius 0, which no ray hits.
+/// Up to four consecutive splats of one leaf, in lanes for the SIMD pre-filter
+/// ([`DiskLanes`]), so that one SSE pass rejects the disks a ray misses (most of them) before
+/// the surface scheme sees the rest.
 #[repr(C, align(64))]
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct SplatPacket {
-    pub(crate) center: [Vec4; 3],
-    pub(crate) normal: [Vec4; 3],
-    pub(crate) radius: Vec4,
+    pub(crate) disks: DiskLanes,
     /// Index in `Bvh::splats` of the splat in lane 0; lane i holds splat `first + i`.
     pub(crate) first: u32,
     /// Lanes in use.
@@ -67,15 +64,7 @@ pub(crate) struct SplatPacket {
 impl SplatPacket {
     fn new(splats: &[Splat], first: usize) -> Self {
         debug_assert!((1..=LANES).contains(&splats.len()));
-        let lane = |i: usize| splats.get(i).copied().unwrap_or(Splat { radius: 0.0, ..splats[0] });
-        let get = |f: &dyn Fn(&Splat) -> f32| Vec4::from_array(std::array::from_fn(|i| f(&lane(i))));
-        Self {
-            center: [get(&|s| s.center.x), get(&|s| s.center.y), get(&|s| s.center.z)],
-            normal: [get(&|s| s.normal.x), get(&|s| s.normal.y), get(&|s| s.normal.z)],
-            radius: get(&|s| s.radius),
-            first: first as u32,
-            count: splats.len() as u32,
-        }
+        Self { disks: DiskLanes::from_slice(splats), first: first as u32, count: splats.len() as u32 }
     }
 
     pub(crate) fn indices(&self) -> std::ops::Range<usize> {
@@ -162,17 +151,12 @@ pub struct Bvh {
     pub(crate) input_index: Vec<u32>,
     pub(crate) depth: usize,
     pub(crate) node_bounds: NodeBounds,
-    /// The 5th percentile of `Node::min_radius` ([`LOD_FLOOR_QUANTILE`]): a ray whose
+    /// The 5th percentile of `Node::min_radius` (`representative::LOD_FLOOR_QUANTILE`): a ray whose
     /// footprint, scaled by τ, stays below it all through the model takes the full-detail
     /// traversal, forgoing stops only at nodes among the smallest 5 %, where they would save
     /// little. Close up, that keeps level of detail free.
     pub(crate) lod_floor: f32,
 }
-
-/// See `Bvh::lod_floor`. With the floor at the smallest node radius, one node of a few
-/// coincident points sends every ray of a close-up through the multiresolution loop (+5 %
-/// instructions on the dragon at distance 1 for 15 stops in 287,000 rays).
-pub(crate) const LOD_FLOOR_QUANTILE: f64 = 0.05;
 
 impl Bvh {
     /// Index (for [`crate::accel::Accel::splat`]) of the representative of child `slot` of

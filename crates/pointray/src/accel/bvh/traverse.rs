@@ -11,7 +11,8 @@
 use glam::Vec4;
 
 use super::lod::NodeLod;
-use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, SplatPacket, WIDTH, leaf_packets};
+use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_packets};
+use crate::accel::packet::{PacketRay, dot3};
 use crate::accel::{Accel, SplatVisitor, TraversalStats};
 use crate::math::Ray;
 
@@ -20,8 +21,7 @@ use crate::math::Ray;
 /// or the maximum when the axis runs backwards) and which is far, and the footprint scaled by
 /// the level-of-detail threshold.
 struct SlabRay {
-    origin: [Vec4; 3],
-    dir: [Vec4; 3],
+    ray: PacketRay,
     inv_dir: [Vec4; 3],
     near_plane: [usize; 3],
     far_plane: [usize; 3],
@@ -30,17 +30,11 @@ struct SlabRay {
     lod_spread: Vec4,
 }
 
-#[inline(always)]
-fn dot3(a: &[Vec4; 3], b: &[Vec4; 3]) -> Vec4 {
-    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-}
-
 impl SlabRay {
     fn new(ray: &Ray) -> Self {
         let tau = ray.lod_threshold;
         Self {
-            origin: std::array::from_fn(|k| Vec4::splat(ray.origin[k])),
-            dir: std::array::from_fn(|k| Vec4::splat(ray.dir[k])),
+            ray: PacketRay::new(ray),
             inv_dir: std::array::from_fn(|k| Vec4::splat(ray.inv_dir[k])),
             near_plane: std::array::from_fn(|k| if ray.inv_dir[k] < 0.0 { k + 3 } else { k }),
             far_plane: std::array::from_fn(|k| if ray.inv_dir[k] < 0.0 { k } else { k + 3 }),
@@ -52,8 +46,8 @@ impl SlabRay {
     /// Distances along the ray of the projections of the children's sphere centres.
     #[inline(always)]
     fn center_distances(&self, lod: &NodeLod) -> Vec4 {
-        let oc: [Vec4; 3] = std::array::from_fn(|k| lod.center[k] - self.origin[k]);
-        dot3(&oc, &self.dir)
+        let oc: [Vec4; 3] = std::array::from_fn(|k| lod.center[k] - self.ray.origin[k]);
+        dot3(&oc, &self.ray.dir)
     }
 
     /// Like [`Self::entries`] for the children's bounding spheres (QSplat's test, A4), given
@@ -63,7 +57,7 @@ impl SlabRay {
     /// touching its sphere is never missed (hits must not depend on the bounds chosen).
     #[inline(always)]
     fn sphere_entries(&self, lod: &NodeLod, tc: Vec4, used: u32, t0: f32, t1: f32) -> (Vec4, u32) {
-        let perp: [Vec4; 3] = std::array::from_fn(|k| lod.center[k] - self.origin[k] - tc * self.dir[k]);
+        let perp: [Vec4; 3] = std::array::from_fn(|k| lod.center[k] - self.ray.origin[k] - tc * self.ray.dir[k]);
         let r = lod.radius + tc.abs() * Vec4::splat(1.0 / 262_144.0);
         let near = (tc - r).max(Vec4::splat(t0));
         let far = (tc + r).min(Vec4::splat(t1));
@@ -85,7 +79,7 @@ impl SlabRay {
     /// (|v|² − s²)·sin²θ < (R + s·cos θ)². Cones of 90° or more never cull.
     #[inline(always)]
     fn facing_away(&self, lod: &NodeLod) -> u32 {
-        let v: [Vec4; 3] = std::array::from_fn(|k| self.origin[k] - lod.center[k]);
+        let v: [Vec4; 3] = std::array::from_fn(|k| self.ray.origin[k] - lod.center[k]);
         let s = dot3(&v, &lod.axis);
         let cos = lod.cos_angle;
         // A slightly larger sphere: rounding must not cull a subtree that just faces the ray.
@@ -98,33 +92,11 @@ impl SlabRay {
     /// the children the ray enters.
     #[inline(always)]
     fn entries(&self, node: &Node, t0: f32, t1: f32) -> (Vec4, u32) {
-        let near = |k: usize| (node.planes[self.near_plane[k]] - self.origin[k]) * self.inv_dir[k];
-        let far = |k: usize| (node.planes[self.far_plane[k]] - self.origin[k]) * self.inv_dir[k];
+        let near = |k: usize| (node.planes[self.near_plane[k]] - self.ray.origin[k]) * self.inv_dir[k];
+        let far = |k: usize| (node.planes[self.far_plane[k]] - self.ray.origin[k]) * self.inv_dir[k];
         let near = near(0).max(near(1)).max(near(2)).max(Vec4::splat(t0));
         let far = far(0).min(far(1)).min(far(2)).min(Vec4::splat(t1));
         (near, near.cmple(far).bitmask() & node.used & SLOTS)
-    }
-
-    /// The lanes of `packet` whose disk the ray may cross in `[t0, t1]`. The arithmetic is the
-    /// scalar test's (`splat::oriented_disk::intersect`) lane by lane, in the same order, with
-    /// a little more slack: a pre-filter that never rejects a disk the exact test accepts.
-    #[inline(always)]
-    fn packet_candidates(&self, packet: &SplatPacket, t0: f32, t1: f32) -> u32 {
-        let dot = dot3;
-        let den = dot(&self.dir, &packet.normal);
-        let to_center: [Vec4; 3] = std::array::from_fn(|k| packet.center[k] - self.origin[k]);
-        let num = dot(&to_center, &packet.normal);
-        let negative = den.cmplt(Vec4::ZERO);
-        let num_s = Vec4::select(negative, -num, num);
-        let den_a = den.abs();
-        const SLACK: f32 = 1.0 / 16384.0;
-        let in_range = num_s.cmpge(Vec4::splat(t0 * (1.0 - SLACK)) * den_a)
-            & num_s.cmple(Vec4::splat(t1 * (1.0 + SLACK)) * den_a)
-            & den_a.cmpgt(Vec4::ZERO);
-        let q: [Vec4; 3] = std::array::from_fn(|k| self.dir[k] * num - to_center[k] * den);
-        let q2 = dot(&q, &q);
-        let r2_den2 = packet.radius * packet.radius * den * den * (1.0 + SLACK);
-        (in_range & q2.cmplt(r2_den2)).bitmask()
     }
 }
 
@@ -231,7 +203,7 @@ fn traverse_from<V: SplatVisitor, const MULTIRES: bool>(
             if child & LEAF != 0 {
                 for packet in &bvh.packets[leaf_packets(child)] {
                     stats.splat_tests += u64::from(packet.count);
-                    let mut lanes = slab.packet_candidates(packet, ray.t_min, visitor.t_max());
+                    let mut lanes = slab.ray.candidates(&packet.disks, ray.t_min, visitor.t_max());
                     while lanes != 0 {
                         let i = packet.first as usize + lanes.trailing_zeros() as usize;
                         lanes &= lanes - 1;
@@ -342,47 +314,4 @@ fn multires_children<V: SplatVisitor>(
         }
     }
     Some((t, mask))
-}
-
-#[cfg(test)]
-mod tests {
-    use glam::Vec3;
-    use rand::{RngExt, SeedableRng};
-
-    use super::*;
-    use crate::math::RayCone;
-    use crate::splat::{Splat, oriented_disk};
-
-    /// The SIMD pre-filter may pass disks the exact test rejects, never the other way round:
-    /// otherwise the BVH would miss hits that brute force finds.
-    #[test]
-    fn packet_prefilter_never_rejects_an_exact_hit() {
-        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
-        let mut v =
-            |lo: f32, hi: f32| Vec3::new(rng.random_range(lo..hi), rng.random_range(lo..hi), rng.random_range(lo..hi));
-        let (mut hits, mut rejected) = (0, 0);
-        for _ in 0..20_000 {
-            let splats: Vec<Splat> = (0..4)
-                .map(|_| Splat {
-                    center: v(-1.0, 1.0),
-                    radius: v(0.05, 1.0).x,
-                    normal: v(-1.0, 1.0).normalize(),
-                    color: 0,
-                })
-                .collect();
-            let packet = SplatPacket::new(&splats, 0);
-            let origin = v(-3.0, 3.0);
-            let ray = Ray::new(origin, v(-1.0, 1.0) - origin, RayCone::default()).with_t_min(v(0.0, 0.5).x);
-            let t_max = if v(0.0, 1.0).x < 0.5 { f32::INFINITY } else { v(0.5, 6.0).x };
-            let candidates = SlabRay::new(&ray).packet_candidates(&packet, ray.t_min, t_max);
-            for (lane, s) in splats.iter().enumerate() {
-                let exact = oriented_disk::intersect(&ray, s, t_max).is_some();
-                let passed = candidates & (1 << lane) != 0;
-                assert!(!exact || passed, "lane {lane} of {splats:?} rejected for {ray:?} up to {t_max}");
-                hits += usize::from(exact);
-                rejected += usize::from(!passed);
-            }
-        }
-        assert!(hits > 1_000 && rejected > 10_000, "the test must see both: {hits} hits, {rejected} rejections");
-    }
 }

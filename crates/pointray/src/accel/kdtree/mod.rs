@@ -1,0 +1,180 @@
+//! Kd-tree over splats, built by the surface area heuristic (thesis ch. 4, RECONSTRUCTION A8).
+//!
+//! Unlike a BVH, a kd-tree partitions space: each inner node splits its cell by one
+//! axis-aligned plane, and a splat whose (tight, padded) box straddles the plane is referenced
+//! on both sides. A leaf lists the splats whose boxes overlap its cell, so a ray walking the
+//! leaves it crosses, front to back, meets every disk it hits in the leaf that holds the hit
+//! point, and may stop as soon as the next cell starts beyond the visitor's `t_max`. A splat
+//! straddling several cells can be handed to the visitor more than once; the visitors are
+//! idempotent (see `SplatVisitor::visit`).
+//!
+//! Level of detail: every inner node carries a representative splat of the disks that reach
+//! into its cell (`accel::representative`, as for the BVH's nodes); a ray whose footprint,
+//! scaled by the threshold, is wider than the representative's own radius (a cell does not
+//! bound its disks) tests it instead of descending, the BVH's rule.
+
+mod build;
+mod traverse;
+
+pub use build::KdTreeParams;
+
+use crate::accel::{Accel, SplatVisitor, TraversalStats};
+use crate::math::{Aabb, Ray};
+use crate::splat::Splat;
+
+/// A node in 8 bytes (as in pbrt): an inner node holds its split position and, in `bits`, the
+/// axis (0–2) and the index of the child above the plane (the child below follows the node);
+/// a leaf has axis field 3, its reference count in the rest of `bits`, and in `data` the index
+/// of its first reference.
+#[derive(Clone, Copy, Debug)]
+struct KdNode {
+    data: u32,
+    bits: u32,
+}
+
+const LEAF_AXIS: u32 = 3;
+
+impl KdNode {
+    fn inner(axis: usize, split: f32, above: usize) -> Self {
+        debug_assert!(axis < 3 && above < (1 << 30));
+        Self { data: split.to_bits(), bits: axis as u32 | (above as u32) << 2 }
+    }
+
+    fn leaf(first: usize, count: usize) -> Self {
+        debug_assert!(count < (1 << 30) && first <= u32::MAX as usize);
+        Self { data: first as u32, bits: LEAF_AXIS | (count as u32) << 2 }
+    }
+
+    #[inline(always)]
+    fn axis(self) -> usize {
+        (self.bits & 3) as usize
+    }
+
+    #[inline(always)]
+    fn is_leaf(self) -> bool {
+        self.bits & 3 == LEAF_AXIS
+    }
+
+    #[inline(always)]
+    fn split(self) -> f32 {
+        f32::from_bits(self.data)
+    }
+
+    #[inline(always)]
+    fn above(self) -> usize {
+        (self.bits >> 2) as usize
+    }
+
+    #[inline(always)]
+    fn refs(self) -> std::ops::Range<usize> {
+        self.data as usize..self.data as usize + (self.bits >> 2) as usize
+    }
+}
+
+/// The kd-tree and the splats it references (in input order: a kd-tree needs no reordering).
+pub struct KdTree {
+    nodes: Vec<KdNode>,
+    /// The leaves' splat indices, each leaf a contiguous run.
+    refs: Vec<u32>,
+    splats: Vec<Splat>,
+    /// Per node, its representative (radius 0 for leaves);
+    /// the visitor knows node k's as splat `splats.len() + k`.
+    reps: Vec<Splat>,
+    /// A small quantile of the representatives' radii (see `representative::radius_quantile`).
+    lod_floor: f32,
+    /// The root cell: the union of the splats' padded boxes.
+    bounds: Aabb,
+    depth: usize,
+}
+
+impl KdTree {
+    /// Bytes per node.
+    pub const NODE_BYTES: usize = size_of::<KdNode>();
+
+    pub fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    pub fn leaf_count(&self) -> usize {
+        self.nodes.iter().filter(|n| n.is_leaf()).count()
+    }
+
+    /// Splat references in the leaves (at least the number of splats: straddlers count once
+    /// per leaf).
+    pub fn reference_count(&self) -> usize {
+        self.refs.len()
+    }
+
+    pub fn depth(&self) -> usize {
+        self.depth
+    }
+}
+
+impl Accel for KdTree {
+    fn name(&self) -> &'static str {
+        "kdtree"
+    }
+
+    fn splats(&self) -> &[Splat] {
+        &self.splats
+    }
+
+    fn splat(&self, index: u32) -> &Splat {
+        let i = index as usize;
+        self.splats.get(i).unwrap_or_else(|| &self.reps[i - self.splats.len()])
+    }
+
+    fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    fn memory_bytes(&self) -> usize {
+        self.nodes.len() * size_of::<KdNode>()
+            + self.refs.len() * size_of::<u32>()
+            + self.reps.len() * size_of::<Splat>()
+    }
+
+    fn traverse<V: SplatVisitor>(&self, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
+        traverse::traverse(self, ray, visitor, stats);
+    }
+}
+
+/// Checks the kd-tree's invariants: every leaf whose cell a splat's padded box reaches into
+/// (by the build's rule, `build::sides`) references that splat, so no ray can miss it there,
+/// and every split lies in its cell.
+pub fn check_invariants(tree: &KdTree) -> Result<(), String> {
+    if tree.nodes.is_empty() {
+        return if tree.splats.is_empty() { Ok(()) } else { Err("no nodes for a non-empty tree".into()) };
+    }
+    for (i, s) in tree.splats.iter().enumerate() {
+        let b = build::padded_bounds(s);
+        let mut cells = vec![(0usize, tree.bounds)];
+        while let Some((k, cell)) = cells.pop() {
+            let n = tree.nodes[k];
+            if n.is_leaf() {
+                if !tree.refs[n.refs()].contains(&(i as u32)) {
+                    return Err(format!("leaf {k} {cell:?}: splat {i} {b:?} touches it but is not referenced"));
+                }
+                continue;
+            }
+            let (a, split) = (n.axis(), n.split());
+            if !(cell.min[a] <= split && split <= cell.max[a]) {
+                return Err(format!("node {k}: split {split} on axis {a} outside its cell {cell:?}"));
+            }
+            let (below, above) = build::sides(&b, a, split);
+            if below {
+                cells.push((k + 1, Aabb { max: with(cell.max, a, split), ..cell }));
+            }
+            if above {
+                cells.push((n.above(), Aabb { min: with(cell.min, a, split), ..cell }));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `v` with component `axis` set to `x`.
+fn with(mut v: glam::Vec3, axis: usize, x: f32) -> glam::Vec3 {
+    v[axis] = x;
+    v
+}

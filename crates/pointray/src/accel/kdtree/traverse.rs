@@ -1,0 +1,156 @@
+//! Front-to-back kd-tree traversal with a small stack (as in pbrt): at an inner node the ray
+//! goes on into the child on its origin's side and stacks the other with the part of its
+//! interval behind the plane; at a leaf every referenced splat goes to the visitor. A cell
+//! that starts beyond the visitor's `t_max` ends the walk.
+//!
+//! The cells' intervals are widened by a relative `SLACK` at each plane, so that a hit point
+//! lying on a plane, up to rounding, is looked for on both sides: which cell holds it must not
+//! depend on how the plane's distance was rounded.
+
+use super::KdTree;
+use super::build::MAX_DEPTH;
+use crate::accel::packet::{DiskLanes, LANES, PacketRay};
+use crate::accel::{SplatVisitor, TraversalStats};
+use crate::math::Ray;
+
+/// Relative widening of the cells' intervals; far above the few ulps by which a plane's
+/// distance and a disk's hit distance can disagree.
+const SLACK: f32 = 1.0 / 65536.0;
+
+/// Disks remembered per ray as tested, direct-mapped by index (one compare per disk): a splat
+/// straddling several cells is met in nearby leaves, so few entries catch most repeats. The
+/// visitors are idempotent, so a repeat the mailbox misses costs a test, not a wrong answer.
+const MAILBOX: usize = 16;
+
+pub(super) fn traverse<V: SplatVisitor>(tree: &KdTree, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
+    if tree.nodes.is_empty() {
+        return;
+    }
+    let Some((t0, t1)) = clip(tree, ray) else { return };
+    // Close up, no representative is narrower than the footprint: the full-detail loop.
+    let lod = ray.lod_threshold > 0.0 && ray.lod_threshold * ray.cone.width_at(t1) > tree.lod_floor;
+    let mut counts = TraversalStats::default();
+    if lod {
+        walk::<V, true>(tree, ray, (t0, t1), visitor, &mut counts);
+    } else {
+        walk::<V, false>(tree, ray, (t0, t1), visitor, &mut counts);
+    }
+    *stats += counts;
+}
+
+/// The walk over the cells the ray crosses in `(t0, t1)`; with `MULTIRES`, inner nodes whose
+/// representative is narrower than the ray's footprint stop it.
+#[inline(always)]
+fn walk<V: SplatVisitor, const MULTIRES: bool>(
+    tree: &KdTree,
+    ray: &Ray,
+    (mut t0, mut t1): (f32, f32),
+    visitor: &mut V,
+    counts: &mut TraversalStats,
+) {
+    // Per-axis ray data in arrays of four, indexed by `axis & 3`: no bounds checks.
+    let pad = |v: glam::Vec3| [v.x, v.y, v.z, 0.0];
+    let (origin, dir, inv_dir) = (pad(ray.origin), pad(ray.dir), pad(ray.inv_dir));
+    let (lod0, lod_spread) = (ray.lod_threshold * ray.cone.width0, ray.lod_threshold * ray.cone.spread);
+    let packet_ray = PacketRay::new(ray);
+    let mut stack = [(0u32, 0f32, 0f32); MAX_DEPTH + 1];
+    let mut sp = 0;
+    let mut node = 0;
+    let mut mailbox = [u32::MAX; MAILBOX];
+    // Cells that start beyond this cannot hold a hit that matters; it only shrinks, and only
+    // at a leaf.
+    let mut limit = visitor.t_max() * (1.0 + SLACK);
+    // A cell's t0 only changes when it comes off the stack, so that is where it is checked.
+    if t0 <= limit {
+        loop {
+            let n = tree.nodes[node];
+            if !n.is_leaf() {
+                let stop = MULTIRES && {
+                    let rep = &tree.reps[node];
+                    let tc = (rep.center - ray.origin).dot(ray.dir).max(0.0);
+                    rep.radius > 0.0 && rep.radius < lod0 + lod_spread * tc
+                };
+                if !stop {
+                    counts.nodes_visited += 1;
+                    let (axis, split) = (n.axis() & 3, n.split());
+                    let t_split = (split - origin[axis]) * inv_dir[axis];
+                    let below_first = origin[axis] < split || (origin[axis] == split && dir[axis] <= 0.0);
+                    let (first, second) = if below_first { (node + 1, n.above()) } else { (n.above(), node + 1) };
+                    if t_split > t1 * (1.0 + SLACK) || t_split <= 0.0 {
+                        node = first; // the plane lies beyond the interval, or behind the origin
+                    } else if t_split < t0 * (1.0 - SLACK) {
+                        node = second;
+                    } else {
+                        stack[sp] = (second as u32, t0.max(t_split * (1.0 - SLACK)), t1);
+                        sp += 1;
+                        node = first;
+                        t1 = t1.min(t_split * (1.0 + SLACK));
+                    }
+                    continue;
+                }
+                counts.lod_stops += 1;
+                counts.splat_tests += 1;
+                visitor.visit(ray, &tree.reps[node], (tree.splats.len() + node) as u32);
+                if visitor.done() {
+                    return;
+                }
+            } else {
+                let refs = &tree.refs[n.refs()];
+                for start in (0..refs.len()).step_by(LANES) {
+                    // Lanes past the leaf's end repeat its first disk and are masked off.
+                    let used = (refs.len() - start).min(LANES);
+                    let lane = |i: usize| refs[if i < used { start + i } else { 0 }];
+                    let index = [lane(0), lane(1), lane(2), lane(3)];
+                    counts.splat_tests += used as u64;
+                    let splat = |i: usize| &tree.splats[index[i] as usize];
+                    let disks = DiskLanes::new([splat(0), splat(1), splat(2), splat(3)]);
+                    let mut lanes = packet_ray.candidates(&disks, ray.t_min, visitor.t_max()) & ((1 << used) - 1);
+                    while lanes != 0 {
+                        let r = index[lanes.trailing_zeros() as usize];
+                        lanes &= lanes - 1;
+                        // Mailbox: a disk straddling the cells just crossed was tested already.
+                        let slot = &mut mailbox[r as usize % MAILBOX];
+                        if *slot == r {
+                            continue;
+                        }
+                        *slot = r;
+                        visitor.visit(ray, &tree.splats[r as usize], r);
+                    }
+                    if visitor.done() {
+                        return;
+                    }
+                }
+            }
+            limit = visitor.t_max() * (1.0 + SLACK);
+            // The next cell on the stack that starts within the limit.
+            loop {
+                if sp == 0 {
+                    return;
+                }
+                sp -= 1;
+                let next;
+                (next, t0, t1) = stack[sp];
+                if t0 <= limit {
+                    node = next as usize;
+                    break;
+                }
+            }
+        }
+    }
+}
+
+/// The ray's interval inside the root cell, from `ray.t_min` on; `None` if it misses. An axis
+/// along which the ray runs in a face's plane (0 × ∞) does not limit the interval.
+fn clip(tree: &KdTree, ray: &Ray) -> Option<(f32, f32)> {
+    let (mut t0, mut t1) = (ray.t_min, f32::INFINITY);
+    for k in 0..3 {
+        let a = (tree.bounds.min[k] - ray.origin[k]) * ray.inv_dir[k];
+        let b = (tree.bounds.max[k] - ray.origin[k]) * ray.inv_dir[k];
+        if a.is_nan() || b.is_nan() {
+            continue;
+        }
+        t0 = t0.max(a.min(b));
+        t1 = t1.min(a.max(b));
+    }
+    (t0 <= t1 * (1.0 + SLACK)).then_some((t0, t1))
+}

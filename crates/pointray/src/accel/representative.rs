@@ -1,0 +1,78 @@
+//! The representative splat of a set of disks: what a multiresolution accelerator hands the
+//! surface scheme instead of the disks below a node (QSplat's merge, RECONSTRUCTION A3), shared
+//! by the BVH and the kd-tree.
+
+use glam::DVec3;
+
+use crate::film::linear_to_srgb;
+use crate::splat::{Splat, pack_color};
+
+/// A representative and whether the normals below agree enough to have a mean.
+pub(crate) struct Representative {
+    /// An oriented disk at the area-weighted mean centre, with the area-weighted mean normal
+    /// and colour, and a radius between covering every disk and matching their spread.
+    pub(crate) splat: Splat,
+    /// False when the normals cancel out (both sides of a thin sheet, a tiny closed blob):
+    /// the normal is then the first disk's, and no normal cone bounds the disks.
+    pub(crate) coherent: bool,
+}
+
+/// The representative of `disks` (at least one).
+pub(crate) fn representative<'a>(disks: impl Iterator<Item = &'a Splat> + Clone) -> Representative {
+    let first_normal = disks.clone().next().expect("a representative of no disk").normal;
+    let (mut area, mut center, mut normal, mut color) = (0.0, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
+    for s in disks.clone() {
+        // Zero-radius disks still count (a little), so that a cloud of them has a centre.
+        let w = f64::from(s.radius).powi(2).max(f64::MIN_POSITIVE);
+        area += w;
+        center += w * s.center.as_dvec3();
+        normal += w * s.normal.as_dvec3();
+        color += w * glam::Vec3::from(s.color_linear()).as_dvec3();
+    }
+    let center = center / area;
+    let coherent = normal.length() > 1e-3 * area;
+    let axis = if coherent { normal.normalize() } else { first_normal.as_dvec3() };
+    // The radius: between the disk that covers every disk below (as seen along the axis),
+    // which fattens silhouettes, and the disk with the same second moment as the area below,
+    // which leaves gaps where neighbouring representatives meet. Their mean measured best on
+    // the dragon at 16 diagonals with the BVH (PSNR against the full-detail image 28.7 dB
+    // against 28.1 and 27.5; mean brightness +0.4 % against +1.4 % and −2.1 %).
+    let (mut cover, mut moment) = (0.0f64, 0.0);
+    for s in disks {
+        let d = s.center.as_dvec3() - center;
+        let in_plane = (d - d.dot(axis) * axis).length();
+        let r = f64::from(s.radius);
+        cover = cover.max(in_plane + r);
+        // A uniform disk of radius ρ has mean squared distance ρ²/2 from its centre.
+        moment += r * r * (2.0 * in_plane * in_plane + r * r);
+    }
+    let moment = (moment / area).sqrt();
+    let radius = 0.5 * (cover + moment);
+    let color = (color / area).as_vec3().to_array().map(linear_to_srgb);
+    Representative {
+        splat: Splat {
+            center: center.as_vec3(),
+            radius: radius as f32,
+            normal: axis.as_vec3(),
+            color: pack_color(color),
+        },
+        coherent,
+    }
+}
+
+/// The quantile for [`radius_quantile`]. With the floor at the smallest radius, one BVH node
+/// of a few coincident points sent every ray of a close-up through the multiresolution loop
+/// (+5 % instructions on the dragon at distance 1 for 15 stops in 287,000 rays).
+pub(crate) const LOD_FLOOR_QUANTILE: f64 = 0.05;
+
+/// The `quantile` (0–1) of a multiresolution accelerator's representative radii; +∞ without
+/// any. Rays whose footprint, scaled by the threshold, stays below it take the full-detail
+/// traversal: they forgo level of detail only at the narrowest representatives, where it
+/// would save little, and close up level of detail costs nothing.
+pub(crate) fn radius_quantile(mut radii: Vec<f32>, quantile: f64) -> f32 {
+    if radii.is_empty() {
+        return f32::INFINITY;
+    }
+    let at = ((radii.len() - 1) as f64 * quantile) as usize;
+    *radii.select_nth_unstable_by(at, f32::total_cmp).1
+}
