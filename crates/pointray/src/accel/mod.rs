@@ -32,9 +32,9 @@ use crate::splat::Splat;
 pub trait SplatVisitor {
     /// Nodes and splats beyond this ray parameter cannot matter any more.
     fn t_max(&self) -> f32;
-    /// Tests one splat (`index` is what [`Accel::splat`] takes). An accelerator may hand the
-    /// same splat over more than once (a kd-tree, once per cell it straddles): a second visit
-    /// must change nothing.
+    /// Tests one splat (`index` is what [`Accel::splat`] takes). An accelerator whose
+    /// `REPEATS_SPLATS` is true may hand the same splat over more than once; a visitor used
+    /// with it must then change nothing on the second visit.
     fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32);
     /// True once the answer is known (any-hit queries stop early).
     fn done(&self) -> bool {
@@ -74,6 +74,11 @@ impl std::ops::AddAssign for TraversalStats {
 
 /// An acceleration structure over splats. It owns its splats, in whatever order suits it.
 pub trait Accel: Send + Sync {
+    /// Whether `traverse` may hand a visitor the same splat more than once (a kd-tree does,
+    /// once per cell a disk straddles). Visitors that would count a splat twice look for
+    /// repeats only then, so the others pay nothing for it.
+    const REPEATS_SPLATS: bool = false;
+
     fn name(&self) -> &'static str;
     /// The input splats, in the accelerator's order.
     fn splats(&self) -> &[Splat];

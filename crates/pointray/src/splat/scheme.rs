@@ -115,12 +115,12 @@ pub fn intersect<A: Accel + ?Sized>(
             let mut ray = *ray;
             let mut weak = None;
             for _ in 0..MAX_WEAK_WINDOWS {
-                let mut v = SjWindow::new(scheme.window);
+                let mut v = SjWindow::new(scheme.window, A::REPEATS_SPLATS);
                 accel.traverse(&ray, &mut v, stats);
                 if v.grew {
                     // Crossings beyond an earlier, shorter end were turned away: collect the
                     // final window again, now that its extent is known.
-                    v = SjWindow::fixed(scheme.window, v.end);
+                    v = SjWindow::fixed(scheme.window, A::REPEATS_SPLATS, v.end);
                     accel.traverse(&ray, &mut v, stats);
                 }
                 // Nothing behind a weak window: it was the surface after all (a thinly covered
@@ -235,26 +235,30 @@ struct SjWindow {
     /// or a nearer first crossing with a wider disk): crossings may have been turned away
     /// against the shorter end, so the window must be collected again.
     grew: bool,
+    /// The accelerator may hand a splat over again (`Accel::REPEATS_SPLATS`): repeats are
+    /// looked for and ignored.
+    repeats: bool,
     len: usize,
     crossings: [Crossing; WINDOW_CAPACITY],
 }
 
 impl SjWindow {
-    fn new(window: f32) -> Self {
+    fn new(window: f32, repeats: bool) -> Self {
         Self {
             window,
             end: f32::INFINITY,
             first_t: f32::INFINITY,
             fixed: false,
             grew: false,
+            repeats,
             len: 0,
             crossings: [Crossing::default(); WINDOW_CAPACITY],
         }
     }
 
     /// A window that collects every crossing up to `end`.
-    fn fixed(window: f32, end: f32) -> Self {
-        Self { end, fixed: true, ..Self::new(window) }
+    fn fixed(window: f32, repeats: bool, end: f32) -> Self {
+        Self { end, fixed: true, ..Self::new(window, repeats) }
     }
 
     /// The blended hit and the window's coverage Σ(1 − dᵢ/rᵢ) over the blended disks.
@@ -335,8 +339,9 @@ impl SplatVisitor for SjWindow {
             }
             self.end = end;
         }
-        // A kd-tree hands a disk that straddles cells over once per cell.
-        if self.crossings[..self.len].iter().any(|c| c.index == index) {
+        // A kd-tree hands a disk that straddles cells over once per cell. (The window's start
+        // and end above are the same for a repeat.)
+        if self.repeats && self.crossings[..self.len].iter().any(|c| c.index == index) {
             return;
         }
         let c = Crossing { t: h.t, dist2: h.dist2, index };

@@ -161,7 +161,8 @@ fn kdtree_splits_space_and_tests_few_disks_per_ray() {
     let splats = sphere_splats(30_000, 1.0, 3);
     let tree = kdtree(&splats, &KdTreeParams::standard());
     assert!(tree.depth() > 10 && tree.depth() <= 64, "depth {}", tree.depth());
-    // Overlapping disks straddle many planes (10.1 references per splat measured here), but a build that references splats wholesale would show.
+    // Overlapping disks straddle many planes (10.1 references per splat measured here), but a
+    // build that referenced splats wholesale would show.
     let per_splat = tree.reference_count() as f64 / splats.len() as f64;
     assert!((1.0..12.0).contains(&per_splat), "{per_splat} references per splat");
     let mut stats = TraversalStats::default();

@@ -16,7 +16,7 @@ use crate::splat::Splat;
 /// Build parameters, with named presets.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct KdTreeParams {
-    /// Bins per axis (candidate planes: the bin boundaries).
+    /// Bins per axis, 2 to [`MAX_BINS`] (candidate planes: the bin boundaries).
     pub bins: usize,
     /// SAH cost of one traversal step, relative to `intersection_cost`.
     pub traversal_cost: f32,
@@ -32,6 +32,9 @@ pub struct KdTreeParams {
 
 /// Hard limit on the depth, which the traversal stack is sized for.
 pub(super) const MAX_DEPTH: usize = 64;
+
+/// Most bins per axis (the counters live on the stack).
+pub const MAX_BINS: usize = 64;
 
 /// Below this many references a node's children are built on the current thread.
 const PARALLEL_MIN: usize = 4096;
@@ -89,7 +92,7 @@ enum BuildNode {
 
 impl KdTree {
     pub fn build(splats: Vec<Splat>, params: &KdTreeParams) -> Self {
-        assert!(params.bins >= 2, "the build needs at least 2 bins");
+        assert!((2..=MAX_BINS).contains(&params.bins), "the build needs 2 to {MAX_BINS} bins");
         assert!(splats.len() <= u32::MAX as usize, "too many splats for a kd-tree");
         let boxes: Vec<Aabb> = splats.par_iter().map(padded_bounds).collect();
         let bounds = boxes.iter().fold(Aabb::EMPTY, |b, s| b.union(*s));
@@ -213,8 +216,7 @@ fn best_split(boxes: &[Aabb], cell: Aabb, refs: &[u32], p: &KdTreeParams) -> Opt
             best = Some((axis, split, cost));
         }
     };
-    let mut starts = vec![0u32; bins];
-    let mut ends = vec![0u32; bins];
+    let (mut starts, mut ends) = ([0u32; MAX_BINS], [0u32; MAX_BINS]);
     for axis in 0..3 {
         let (l, h) = (lo[axis], hi[axis]);
         // Planes that cut the empty space off the cell.
@@ -223,8 +225,8 @@ fn best_split(boxes: &[Aabb], cell: Aabb, refs: &[u32], p: &KdTreeParams) -> Opt
         if (h - l).is_nan() || h <= l {
             continue;
         }
-        starts.fill(0);
-        ends.fill(0);
+        starts[..bins].fill(0);
+        ends[..bins].fill(0);
         let scale = bins as f32 / (h - l);
         let bin = |x: f32| (((x - l) * scale) as usize).min(bins - 1);
         for &r in refs {

@@ -5,8 +5,7 @@
 //! on both sides. A leaf lists the splats whose boxes overlap its cell, so a ray walking the
 //! leaves it crosses, front to back, meets every disk it hits in the leaf that holds the hit
 //! point, and may stop as soon as the next cell starts beyond the visitor's `t_max`. A splat
-//! straddling several cells can be handed to the visitor more than once; the visitors are
-//! idempotent (see `SplatVisitor::visit`).
+//! straddling several cells can be handed to the visitor more than once (`REPEATS_SPLATS`).
 //!
 //! Level of detail: every inner node carries a representative splat of the disks that reach
 //! into its cell (`accel::representative`, as for the BVH's nodes); a ray whose footprint,
@@ -16,7 +15,7 @@
 mod build;
 mod traverse;
 
-pub use build::KdTreeParams;
+pub use build::{KdTreeParams, MAX_BINS};
 
 use crate::accel::{Accel, SplatVisitor, TraversalStats};
 use crate::math::{Aabb, Ray};
@@ -88,15 +87,11 @@ pub struct KdTree {
 }
 
 impl KdTree {
-    /// Bytes per node.
-    pub const NODE_BYTES: usize = size_of::<KdNode>();
+    /// Bytes per node: the node and its representative.
+    pub const NODE_BYTES: usize = size_of::<KdNode>() + size_of::<Splat>();
 
     pub fn node_count(&self) -> usize {
         self.nodes.len()
-    }
-
-    pub fn leaf_count(&self) -> usize {
-        self.nodes.iter().filter(|n| n.is_leaf()).count()
     }
 
     /// Splat references in the leaves (at least the number of splats: straddlers count once
@@ -111,6 +106,8 @@ impl KdTree {
 }
 
 impl Accel for KdTree {
+    const REPEATS_SPLATS: bool = true;
+
     fn name(&self) -> &'static str {
         "kdtree"
     }
@@ -129,9 +126,7 @@ impl Accel for KdTree {
     }
 
     fn memory_bytes(&self) -> usize {
-        self.nodes.len() * size_of::<KdNode>()
-            + self.refs.len() * size_of::<u32>()
-            + self.reps.len() * size_of::<Splat>()
+        self.nodes.len() * Self::NODE_BYTES + self.refs.len() * size_of::<u32>()
     }
 
     fn traverse<V: SplatVisitor>(&self, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {

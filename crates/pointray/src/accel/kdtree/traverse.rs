@@ -19,7 +19,8 @@ const SLACK: f32 = 1.0 / 65536.0;
 
 /// Disks remembered per ray as tested, direct-mapped by index (one compare per disk): a splat
 /// straddling several cells is met in nearby leaves, so few entries catch most repeats. The
-/// visitors are idempotent, so a repeat the mailbox misses costs a test, not a wrong answer.
+/// visitors ignore repeats (`REPEATS_SPLATS`), so one the mailbox misses costs a test, not a
+/// wrong answer.
 const MAILBOX: usize = 16;
 
 pub(super) fn traverse<V: SplatVisitor>(tree: &KdTree, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
@@ -27,24 +28,28 @@ pub(super) fn traverse<V: SplatVisitor>(tree: &KdTree, ray: &Ray, visitor: &mut 
         return;
     }
     let Some((t0, t1)) = clip(tree, ray) else { return };
-    // Close up, no representative is narrower than the footprint: the full-detail loop.
-    let lod = ray.lod_threshold > 0.0 && ray.lod_threshold * ray.cone.width_at(t1) > tree.lod_floor;
+    // The widest the footprint gets (scaled by τ) before the ray leaves the model: wider
+    // representatives never stop it. Close up, that is below nearly all of them (`lod_floor`):
+    // the full-detail loop.
+    let lod_reach = ray.lod_threshold * ray.cone.width_at(t1);
     let mut counts = TraversalStats::default();
-    if lod {
-        walk::<V, true>(tree, ray, (t0, t1), visitor, &mut counts);
+    if ray.lod_threshold > 0.0 && lod_reach > tree.lod_floor {
+        walk::<V, true>(tree, ray, (t0, t1), lod_reach, visitor, &mut counts);
     } else {
-        walk::<V, false>(tree, ray, (t0, t1), visitor, &mut counts);
+        walk::<V, false>(tree, ray, (t0, t1), 0.0, visitor, &mut counts);
     }
     *stats += counts;
 }
 
 /// The walk over the cells the ray crosses in `(t0, t1)`; with `MULTIRES`, inner nodes whose
-/// representative is narrower than the ray's footprint stop it.
+/// representative is narrower than the ray's footprint stop it (only representatives narrower
+/// than `lod_reach` can).
 #[inline(always)]
 fn walk<V: SplatVisitor, const MULTIRES: bool>(
     tree: &KdTree,
     ray: &Ray,
     (mut t0, mut t1): (f32, f32),
+    lod_reach: f32,
     visitor: &mut V,
     counts: &mut TraversalStats,
 ) {
@@ -67,8 +72,11 @@ fn walk<V: SplatVisitor, const MULTIRES: bool>(
             if !n.is_leaf() {
                 let stop = MULTIRES && {
                     let rep = &tree.reps[node];
-                    let tc = (rep.center - ray.origin).dot(ray.dir).max(0.0);
-                    rep.radius > 0.0 && rep.radius < lod0 + lod_spread * tc
+                    // One compare rules out most nodes: those wider than any footprint the ray has.
+                    rep.radius < lod_reach && rep.radius > 0.0 && {
+                        let tc = (rep.center - ray.origin).dot(ray.dir).max(0.0);
+                        rep.radius < lod0 + lod_spread * tc
+                    }
                 };
                 if !stop {
                     counts.nodes_visited += 1;
