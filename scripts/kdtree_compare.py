@@ -14,10 +14,12 @@ accelerator's LoD-off image.
 """
 
 import argparse
+import array
 import datetime
 import json
 import math
 import os
+import random
 import subprocess
 import sys
 
@@ -27,6 +29,9 @@ MODELS = {
     "buddha": "stanford/happy/happy_vrip_res3.ply",
     "igea": "scans_other/igea.ply",
 }
+# Made by this script (no data files): points uniformly distributed over a torus, with exact
+# normals; `pointray prepare` gives them radii as for a scan.
+SYNTHETIC = {"torus-1m": 1_000_000}
 ACCELS = ["bvh", "kdtree"]
 LODS = ["off", 1, 2, 4]
 DISTANCES = [1, 4, 16]
@@ -45,7 +50,7 @@ def main():
     ap.add_argument("--embree", default="../shared/bench/embree/bin/embree_points_bench")
     ap.add_argument("--data", default="../shared/data")
     ap.add_argument("--cache", default="/tmp/pointray-kdtree")
-    ap.add_argument("--models", default=",".join(MODELS))
+    ap.add_argument("--models", default=",".join(list(MODELS) + list(SYNTHETIC)))
     ap.add_argument("--size", type=int, default=1024)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--out", default="docs/kdtree.md")
@@ -66,8 +71,13 @@ def main():
               "size": a.size, "threads": a.threads}
     records = []
     for model in a.models.split(","):
-        src = os.path.join(a.data, MODELS[model])
         ply = os.path.join(a.cache, model + ".ply")
+        if model in SYNTHETIC:
+            src = os.path.join(a.cache, model + "-raw.ply")
+            if not os.path.exists(src):
+                write_torus(src, SYNTHETIC[model])
+        else:
+            src = os.path.join(a.data, MODELS[model])
         if not os.path.exists(ply):
             run([a.pointray, "-q", "prepare", src, "-o", ply + ".partial.ply"])
             os.replace(ply + ".partial.ply", ply)
@@ -114,6 +124,27 @@ def main():
         for rec in [header] + records:
             f.write(json.dumps(rec) + "\n")
     write_report(a, header, records)
+
+
+def write_torus(path, n, seed=1, major=1.0, minor=0.4):
+    """n points uniformly distributed over a torus's surface (rejection sampling of the tube
+    angle by the area element), with their outward normals, as a binary PLY."""
+    rng = random.Random(seed)
+    data = array.array("f")
+    while len(data) < 6 * n:
+        u, v = rng.uniform(0, 2 * math.pi), rng.uniform(0, 2 * math.pi)
+        if rng.uniform(0, major + minor) > major + minor * math.cos(v):
+            continue
+        nx, ny, nz = math.cos(v) * math.cos(u), math.cos(v) * math.sin(u), math.sin(v)
+        data.extend([major * math.cos(u) + minor * nx, major * math.sin(u) + minor * ny, minor * nz, nx, ny, nz])
+    if sys.byteorder != "little":
+        data.byteswap()
+    header = (f"ply\nformat binary_little_endian 1.0\nelement vertex {n}\n"
+              + "".join(f"property float {p}\n" for p in ["x", "y", "z", "nx", "ny", "nz"]) + "end_header\n")
+    with open(path + ".partial", "wb") as f:
+        f.write(header.encode())
+        data.tofile(f)
+    os.replace(path + ".partial", path)
 
 
 def write_report(a, header, records):
@@ -165,6 +196,24 @@ def write_report(a, header, records):
         out.append(f"| {rec['model']} | {rec['k']} | {rec['accel']} | {rec['lod']} | {s['render_seconds'] * 1e3:.3g} | "
                    f"{s['mrays_per_second']:.2f} | {vs_bvh:.2f}× | {vs_emb} | {s['nodes_visited_per_ray']:.1f} | "
                    f"{s['splat_tests_per_ray']:.1f} | {s['lod_stops_per_ray']:.2f} | {speedup:.2f}× | {psnr} |")
+    out += ["", "## Percentage improvement of LoD (thesis Fig. 4.11, 4.12)", "",
+            "(render time with LoD off − with LoD) / with LoD off, per accelerator; PSNR in brackets.", "",
+            "| model | k | accel | " + " | ".join(f"τ = {t}" for t in LODS[1:]) + " |",
+            "|---|---|---|" + "---|" * (len(LODS) - 1)]
+    for rec in records:
+        if rec["accel"] == "embree" or rec["lod"] != "off":
+            continue
+        cells = []
+        for t in LODS[1:]:
+            r = find(model=rec["model"], k=rec["k"], accel=rec["accel"], lod=t)
+            if r is None:
+                cells.append("–")
+                continue
+            gain = 100 * (1 - r["stats"]["render_seconds"] / rec["stats"]["render_seconds"])
+            p = r["psnr_vs_off"]
+            p = "=" if isinstance(p, str) else f"{p:.1f} dB"
+            cells.append(f"{gain:+.0f} % ({p})")
+        out.append(f"| {rec['model']} | {rec['k']} | {rec['accel']} | " + " | ".join(cells) + " |")
     embree_rows = [r for r in records if r["accel"] == "embree"]
     if embree_rows:
         out += ["", "Embree (same prepared cloud, camera and crop):", "", "| model | k | Mrays/s | ms |", "|---|---|---|---|"]

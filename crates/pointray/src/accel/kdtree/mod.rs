@@ -17,6 +17,7 @@ mod traverse;
 
 pub use build::{KdTreeParams, MAX_BINS};
 
+use crate::accel::packet::LANES;
 use crate::accel::{Accel, SplatVisitor, TraversalStats};
 use crate::math::{Aabb, Ray};
 use crate::splat::Splat;
@@ -24,7 +25,7 @@ use crate::splat::Splat;
 /// A node in 8 bytes (as in pbrt): an inner node holds its split position and, in `bits`, the
 /// axis (0–2) and the index of the child above the plane (the child below follows the node);
 /// a leaf has axis field 3, its reference count in the rest of `bits`, and in `data` the index
-/// of its first reference.
+/// of its first reference. A leaf's references are padded to whole packets of [`LANES`].
 #[derive(Clone, Copy, Debug)]
 struct KdNode {
     data: u32,
@@ -64,18 +65,27 @@ impl KdNode {
         (self.bits >> 2) as usize
     }
 
+    /// References in the leaf, not counting the padding.
     #[inline(always)]
-    fn refs(self) -> std::ops::Range<usize> {
-        self.data as usize..self.data as usize + (self.bits >> 2) as usize
+    fn ref_count(self) -> usize {
+        (self.bits >> 2) as usize
+    }
+
+    /// The leaf's references with their padding.
+    #[inline(always)]
+    fn padded_refs(self) -> std::ops::Range<usize> {
+        self.data as usize..self.data as usize + self.ref_count().next_multiple_of(LANES)
     }
 }
 
 /// The kd-tree and the splats it references (in input order: a kd-tree needs no reordering).
 pub struct KdTree {
     nodes: Vec<KdNode>,
-    /// The leaves' splat indices, each leaf a contiguous run.
+    /// The leaves' splat indices, each leaf a contiguous run padded with [`KdTree::padding`]
+    /// to whole packets: the traversal gathers four at a time without checking how many remain.
     refs: Vec<u32>,
-    splats: Vec<Splat>,
+    /// The splats, then at index [`KdTree::padding`] a disk no ray hits (`packet::NO_DISK`).
+    disks: Vec<Splat>,
     /// Per node, its representative (radius 0 for leaves);
     /// the visitor knows node k's as splat `splats.len() + k`.
     reps: Vec<Splat>,
@@ -90,14 +100,19 @@ impl KdTree {
     /// Bytes per node: the node and its representative.
     pub const NODE_BYTES: usize = size_of::<KdNode>() + size_of::<Splat>();
 
+    /// The index that pads the leaves: a disk no ray hits.
+    fn padding(&self) -> u32 {
+        (self.disks.len() - 1) as u32
+    }
+
     pub fn node_count(&self) -> usize {
         self.nodes.len()
     }
 
     /// Splat references in the leaves (at least the number of splats: straddlers count once
-    /// per leaf).
+    /// per leaf; padding does not count).
     pub fn reference_count(&self) -> usize {
-        self.refs.len()
+        self.nodes.iter().filter(|n| n.is_leaf()).map(|n| n.ref_count()).sum()
     }
 
     pub fn depth(&self) -> usize {
@@ -113,12 +128,12 @@ impl Accel for KdTree {
     }
 
     fn splats(&self) -> &[Splat] {
-        &self.splats
+        &self.disks[..self.padding() as usize]
     }
 
     fn splat(&self, index: u32) -> &Splat {
-        let i = index as usize;
-        self.splats.get(i).unwrap_or_else(|| &self.reps[i - self.splats.len()])
+        let (i, n) = (index as usize, self.padding() as usize);
+        if i < n { &self.disks[i] } else { &self.reps[i - n] }
     }
 
     fn bounds(&self) -> Aabb {
@@ -139,15 +154,15 @@ impl Accel for KdTree {
 /// and every split lies in its cell.
 pub fn check_invariants(tree: &KdTree) -> Result<(), String> {
     if tree.nodes.is_empty() {
-        return if tree.splats.is_empty() { Ok(()) } else { Err("no nodes for a non-empty tree".into()) };
+        return if tree.splats().is_empty() { Ok(()) } else { Err("no nodes for a non-empty tree".into()) };
     }
-    for (i, s) in tree.splats.iter().enumerate() {
+    for (i, s) in tree.splats().iter().enumerate() {
         let b = build::padded_bounds(s);
         let mut cells = vec![(0usize, tree.bounds)];
         while let Some((k, cell)) = cells.pop() {
             let n = tree.nodes[k];
             if n.is_leaf() {
-                if !tree.refs[n.refs()].contains(&(i as u32)) {
+                if !tree.refs[n.padded_refs()][..n.ref_count()].contains(&(i as u32)) {
                     return Err(format!("leaf {k} {cell:?}: splat {i} {b:?} touches it but is not referenced"));
                 }
                 continue;

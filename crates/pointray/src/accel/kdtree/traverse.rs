@@ -12,6 +12,7 @@ use super::build::MAX_DEPTH;
 use crate::accel::packet::{DiskLanes, LANES, PacketRay};
 use crate::accel::{SplatVisitor, TraversalStats};
 use crate::math::Ray;
+use glam::Vec3A;
 
 /// Relative widening of the cells' intervals; far above the few ulps by which a plane's
 /// distance and a disk's hit distance can disagree.
@@ -33,10 +34,13 @@ pub(super) fn traverse<V: SplatVisitor>(tree: &KdTree, ray: &Ray, visitor: &mut 
     // the full-detail loop.
     let lod_reach = ray.lod_threshold * ray.cone.width_at(t1);
     let mut counts = TraversalStats::default();
+    // Each inner level stacks at most one cell. (Zeroing this array costs fewer instructions
+    // than borrowing a stack kept per thread.)
+    let stack = &mut [(0u32, 0f32, 0f32); MAX_DEPTH + 1];
     if ray.lod_threshold > 0.0 && lod_reach > tree.lod_floor {
-        walk::<V, true>(tree, ray, (t0, t1), lod_reach, visitor, &mut counts);
+        walk::<V, true>(tree, ray, (t0, t1), lod_reach, visitor, &mut counts, stack);
     } else {
-        walk::<V, false>(tree, ray, (t0, t1), 0.0, visitor, &mut counts);
+        walk::<V, false>(tree, ray, (t0, t1), 0.0, visitor, &mut counts, stack);
     }
     *stats += counts;
 }
@@ -52,13 +56,13 @@ fn walk<V: SplatVisitor, const MULTIRES: bool>(
     lod_reach: f32,
     visitor: &mut V,
     counts: &mut TraversalStats,
+    stack: &mut [(u32, f32, f32); MAX_DEPTH + 1],
 ) {
     // Per-axis ray data in arrays of four, indexed by `axis & 3`: no bounds checks.
     let pad = |v: glam::Vec3| [v.x, v.y, v.z, 0.0];
     let (origin, dir, inv_dir) = (pad(ray.origin), pad(ray.dir), pad(ray.inv_dir));
     let (lod0, lod_spread) = (ray.lod_threshold * ray.cone.width0, ray.lod_threshold * ray.cone.spread);
     let packet_ray = PacketRay::new(ray);
-    let mut stack = [(0u32, 0f32, 0f32); MAX_DEPTH + 1];
     let mut sp = 0;
     let mut node = 0;
     let mut mailbox = [u32::MAX; MAILBOX];
@@ -84,9 +88,10 @@ fn walk<V: SplatVisitor, const MULTIRES: bool>(
                     let t_split = (split - origin[axis]) * inv_dir[axis];
                     let below_first = origin[axis] < split || (origin[axis] == split && dir[axis] <= 0.0);
                     let (first, second) = if below_first { (node + 1, n.above()) } else { (n.above(), node + 1) };
-                    if t_split > t1 * (1.0 + SLACK) || t_split <= 0.0 {
+                    // The interval is already widened, so it is compared as it is.
+                    if t_split > t1 || t_split <= 0.0 {
                         node = first; // the plane lies beyond the interval, or behind the origin
-                    } else if t_split < t0 * (1.0 - SLACK) {
+                    } else if t_split < t0 {
                         node = second;
                     } else {
                         stack[sp] = (second as u32, t0.max(t_split * (1.0 - SLACK)), t1);
@@ -98,21 +103,19 @@ fn walk<V: SplatVisitor, const MULTIRES: bool>(
                 }
                 counts.lod_stops += 1;
                 counts.splat_tests += 1;
-                visitor.visit(ray, &tree.reps[node], (tree.splats.len() + node) as u32);
+                visitor.visit(ray, &tree.reps[node], tree.padding() + node as u32);
                 if visitor.done() {
                     return;
                 }
             } else {
-                let refs = &tree.refs[n.refs()];
-                for start in (0..refs.len()).step_by(LANES) {
-                    // Lanes past the leaf's end repeat its first disk and are masked off.
-                    let used = (refs.len() - start).min(LANES);
-                    let lane = |i: usize| refs[if i < used { start + i } else { 0 }];
-                    let index = [lane(0), lane(1), lane(2), lane(3)];
-                    counts.splat_tests += used as u64;
-                    let splat = |i: usize| &tree.splats[index[i] as usize];
-                    let disks = DiskLanes::new([splat(0), splat(1), splat(2), splat(3)]);
-                    let mut lanes = packet_ray.candidates(&disks, ray.t_min, visitor.t_max()) & ((1 << used) - 1);
+                // Counted for the whole leaf here, less the packets left untested on an early exit.
+                let count = n.ref_count();
+                counts.splat_tests += count as u64;
+                for (packet, index) in tree.refs[n.padded_refs()].chunks_exact(LANES).enumerate() {
+                    let disk = |i: usize| &tree.disks[index[i] as usize];
+                    let disks = DiskLanes::new([disk(0), disk(1), disk(2), disk(3)]);
+                    // Padding lanes hold a disk no ray hits.
+                    let mut lanes = packet_ray.candidates(&disks, ray.t_min, visitor.t_max());
                     while lanes != 0 {
                         let r = index[lanes.trailing_zeros() as usize];
                         lanes &= lanes - 1;
@@ -122,9 +125,10 @@ fn walk<V: SplatVisitor, const MULTIRES: bool>(
                             continue;
                         }
                         *slot = r;
-                        visitor.visit(ray, &tree.splats[r as usize], r);
+                        visitor.visit(ray, &tree.disks[r as usize], r);
                     }
                     if visitor.done() {
+                        counts.splat_tests -= count.saturating_sub((packet + 1) * LANES) as u64;
                         return;
                     }
                 }
@@ -147,18 +151,16 @@ fn walk<V: SplatVisitor, const MULTIRES: bool>(
     }
 }
 
-/// The ray's interval inside the root cell, from `ray.t_min` on; `None` if it misses. An axis
-/// along which the ray runs in a face's plane (0 × ∞) does not limit the interval.
+/// The ray's interval inside the root cell, from `ray.t_min` on and widened by `SLACK`; `None`
+/// if it misses. An axis along which the ray runs in a face's plane (0 × ∞) does not limit
+/// the interval.
 fn clip(tree: &KdTree, ray: &Ray) -> Option<(f32, f32)> {
-    let (mut t0, mut t1) = (ray.t_min, f32::INFINITY);
-    for k in 0..3 {
-        let a = (tree.bounds.min[k] - ray.origin[k]) * ray.inv_dir[k];
-        let b = (tree.bounds.max[k] - ray.origin[k]) * ray.inv_dir[k];
-        if a.is_nan() || b.is_nan() {
-            continue;
-        }
-        t0 = t0.max(a.min(b));
-        t1 = t1.min(a.max(b));
-    }
-    (t0 <= t1 * (1.0 + SLACK)).then_some((t0, t1))
+    let (origin, inv_dir) = (Vec3A::from(ray.origin), Vec3A::from(ray.inv_dir));
+    let a = (Vec3A::from(tree.bounds.min) - origin) * inv_dir;
+    let b = (Vec3A::from(tree.bounds.max) - origin) * inv_dir;
+    let flat = a.is_nan_mask() | b.is_nan_mask();
+    let near = Vec3A::select(flat, Vec3A::NEG_INFINITY, a.min(b)).max_element();
+    let far = Vec3A::select(flat, Vec3A::INFINITY, a.max(b)).min_element();
+    let (t0, t1) = (near.max(ray.t_min) * (1.0 - SLACK), far * (1.0 + SLACK));
+    (t0 <= t1).then_some((t0, t1))
 }
