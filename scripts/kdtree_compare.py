@@ -15,13 +15,13 @@ accelerator's LoD-off image.
 
 import argparse
 import array
-import datetime
 import json
 import math
 import os
 import random
-import subprocess
 import sys
+
+import reportlib
 
 MODELS = {
     "dragon": "stanford/dragon/dragon_vrip.vertices.binary_le.ply",
@@ -35,13 +35,6 @@ SYNTHETIC = {"torus-1m": 1_000_000}
 ACCELS = ["bvh", "kdtree"]
 LODS = ["off", 1, 2, 4]
 DISTANCES = [1, 4, 16]
-
-
-def run(cmd):
-    p = subprocess.run([str(c) for c in cmd], capture_output=True, text=True)
-    if p.returncode != 0:
-        raise RuntimeError(f"{' '.join(map(str, cmd))} failed ({p.returncode}): {p.stderr.strip()[-2000:]}")
-    return p.stdout
 
 
 def main():
@@ -58,17 +51,10 @@ def main():
     a = ap.parse_args()
     jsonl = os.path.splitext(a.out)[0] + "-results.jsonl"
     if a.report_only:
-        header = json.loads(open(jsonl).readline())
-        records = [json.loads(line) for line in open(jsonl)][1:]
-        write_report(a, header, records)
+        write_markdown(a, *reportlib.read_jsonl(jsonl))
         return
     os.makedirs(a.cache, exist_ok=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
-    dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True,
-                           text=True).stdout.strip()
-    header = {"date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC"),
-              "commit": commit + ("+dirty" if dirty else ""), "cores": os.cpu_count(), "models": a.models,
-              "size": a.size, "threads": a.threads}
+    header = reportlib.header(models=a.models, size=a.size, threads=a.threads)
     records = []
     for model in a.models.split(","):
         ply = os.path.join(a.cache, model + ".ply")
@@ -79,7 +65,7 @@ def main():
         else:
             src = os.path.join(a.data, MODELS[model])
         if not os.path.exists(ply):
-            run([a.pointray, "-q", "prepare", src, "-o", ply + ".partial.ply"])
+            reportlib.run([a.pointray, "-q", "prepare", src, "-o", ply + ".partial.ply"])
             os.replace(ply + ".partial.ply", ply)
         for k in DISTANCES:
             frames = None
@@ -93,17 +79,17 @@ def main():
                            "--crop-to-model", "--threads", a.threads, "--width", a.size, "--height", a.size,
                            "--cull", "off", "--stats", stats_path] + lod_flags
                     if frames is None:  # size the timing by the rays of the first render
-                        run(cmd + ["--bench-frames", 0])
+                        reportlib.run(cmd + ["--bench-frames", 0])
                         rays = json.load(open(stats_path))["rays"]
                         frames = max(5, math.ceil(3_000_000 / max(rays, 1)))
-                    run(cmd + ["--bench-frames", frames])
+                    reportlib.run(cmd + ["--bench-frames", frames])
                     s = json.load(open(stats_path))
                     r = s["region"]
                     region = f"{r['x0']},{r['y0']},{r['x1']},{r['y1']}"
                     if lod == "off":
                         ref, psnr = png, None
                     else:
-                        c = json.loads(run([a.pointray, "-q", "compare", png, ref, "--region", region, "--json"]))
+                        c = json.loads(reportlib.run([a.pointray, "-q", "compare", png, ref, "--region", region, "--json"]))
                         psnr = c["psnr_db"] if c["psnr_db"] is not None else "identical"
                     rec = {"model": model, "k": k, "accel": accel, "lod": lod, "frames": frames, "psnr_vs_off": psnr,
                            "stats": {x: s.get(x) for x in [
@@ -114,16 +100,14 @@ def main():
                     print(f"{model} k={k} {accel} lod={lod}: {s['render_seconds'] * 1e3:.3g} ms, "
                           f"{s['mrays_per_second']:.2f} Mrays/s, psnr {psnr}", file=sys.stderr)
             if a.embree and os.path.exists(a.embree):
-                out = run([a.embree, ply, "--geom", "oriented", "--threads", a.threads, "--dist", k, "--crop",
+                out = reportlib.run([a.embree, ply, "--geom", "oriented", "--threads", a.threads, "--dist", k, "--crop",
                            "--reps", frames, "--size", f"{a.size}x{a.size}"])
                 e = json.loads(out.strip().splitlines()[-1])
                 records.append({"model": model, "k": k, "accel": "embree", "lod": "off", "frames": frames,
                                 "embree": {x: e.get(x) for x in ["mrays_s", "render_s", "build_s", "bvh_mb", "rays"]}})
                 print(f"{model} k={k} embree: {e.get('mrays_s')} Mrays/s", file=sys.stderr)
-    with open(jsonl, "w") as f:
-        for rec in [header] + records:
-            f.write(json.dumps(rec) + "\n")
-    write_report(a, header, records)
+    reportlib.write_jsonl(jsonl, header, records)
+    write_markdown(a, header, records)
 
 
 def write_torus(path, n, seed=1, major=1.0, minor=0.4):
@@ -147,7 +131,7 @@ def write_torus(path, n, seed=1, major=1.0, minor=0.4):
     os.replace(path + ".partial", path)
 
 
-def write_report(a, header, records):
+def write_markdown(a, header, records):
     h = header
     out = ["# The SAH kd-tree beside the multiresolution BVH and Embree (thesis chapter 4)", "",
            f"- Date: {h['date']}; commit {h['commit']}; {h['cores']} cores, shared and noisy",
@@ -220,18 +204,7 @@ def write_report(a, header, records):
         for r in embree_rows:
             e = r["embree"]
             out.append(f"| {r['model']} | {r['k']} | {e['mrays_s']:.2f} | {e['render_s'] * 1e3:.3g} |")
-    keep = kept_discussion(a.out)
-    with open(a.out, "w") as f:
-        f.write("\n".join(out) + "\n" + keep)
-
-
-def kept_discussion(path):
-    """The hand-written '## Discussion' section of an earlier report, kept across regenerations."""
-    if not os.path.exists(path):
-        return ""
-    text = open(path).read()
-    i = text.find("\n## Discussion")
-    return text[i:] if i >= 0 else ""
+    reportlib.write_report(a.out, out)
 
 
 if __name__ == "__main__":

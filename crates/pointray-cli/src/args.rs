@@ -87,11 +87,12 @@ pub struct RenderArgs {
     /// How the disks a ray crosses become a surface point.
     #[arg(long, value_enum, default_value_t = SurfaceArg::Sj)]
     pub surface: SurfaceArg,
-    /// SJ interpolation window, in radii of the first disk hit.
-    #[arg(long, default_value_t = 1.0)]
-    pub sj_window: f32,
-    /// SJ: least coverage Σ(1 − d/r) of the disks in a window for it to count as surface
-    /// (lone disks crossed at their rims are skipped).
+    /// SJ and RFD interpolation window, in radii of the first disk hit [default: 1 for SJ and
+    /// PSS, 2 for RFD].
+    #[arg(long)]
+    pub sj_window: Option<f32>,
+    /// SJ and RFD: least coverage Σ(1 − d/r) of the disks in a window for it to count as
+    /// surface (lone disks crossed at their rims are skipped).
     #[arg(long, default_value_t = pointray::splat::scheme::SurfaceScheme::sj().min_coverage)]
     pub sj_min_coverage: f32,
     /// Samples per pixel (jittered, anti-aliasing).
@@ -220,7 +221,13 @@ pub enum AccelArg {
 
 #[derive(Copy, Clone, Debug, ValueEnum)]
 pub enum SurfaceArg {
+    /// Schaufler–Jensen: oriented disks, blended over a short window.
     Sj,
+    /// Ray-facing disks, blended over the same window.
+    Rfd,
+    /// The moving least-squares point-set surface, projected onto from the SJ hit.
+    Pss,
+    /// The nearest oriented disk alone (flat shaded).
     FirstHit,
 }
 

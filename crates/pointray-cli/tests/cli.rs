@@ -213,7 +213,7 @@ fn same_seed_same_image_different_seed_different_image() {
 // ---------------------------------------------------------------------------------------------
 
 fn assert_accels_agree(dir: &std::path::Path, input: &str) {
-    for surface in ["first-hit", "sj"] {
+    for surface in ["first-hit", "sj", "rfd", "pss"] {
         let mut renders = Vec::new();
         for accel in ["brute", "bvh", "kdtree"] {
             let out = format!("{input}.{surface}.{accel}.png");
@@ -241,7 +241,10 @@ fn assert_accels_agree(dir: &std::path::Path, input: &str) {
             assert!(differing.is_empty(), "{input} {surface}: brute force and {accel} differ, e.g. {differing:?}");
             assert_eq!(sb["hit_fraction"], s["hit_fraction"], "{input} {surface} {accel}");
             assert_eq!(sb["primary_rays"], s["primary_rays"]);
-            assert!(stat_f64(s, "splat_tests_per_ray") < points * 0.25, "{s:#}");
+            // (PSS neighbourhoods, a few radii wide, hold a good part of these small spheres.)
+            if surface != "pss" {
+                assert!(stat_f64(s, "splat_tests_per_ray") < points * 0.25, "{s:#}");
+            }
         }
     }
 }
@@ -264,7 +267,7 @@ fn every_accelerator_gives_identical_pixels_with_normals() {
 fn surface_schemes_differ_but_cover_the_same_silhouette_roughly() {
     let dir = temp_dir();
     write_sphere(dir.path());
-    for surface in ["first-hit", "sj"] {
+    for surface in ["first-hit", "sj", "rfd", "pss"] {
         render_in(dir.path(), &["sphere.ply", "-o", &format!("{surface}.png"), "--surface", surface]).assert_success();
     }
     let first = read_png(&dir.path().join("first-hit.png"));

@@ -138,9 +138,11 @@ fn trace<A: Accel>(accel: &A, ray: &Ray, config: &RenderConfig, stats: &mut Rend
     config.material.shade(&hit, -ray.dir, to_light, irradiance, lit)
 }
 
-/// Shadow test from a hit. The ray starts `shadow_offset × r` off the surface, on the light's
-/// side, and ignores crossings within one radius of its origin: the neighbouring disks of a
-/// curved surface stand up to about r off each other's planes (SJ advise 1–3 r).
+/// Shadow test from a hit. The ray starts `shadow_offset × k·r` off the surface, on the light's
+/// side, and ignores crossings within k·r of its origin, k the scheme's `self_hit_radii`: the
+/// neighbouring disks of a curved surface stand up to about r off each other's planes, and a
+/// neighbour's ray-facing disk is met wherever the ray passes near its centre (SJ advise
+/// 1–3 r).
 fn in_shadow<A: Accel>(
     accel: &A,
     primary: &Ray,
@@ -152,13 +154,13 @@ fn in_shadow<A: Accel>(
 ) -> bool {
     stats.rays += 1;
     stats.shadow_rays += 1;
-    let offset = config.shadow_offset * hit.radius;
+    let offset = config.shadow_offset * hit.radius * config.scheme.self_hit_radii();
     let origin = hit.position + hit.normal * offset;
     let footprint = primary.cone.width_at(hit.t);
     // The shadow ray's beam starts as wide as the pixel's footprint at the hit (a directional
     // light keeps it that wide), and takes its level of detail from it.
     let ray = Ray::new(origin, to_light, crate::math::RayCone { width0: footprint, spread: 0.0 })
-        .with_t_min(hit.radius)
+        .with_t_min(config.scheme.self_hit_radii() * hit.radius)
         .with_lod_threshold(config.lod_threshold);
-    scheme::occluded(accel, &ray, light_dist, &mut stats.traversal)
+    scheme::occluded(accel, &ray, light_dist, &config.scheme, &mut stats.traversal)
 }

@@ -10,7 +10,7 @@ use pointray::film::Film;
 use pointray::render::{RenderConfig, render};
 use pointray::shading::{Light, Material};
 use pointray::splat::scheme::{SurfaceKind, SurfaceScheme};
-use pointray::splat::{Splat, splats_from_cloud};
+use pointray::splat::{DiskShape, Splat, splats_from_cloud};
 use pointray::stats::RenderStats;
 use serde::Serialize;
 
@@ -24,10 +24,15 @@ enum AnyAccel {
 }
 
 impl AnyAccel {
-    fn build(kind: AccelArg, splats: Vec<Splat>, node_bounds: NodeBounds) -> Self {
+    /// The accelerator over `splats`, its bounds holding the disks of `shape`.
+    fn build(kind: AccelArg, splats: Vec<Splat>, node_bounds: NodeBounds, shape: DiskShape) -> Self {
         match kind {
-            AccelArg::Bvh => AnyAccel::Bvh(Bvh::build(splats, &BvhParams { node_bounds, ..BvhParams::standard() })),
-            AccelArg::Kdtree => AnyAccel::KdTree(KdTree::build(splats, &KdTreeParams::standard())),
+            AccelArg::Bvh => {
+                AnyAccel::Bvh(Bvh::build(splats, &BvhParams { node_bounds, shape, ..BvhParams::standard() }))
+            }
+            AccelArg::Kdtree => {
+                AnyAccel::KdTree(KdTree::build(splats, &KdTreeParams { shape, ..KdTreeParams::standard() }))
+            }
             AccelArg::Brute => AnyAccel::Brute(BruteForce::new(splats)),
         }
     }
@@ -121,6 +126,10 @@ struct StatsReport {
     lod_stops_per_ray: f64,
     culled_per_ray: f64,
     blended_splats_per_hit: f64,
+    /// PSS projection steps per camera-ray hit (0 for the other schemes).
+    pss_steps_per_hit: f64,
+    /// Fraction of PSS hits that kept the SJ seed (the projection did not converge).
+    pss_fallback_fraction: f64,
     /// Level-of-detail threshold in pixels; null with `--lod off`.
     lod_threshold: Option<f32>,
     culling: CullingReport,
@@ -184,7 +193,7 @@ fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     ensure!(a.distance.is_none_or(|d| d > 0.0 && d.is_finite()), "--distance must be positive");
     ensure!(a.spp >= 1, "--spp must be at least 1");
     ensure!(a.threads.is_none_or(|t| (1..=1024).contains(&t)), "--threads must be between 1 and 1024");
-    ensure!(a.sj_window >= 0.0 && a.sj_window.is_finite(), "--sj-window must be a non-negative number");
+    ensure!(a.sj_window.is_none_or(|w| w >= 0.0 && w.is_finite()), "--sj-window must be a non-negative number");
     ensure!(a.sj_min_coverage >= 0.0 && a.sj_min_coverage.is_finite(), "--sj-min-coverage must be non-negative");
     ensure!(a.shadow_offset >= 0.0 && a.shadow_offset.is_finite(), "--shadow-offset must be non-negative");
     ensure!(a.lod_threshold > 0.0 && a.lod_threshold.is_finite(), "--lod-threshold must be a positive number");
@@ -222,7 +231,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     let mean_radius = splats.iter().map(|s| f64::from(s.radius)).sum::<f64>() / splats.len() as f64;
     let t = Instant::now();
     let spinner = crate::progress::spinner("build", quiet);
-    let accel = AnyAccel::build(a.accel, splats, a.sphere_from_level);
+    let accel = AnyAccel::build(a.accel, splats, a.sphere_from_level, surface_kind(a.surface).shape());
     spinner.finish_and_clear();
     let build_seconds = t.elapsed().as_secs_f64();
     tracing::info!("built {} over {} splats in {build_seconds:.3} s", accel.name(), cloud.len());
@@ -269,18 +278,17 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     if let Some(r) = a.region.filter(|_| region.pixel_count() == 0) {
         anyhow::bail!("--region {},{},{},{} lies outside the {}x{} frame", r.x0, r.y0, r.x1, r.y1, a.width, a.height);
     }
+    let defaults = SurfaceScheme::of_kind(surface_kind(a.surface));
     let scheme = SurfaceScheme {
-        window: a.sj_window,
-        min_coverage: if matches!(a.surface, SurfaceArg::Sj) { a.sj_min_coverage } else { 0.0 },
-        ..SurfaceScheme::of_kind(match a.surface {
-            SurfaceArg::Sj => SurfaceKind::Sj,
-            SurfaceArg::FirstHit => SurfaceKind::FirstHit,
-        })
+        window: a.sj_window.unwrap_or(defaults.window),
+        min_coverage: if matches!(a.surface, SurfaceArg::FirstHit) { 0.0 } else { a.sj_min_coverage },
+        ..defaults
     };
     // Level of detail lives in the BVH's and the kd-tree's nodes, normal cones in the BVH's
     // only; brute force traces at full detail. The statistics say what was used.
     let multires = matches!(a.accel, AccelArg::Bvh | AccelArg::Kdtree);
-    let cones = matches!(a.accel, AccelArg::Bvh);
+    // Ray-facing disks always face the ray: nothing to cull.
+    let cones = matches!(a.accel, AccelArg::Bvh) && scheme.kind.shape() == DiskShape::Oriented;
     let backfacing = (cones && a.cull == CullArg::Auto).then(|| accel.backfacing_fraction()).flatten();
     let cull_backfaces = cones
         && match a.cull {
@@ -358,6 +366,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
 
     if let Some(path) = &a.stats {
         let per_ray = |n: u64| if stats.rays == 0 { 0.0 } else { n as f64 / stats.rays as f64 };
+        let per_hit = |n: u64| if stats.primary_hits == 0 { 0.0 } else { n as f64 / stats.primary_hits as f64 };
         let (nodes, sphere_nodes, bytes_per_node) = accel.node_summary();
         let report = StatsReport {
             input: input_name,
@@ -395,11 +404,9 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
             sphere_nodes,
             bytes_per_node,
             nodes_visited_max_per_pixel: nodes_max,
-            blended_splats_per_hit: if stats.primary_hits == 0 {
-                0.0
-            } else {
-                stats.blended_splats as f64 / stats.primary_hits as f64
-            },
+            blended_splats_per_hit: per_hit(stats.blended_splats),
+            pss_steps_per_hit: per_hit(stats.traversal.pss_steps),
+            pss_fallback_fraction: per_hit(stats.traversal.pss_fallbacks),
             accel_bytes: accel.memory_bytes(),
             bytes_per_splat: accel.memory_bytes() as f64 / cloud.len() as f64,
             splat_bytes: cloud.len() * size_of::<Splat>(),
@@ -418,4 +425,13 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
 fn aov_path(output: &std::path::Path, kind: &str) -> std::path::PathBuf {
     let stem = output.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
     output.with_file_name(format!("{stem}.{kind}.png"))
+}
+
+fn surface_kind(arg: SurfaceArg) -> SurfaceKind {
+    match arg {
+        SurfaceArg::Sj => SurfaceKind::Sj,
+        SurfaceArg::Rfd => SurfaceKind::Rfd,
+        SurfaceArg::Pss => SurfaceKind::Pss,
+        SurfaceArg::FirstHit => SurfaceKind::FirstHit,
+    }
 }

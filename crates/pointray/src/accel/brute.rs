@@ -1,6 +1,7 @@
 use super::{Accel, SplatVisitor, TraversalStats};
 use crate::math::{Aabb, Ray};
-use crate::splat::Splat;
+use crate::splat::{DiskShape, Splat};
+use glam::Vec3;
 
 /// Tests every splat against every ray: O(n) per ray, correct by construction, the oracle the
 /// other accelerators are checked against.
@@ -27,6 +28,20 @@ impl Accel for BruteForce {
 
     fn bounds(&self) -> Aabb {
         self.bounds
+    }
+
+    /// Every splat reaches the visitor, whatever its shape.
+    fn shape(&self) -> DiskShape {
+        DiskShape::RayFacing
+    }
+
+    fn for_each_near<F: FnMut(u32, &Splat)>(&self, center: Vec3, radius: f32, stats: &mut TraversalStats, mut f: F) {
+        for (i, s) in self.splats.iter().enumerate() {
+            stats.splat_tests += 1;
+            if (s.center - center).length_squared() <= radius * radius {
+                f(i as u32, s);
+            }
+        }
     }
 
     fn memory_bytes(&self) -> usize {

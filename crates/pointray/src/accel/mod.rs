@@ -26,7 +26,8 @@ pub use culling::backfacing_fraction;
 pub use kdtree::{KdTree, KdTreeParams};
 
 use crate::math::{Aabb, Ray};
-use crate::splat::Splat;
+use crate::splat::{DiskShape, Splat};
+use glam::Vec3;
 
 /// Receives the splats an accelerator finds along a ray.
 pub trait SplatVisitor {
@@ -40,6 +41,9 @@ pub trait SplatVisitor {
     fn done(&self) -> bool {
         false
     }
+    /// The disks `visit` tests; the accelerators pre-filter by the same shape, and their bounds
+    /// must hold it (`Accel::shape`).
+    const SHAPE: DiskShape = DiskShape::Oriented;
 }
 
 /// Work counters of traversals; summed over rays and threads (integers, so the sums do not
@@ -59,6 +63,10 @@ pub struct TraversalStats {
     pub lod_stops: u64,
     /// Subtrees skipped because all their disks face away from the ray's origin.
     pub culled: u64,
+    /// Point-set surface projection steps (`splat::pss`), each a radius query.
+    pub pss_steps: u64,
+    /// Point-set surface hits that fell back to the seed (no convergence).
+    pub pss_fallbacks: u64,
 }
 
 impl std::ops::AddAssign for TraversalStats {
@@ -69,6 +77,8 @@ impl std::ops::AddAssign for TraversalStats {
         self.splat_tests += o.splat_tests;
         self.lod_stops += o.lod_stops;
         self.culled += o.culled;
+        self.pss_steps += o.pss_steps;
+        self.pss_fallbacks += o.pss_fallbacks;
     }
 }
 
@@ -89,6 +99,13 @@ pub trait Accel: Send + Sync {
     }
     /// Bounds of all the disks.
     fn bounds(&self) -> Aabb;
+    /// The disks the bounds were built to hold: a visitor of another shape may miss hits
+    /// unless it is held too ([`DiskShape::holds`]).
+    fn shape(&self) -> DiskShape;
+    /// Calls `f` with every input splat (its index and itself) whose centre lies within
+    /// `radius` of `center`, once each, in no particular order (the point-set surface's
+    /// neighbourhoods). Representatives are not included.
+    fn for_each_near<F: FnMut(u32, &Splat)>(&self, center: Vec3, radius: f32, stats: &mut TraversalStats, f: F);
     /// Bytes of the structure itself, excluding the splats.
     fn memory_bytes(&self) -> usize;
     /// Hands the visitor every splat the ray may cross in `[ray.t_min, visitor.t_max()]`,

@@ -4,7 +4,7 @@
 use glam::{Mat4, Vec4};
 
 use crate::math::Ray;
-use crate::splat::Splat;
+use crate::splat::{DiskShape, Splat};
 
 /// Disks tested together.
 pub(crate) const LANES: usize = 4;
@@ -84,6 +84,28 @@ impl PacketRay {
         let r2_den2 = disks.radius * disks.radius * den * den * (1.0 + SLACK);
         (in_range & q2.cmplt(r2_den2)).bitmask()
     }
+
+    /// As [`Self::candidates`], for ray-facing disks (`splat::ray_facing_disk::intersect`, lane
+    /// by lane): the centre's projection on the ray lies in `[t0, t1]` and within r of it.
+    #[inline(always)]
+    pub(crate) fn ray_facing_candidates(&self, disks: &DiskLanes, t0: f32, t1: f32) -> u32 {
+        let to_center: [Vec4; 3] = std::array::from_fn(|k| disks.center[k] - self.origin[k]);
+        let t = dot3(&to_center, &self.dir);
+        const SLACK: f32 = 1.0 / 16384.0;
+        let in_range = t.cmpge(Vec4::splat(t0 - t0.abs() * SLACK)) & t.cmple(Vec4::splat(t1 + t1.abs() * SLACK));
+        let q: [Vec4; 3] = std::array::from_fn(|k| to_center[k] - self.dir[k] * t);
+        let q2 = dot3(&q, &q);
+        (in_range & q2.cmplt(disks.radius * disks.radius * (1.0 + SLACK))).bitmask()
+    }
+
+    /// The candidates for the disks `shape` stands for.
+    #[inline(always)]
+    pub(crate) fn candidates_as(&self, shape: DiskShape, disks: &DiskLanes, t0: f32, t1: f32) -> u32 {
+        match shape {
+            DiskShape::Oriented => self.candidates(disks, t0, t1),
+            DiskShape::RayFacing => self.ray_facing_candidates(disks, t0, t1),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -93,12 +115,17 @@ mod tests {
 
     use super::*;
     use crate::math::RayCone;
-    use crate::splat::oriented_disk;
+    use crate::splat::{oriented_disk, ray_facing_disk};
 
     /// The pre-filter may pass disks the exact test rejects, never the other way round:
     /// otherwise an accelerator would miss hits that brute force finds.
     #[test]
     fn prefilter_never_rejects_an_exact_hit() {
+        check_prefilter(DiskShape::Oriented);
+        check_prefilter(DiskShape::RayFacing);
+    }
+
+    fn check_prefilter(shape: DiskShape) {
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
         let mut v =
             |lo: f32, hi: f32| Vec3::new(rng.random_range(lo..hi), rng.random_range(lo..hi), rng.random_range(lo..hi));
@@ -117,16 +144,23 @@ mod tests {
             let origin = v(-3.0, 3.0);
             let ray = Ray::new(origin, v(-1.0, 1.0) - origin, RayCone::default()).with_t_min(v(0.0, 0.5).x);
             let t_max = if v(0.0, 1.0).x < 0.5 { f32::INFINITY } else { v(0.5, 6.0).x };
-            let candidates = PacketRay::new(&ray).candidates(&disks, ray.t_min, t_max);
+            let candidates = PacketRay::new(&ray).candidates_as(shape, &disks, ray.t_min, t_max);
             assert_eq!(candidates >> lanes, 0, "an unused lane passed");
             for (lane, s) in splats.iter().enumerate() {
-                let exact = oriented_disk::intersect(&ray, s, t_max).is_some();
+                let exact = match shape {
+                    DiskShape::Oriented => oriented_disk::intersect(&ray, s, t_max),
+                    DiskShape::RayFacing => ray_facing_disk::intersect(&ray, s, t_max),
+                }
+                .is_some();
                 let passed = candidates & (1 << lane) != 0;
                 assert!(!exact || passed, "lane {lane} of {splats:?} rejected for {ray:?} up to {t_max}");
                 hits += usize::from(exact);
                 rejected += usize::from(!passed);
             }
         }
-        assert!(hits > 1_000 && rejected > 10_000, "the test must see both: {hits} hits, {rejected} rejections");
+        assert!(
+            hits > 1_000 && rejected > 10_000,
+            "{shape:?}: the test must see both: {hits} hits, {rejected} rejections"
+        );
     }
 }

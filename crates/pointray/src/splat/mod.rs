@@ -1,16 +1,69 @@
 //! Splats: oriented disks built from the points, and the ray–surface schemes over them.
 //!
-//! One file per kernel, as in Embree's `geometry/*_intersector.h`: [`oriented_disk`] is the
-//! exact ray–disk test; [`scheme`] turns the disks a ray crosses into one surface hit, either
-//! the first disk alone (`first-hit`) or the Schaufler–Jensen interpolation (`sj`).
+//! One file per kernel, as in Embree's `geometry/*_intersector.h`: [`oriented_disk`] and
+//! [`ray_facing_disk`] are the exact ray–disk tests (a splat as a disk in its tangent plane, or
+//! as a disk turned to face the ray); [`scheme`] turns the disks a ray crosses into one surface
+//! hit: the first disk alone (`first-hit`), an interpolation window over oriented disks
+//! (Schaufler–Jensen, `sj`) or over ray-facing disks (`rfd`, [`window`]), or the moving
+//! least-squares surface of the splats near the first hit (`pss`, [`pss`]).
 
 pub mod oriented_disk;
+pub mod pss;
+pub mod ray_facing_disk;
 pub mod scheme;
+pub mod window;
 
 use glam::Vec3;
 
 use crate::PointCloud;
-use crate::math::Aabb;
+use crate::math::{Aabb, Ray};
+use oriented_disk::DiskHit;
+
+/// The disk a splat stands for when a ray meets it. The accelerators' bounds must hold it: a
+/// ray-facing disk reaches r from its centre in every direction, an oriented disk only within
+/// its plane.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum DiskShape {
+    #[default]
+    Oriented,
+    RayFacing,
+}
+
+impl DiskShape {
+    /// Whether bounds built for `self` hold the disks of `other` too.
+    pub fn holds(self, other: DiskShape) -> bool {
+        self == other || self == DiskShape::RayFacing
+    }
+}
+
+/// A ray–disk test, chosen at compile time by the visitors of the surface schemes.
+pub trait DiskTest {
+    const SHAPE: DiskShape;
+    fn intersect(ray: &Ray, splat: &Splat, t_max: f32) -> Option<DiskHit>;
+}
+
+/// The disk in the splat's tangent plane ([`oriented_disk`]).
+pub struct Oriented;
+
+/// The disk turned to face the ray ([`ray_facing_disk`]).
+pub struct RayFacing;
+
+impl DiskTest for Oriented {
+    const SHAPE: DiskShape = DiskShape::Oriented;
+    #[inline(always)]
+    fn intersect(ray: &Ray, splat: &Splat, t_max: f32) -> Option<DiskHit> {
+        oriented_disk::intersect(ray, splat, t_max)
+    }
+}
+
+impl DiskTest for RayFacing {
+    const SHAPE: DiskShape = DiskShape::RayFacing;
+    #[inline(always)]
+    fn intersect(ray: &Ray, splat: &Splat, t_max: f32) -> Option<DiskHit> {
+        ray_facing_disk::intersect(ray, splat, t_max)
+    }
+}
 
 /// One surface element: a disk of `radius` around `center`, perpendicular to the unit `normal`.
 /// 32 bytes, so two share a cache line; the colour is packed sRGB8 (`0x00BBGGRR`).
@@ -31,6 +84,15 @@ impl Splat {
     pub fn bounds(&self) -> Aabb {
         let half = self.radius * (Vec3::ONE - self.normal * self.normal).max(Vec3::ZERO).sqrt();
         Aabb::new(self.center - half, self.center + half)
+    }
+
+    /// Bounds of the disk as `shape`: a ray-facing disk may turn any way, so its bounds are
+    /// those of the ball of radius r.
+    pub fn bounds_as(&self, shape: DiskShape) -> Aabb {
+        match shape {
+            DiskShape::Oriented => self.bounds(),
+            DiskShape::RayFacing => Aabb::new(self.center - self.radius, self.center + self.radius),
+        }
     }
 
     /// The colour in linear RGB (for shading and blending), through a table: no `powf` per hit.

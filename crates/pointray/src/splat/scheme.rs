@@ -8,6 +8,12 @@
 //!   disk's centre. This is SJ's Eq. 1. The thesis's Eq. 2.6 as printed weights by dᵢ itself,
 //!   which would favour the disks crossed farthest from their centres; RECONSTRUCTION.md (A2)
 //!   records that discrepancy and we follow SJ deliberately.
+//! * [`SurfaceKind::Rfd`]: the thesis's ray-facing disks (RECONSTRUCTION A10) in the same
+//!   window: a splat is met where the ray passes closest to its centre, within its radius;
+//!   dᵢ is that distance. The position comes from the splats' tangent planes (or, with
+//!   `tangent_planes` off, from the crossings themselves; `docs/surfaces.md` compares them).
+//! * [`SurfaceKind::Pss`]: the moving least-squares surface of Adamson & Alexa (2003),
+//!   reached by projection steps from the SJ hit ([`super::pss`]).
 //!
 //! δ = `window × r₀` (r₀ the first disk's radius): disks of one smooth surface cross the ray
 //! within a fraction of r of each other, while a surface behind it is farther away. Only disks
@@ -20,7 +26,8 @@
 
 use glam::Vec3;
 
-use super::{Splat, oriented_disk};
+use super::window::Window;
+use super::{DiskShape, DiskTest, Oriented, RayFacing, Splat, pss};
 use crate::accel::{Accel, SplatVisitor, TraversalStats};
 use crate::math::Ray;
 
@@ -28,6 +35,8 @@ use crate::math::Ray;
 #[serde(rename_all = "kebab-case")]
 pub enum SurfaceKind {
     Sj,
+    Rfd,
+    Pss,
     FirstHit,
 }
 
@@ -35,7 +44,17 @@ impl SurfaceKind {
     pub fn name(self) -> &'static str {
         match self {
             SurfaceKind::Sj => "sj",
+            SurfaceKind::Rfd => "rfd",
+            SurfaceKind::Pss => "pss",
             SurfaceKind::FirstHit => "first-hit",
+        }
+    }
+
+    /// The disks the scheme's rays test: the accelerator's bounds must hold them.
+    pub fn shape(self) -> DiskShape {
+        match self {
+            SurfaceKind::Rfd => DiskShape::RayFacing,
+            SurfaceKind::Sj | SurfaceKind::Pss | SurfaceKind::FirstHit => DiskShape::Oriented,
         }
     }
 }
@@ -44,29 +63,64 @@ impl SurfaceKind {
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct SurfaceScheme {
     pub kind: SurfaceKind,
-    /// SJ window δ in units of the first disk's radius.
+    /// SJ and RFD window δ in units of the first disk's radius.
     pub window: f32,
-    /// SJ: least coverage Σ(1 − dᵢ/rᵢ) a window must have to count as surface. On a covered
-    /// surface about eight disks overlap a point and the sum is near 2.5; a lone disk crossed at
-    /// its rim, sticking out past an edge or a silhouette, scores near 0, and the ray goes on
-    /// behind it.
+    /// SJ and RFD: least coverage Σ(1 − dᵢ/rᵢ) a window must have to count as surface. On a
+    /// covered surface about eight disks overlap a point and the sum is near 2.5; a lone disk
+    /// crossed at its rim, sticking out past an edge or a silhouette, scores near 0, and the
+    /// ray goes on behind it.
     pub min_coverage: f32,
+    /// RFD: blend the crossings' distances moved onto each splat's tangent plane, rather than
+    /// the distances of the centres' projections.
+    pub tangent_planes: bool,
+    /// PSS: the projection's settings.
+    pub pss: pss::PssParams,
 }
 
 impl SurfaceScheme {
     pub fn sj() -> Self {
-        Self { kind: SurfaceKind::Sj, window: 1.0, min_coverage: 0.15 }
+        Self {
+            kind: SurfaceKind::Sj,
+            window: 1.0,
+            min_coverage: 0.15,
+            tangent_planes: false,
+            pss: pss::PssParams::standard(),
+        }
+    }
+
+    /// RFD with a window of 2 r: the centres of one surface's splats project onto the ray up
+    /// to about r before and after where it crosses the surface, so a window of r holds only the
+    /// near half of them and tilts the normal (sphere: mean normal error 0.77° at r, 0.37° at 2 r,
+    /// 0.26° at 3 r; SJ 0.24°). Positions from the tangent planes: 0.02 spacings off the sphere
+    /// against 0.64 from the projections themselves (`tests/it/surfaces.rs`).
+    pub fn rfd() -> Self {
+        Self { kind: SurfaceKind::Rfd, window: 2.0, tangent_planes: true, ..Self::sj() }
+    }
+
+    pub fn pss() -> Self {
+        Self { kind: SurfaceKind::Pss, ..Self::sj() }
     }
 
     pub fn first_hit() -> Self {
-        Self { kind: SurfaceKind::FirstHit, window: 0.0, min_coverage: 0.0 }
+        Self { kind: SurfaceKind::FirstHit, window: 0.0, min_coverage: 0.0, ..Self::sj() }
     }
 
     pub fn of_kind(kind: SurfaceKind) -> Self {
         match kind {
             SurfaceKind::Sj => Self::sj(),
+            SurfaceKind::Rfd => Self::rfd(),
+            SurfaceKind::Pss => Self::pss(),
             SurfaceKind::FirstHit => Self::first_hit(),
         }
+    }
+
+    /// Secondary and shadow rays from a hit start this many of the hit's radii (times the
+    /// shadow offset) off the surface and ignore crossings as near to their origin. A ray-facing
+    /// disk of a neighbouring splat is met wherever the ray passes within its radius of the
+    /// centre, so RFD rays leave twice as far (SJ advise 1–3 r; on a plane lit at 21°, RFD with
+    /// 1 r showed 4 self-shadowed pixels of 4,096, with 2 r none: `tests/it/surfaces.rs`).
+    pub fn self_hit_radii(&self) -> f32 {
+        if self.kind == SurfaceKind::Rfd { 2.0 } else { 1.0 }
     }
 }
 
@@ -84,78 +138,123 @@ pub struct SurfaceHit {
     /// Index of the nearest disk, as [`Accel::splat`] takes it (a level-of-detail
     /// representative when `≥ accel.splats().len()`).
     pub splat: u32,
-    /// Number of disks blended (1 for first-hit).
+    /// Number of disks blended (1 for first-hit; the neighbours of the last step for PSS).
     pub blended: u32,
 }
 
 /// Closest hit along `ray` with the given scheme.
+///
+/// # Panics
+/// If the accelerator's bounds do not hold the scheme's disks (an RFD scheme needs an
+/// accelerator built for ray-facing disks; see [`Accel::shape`]).
 pub fn intersect<A: Accel + ?Sized>(
     accel: &A,
     ray: &Ray,
     scheme: &SurfaceScheme,
     stats: &mut TraversalStats,
 ) -> Option<SurfaceHit> {
+    let needs = scheme.kind.shape();
+    assert!(
+        accel.shape().holds(needs),
+        "the {} scheme needs an accelerator built for {needs:?} disks, not {:?}",
+        scheme.kind.name(),
+        accel.shape()
+    );
     match scheme.kind {
-        SurfaceKind::FirstHit => {
-            let mut v = Nearest { t_max: f32::INFINITY, best: None, best_key: [0; 8] };
-            accel.traverse(ray, &mut v, stats);
-            let (t, i) = v.best?;
-            let s = accel.splat(i);
-            Some(SurfaceHit {
-                t,
-                position: ray.at(t),
-                normal: facing(s.normal, ray.dir),
-                color: s.color_linear(),
-                radius: s.radius,
-                splat: i,
-                blended: 1,
-            })
-        }
-        SurfaceKind::Sj => {
-            let mut ray = *ray;
-            let mut weak = None;
-            for _ in 0..MAX_WEAK_WINDOWS {
-                let mut v = SjWindow::new(scheme.window, A::REPEATS_SPLATS);
-                accel.traverse(&ray, &mut v, stats);
-                if v.grew {
-                    // Crossings beyond an earlier, shorter end were turned away: collect the
-                    // final window again, now that its extent is known.
-                    v = SjWindow::fixed(scheme.window, A::REPEATS_SPLATS, v.end);
-                    accel.traverse(&ray, &mut v, stats);
-                }
-                // Nothing behind a weak window: it was the surface after all (a thinly covered
-                // spot), not a disk sticking out in front of one.
-                let Some((hit, coverage)) = v.blend(&ray, accel) else { return weak };
-                if coverage >= scheme.min_coverage {
-                    return Some(hit);
-                }
-                weak.get_or_insert(hit);
-                ray.t_min = v.end;
+        SurfaceKind::FirstHit => nearest(accel, ray, stats),
+        SurfaceKind::Sj => windowed::<A, Oriented>(accel, ray, scheme, stats),
+        SurfaceKind::Rfd => windowed::<A, RayFacing>(accel, ray, scheme, stats),
+        SurfaceKind::Pss => {
+            let seed = windowed::<A, Oriented>(accel, ray, scheme, stats)?;
+            // A level-of-detail representative already stands for the surface at the ray's
+            // footprint; projecting from it would gather the whole subtree (its bandwidth is
+            // its radius).
+            if seed.splat as usize >= accel.splats().len() {
+                return Some(seed);
             }
-            // Weak windows all the way: keep the first rather than open a hole.
-            weak
+            Some(pss::project(accel, ray, &seed, &scheme.pss, stats))
         }
     }
 }
 
-/// Most windows an SJ ray skips as too weakly covered before it settles for one.
-const MAX_WEAK_WINDOWS: usize = 4;
-
-/// Whether anything lies on `ray` before `t_max` (shadow rays). Any disk counts: a blocker
-/// needs no interpolation.
-pub fn occluded<A: Accel + ?Sized>(accel: &A, ray: &Ray, t_max: f32, stats: &mut TraversalStats) -> bool {
-    let mut v = AnyHit { t_max, hit: false };
+fn nearest<A: Accel + ?Sized>(accel: &A, ray: &Ray, stats: &mut TraversalStats) -> Option<SurfaceHit> {
+    let mut v = Nearest { t_max: f32::INFINITY, best: None, best_key: [0; 8] };
     accel.traverse(ray, &mut v, stats);
-    v.hit
+    let (t, i) = v.best?;
+    let s = accel.splat(i);
+    Some(SurfaceHit {
+        t,
+        position: ray.at(t),
+        normal: facing(s.normal, ray.dir),
+        color: s.color_linear(),
+        radius: s.radius,
+        splat: i,
+        blended: 1,
+    })
 }
 
-fn facing(n: Vec3, dir: Vec3) -> Vec3 {
+/// The SJ or RFD window, skipping weakly covered ones.
+fn windowed<A: Accel + ?Sized, D: DiskTest>(
+    accel: &A,
+    ray: &Ray,
+    scheme: &SurfaceScheme,
+    stats: &mut TraversalStats,
+) -> Option<SurfaceHit> {
+    let tangent_planes = scheme.tangent_planes && D::SHAPE == DiskShape::RayFacing;
+    let mut ray = *ray;
+    let mut weak = None;
+    for _ in 0..MAX_WEAK_WINDOWS {
+        let mut v = Window::<D>::new(scheme.window, A::REPEATS_SPLATS);
+        accel.traverse(&ray, &mut v, stats);
+        if v.grew {
+            // Crossings beyond an earlier, shorter end were turned away: collect the final
+            // window again, now that its extent is known.
+            v = Window::fixed(scheme.window, A::REPEATS_SPLATS, v.end);
+            accel.traverse(&ray, &mut v, stats);
+        }
+        // Nothing behind a weak window: it was the surface after all (a thinly covered spot),
+        // not a disk sticking out in front of one.
+        let Some((hit, coverage)) = v.blend(&ray, accel, tangent_planes) else { return weak };
+        if coverage >= scheme.min_coverage {
+            return Some(hit);
+        }
+        weak.get_or_insert(hit);
+        ray.t_min = v.end;
+    }
+    // Weak windows all the way: keep the first rather than open a hole.
+    weak
+}
+
+/// Most windows a ray skips as too weakly covered before it settles for one.
+const MAX_WEAK_WINDOWS: usize = 4;
+
+/// Whether anything lies on `ray` before `t_max` (shadow rays), as the scheme's disks. Any
+/// disk counts: a blocker needs no interpolation.
+pub fn occluded<A: Accel + ?Sized>(
+    accel: &A,
+    ray: &Ray,
+    t_max: f32,
+    scheme: &SurfaceScheme,
+    stats: &mut TraversalStats,
+) -> bool {
+    fn any<A: Accel + ?Sized, D: DiskTest>(accel: &A, ray: &Ray, t_max: f32, stats: &mut TraversalStats) -> bool {
+        let mut v = AnyHit::<D> { t_max, hit: false, disk: std::marker::PhantomData };
+        accel.traverse(ray, &mut v, stats);
+        v.hit
+    }
+    match scheme.kind.shape() {
+        DiskShape::Oriented => any::<A, Oriented>(accel, ray, t_max, stats),
+        DiskShape::RayFacing => any::<A, RayFacing>(accel, ray, t_max, stats),
+    }
+}
+
+pub(crate) fn facing(n: Vec3, dir: Vec3) -> Vec3 {
     if n.dot(dir) > 0.0 { -n } else { n }
 }
 
 /// Total order on splats by their contents, to break exact ties in `t` the same way whatever
 /// order an accelerator visits them in (coincident duplicates occur in real scans).
-fn tie_key(s: &Splat) -> [u32; 8] {
+pub(crate) fn tie_key(s: &Splat) -> [u32; 8] {
     let (c, n) = (s.center, s.normal);
     let b = f32::to_bits;
     [b(c.x), b(c.y), b(c.z), b(s.radius), b(n.x), b(n.y), b(n.z), s.color]
@@ -174,7 +273,7 @@ impl SplatVisitor for Nearest {
 
     #[inline(always)]
     fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32) {
-        let Some(h) = oriented_disk::intersect(ray, splat, self.t_max) else { return };
+        let Some(h) = Oriented::intersect(ray, splat, self.t_max) else { return };
         let better = match self.best {
             Some((t, _)) => h.t < t || (h.t == t && tie_key(splat) < self.best_key),
             None => true,
@@ -187,172 +286,28 @@ impl SplatVisitor for Nearest {
     }
 }
 
-struct AnyHit {
+struct AnyHit<D> {
     t_max: f32,
     hit: bool,
+    disk: std::marker::PhantomData<D>,
 }
 
-impl SplatVisitor for AnyHit {
+impl<D: DiskTest> SplatVisitor for AnyHit<D> {
+    const SHAPE: DiskShape = D::SHAPE;
+
     fn t_max(&self) -> f32 {
         self.t_max
     }
 
     #[inline(always)]
     fn visit(&mut self, ray: &Ray, splat: &Splat, _index: u32) {
-        if oriented_disk::intersect(ray, splat, self.t_max).is_some() {
+        if D::intersect(ray, splat, self.t_max).is_some() {
             self.hit = true;
         }
     }
 
     fn done(&self) -> bool {
         self.hit
-    }
-}
-
-/// Most disks a window holds; on a smooth surface a ray crosses a handful (about the mean
-/// overlap, πr²·density). Past the cap the farthest crossing is dropped; only then can the
-/// order in which disks arrive matter (with more than this many crossings, ties for last).
-const WINDOW_CAPACITY: usize = 24;
-
-#[derive(Clone, Copy, Default)]
-struct Crossing {
-    t: f32,
-    dist2: f32,
-    index: u32,
-}
-
-/// Collects the disks crossed within `[t₀, t₀ + δ]` of the nearest crossing t₀ found so far.
-/// The accelerator culls against `t_max() = t₀ + δ`, so it keeps delivering every disk that
-/// may still belong to the window, and the window shrinks as nearer crossings turn up.
-struct SjWindow {
-    window: f32,
-    end: f32,
-    /// Nearest crossing so far (the window's start).
-    first_t: f32,
-    /// The end is known in advance and never moves (a second pass).
-    fixed: bool,
-    /// The end moved outwards during the walk (a tie at the first crossing with a wider disk,
-    /// or a nearer first crossing with a wider disk): crossings may have been turned away
-    /// against the shorter end, so the window must be collected again.
-    grew: bool,
-    /// The accelerator may hand a splat over again (`Accel::REPEATS_SPLATS`): repeats are
-    /// looked for and ignored.
-    repeats: bool,
-    len: usize,
-    crossings: [Crossing; WINDOW_CAPACITY],
-}
-
-impl SjWindow {
-    fn new(window: f32, repeats: bool) -> Self {
-        Self {
-            window,
-            end: f32::INFINITY,
-            first_t: f32::INFINITY,
-            fixed: false,
-            grew: false,
-            repeats,
-            len: 0,
-            crossings: [Crossing::default(); WINDOW_CAPACITY],
-        }
-    }
-
-    /// A window that collects every crossing up to `end`.
-    fn fixed(window: f32, repeats: bool, end: f32) -> Self {
-        Self { end, fixed: true, ..Self::new(window, repeats) }
-    }
-
-    /// The blended hit and the window's coverage Σ(1 − dᵢ/rᵢ) over the blended disks.
-    fn blend<A: Accel + ?Sized>(&mut self, ray: &Ray, accel: &A) -> Option<(SurfaceHit, f32)> {
-        let list = &mut self.crossings[..self.len];
-        // Sum in a fixed order (by t, then by splat contents) so that every accelerator, which
-        // visits disks in its own order, blends to the same bits.
-        list.sort_unstable_by(|a, b| {
-            a.t.total_cmp(&b.t).then_with(|| tie_key(accel.splat(a.index)).cmp(&tie_key(accel.splat(b.index))))
-        });
-        let first = *list.first()?;
-        let first_splat = accel.splat(first.index);
-        // Blend the disks facing the same way as the first: the back of a thin part may lie
-        // within the window.
-        let side = first_splat.normal.dot(ray.dir) > 0.0;
-        let (mut wsum, mut t, mut n, mut c) = (0.0f32, 0.0f32, Vec3::ZERO, Vec3::ZERO);
-        let mut blended = 0;
-        let mut coverage = 0.0;
-        for x in list.iter() {
-            let s = accel.splat(x.index);
-            if (s.normal.dot(ray.dir) > 0.0) != side {
-                continue;
-            }
-            // SJ Eq. 1: wᵢ = rᵢ − dᵢ. Positive for every accepted crossing (dᵢ < rᵢ).
-            let w = s.radius - x.dist2.sqrt();
-            coverage += w / s.radius;
-            wsum += w;
-            t += w * x.t;
-            n += w * s.normal;
-            c += w * Vec3::from(s.color_linear());
-            blended += 1;
-        }
-        let (t, n, c) = if wsum > 0.0 && n.length_squared() > 0.0 {
-            (t / wsum, n.normalize(), c / wsum)
-        } else {
-            // Crossings exactly on the rims carry no weight: fall back to the first disk.
-            (first.t, first_splat.normal, Vec3::from(first_splat.color_linear()))
-        };
-        let hit = SurfaceHit {
-            t,
-            position: ray.at(t),
-            normal: facing(n, ray.dir),
-            color: c.to_array(),
-            radius: first_splat.radius,
-            splat: first.index,
-            blended: blended.max(1),
-        };
-        Some((hit, coverage))
-    }
-}
-
-impl SplatVisitor for SjWindow {
-    fn t_max(&self) -> f32 {
-        self.end
-    }
-
-    #[inline]
-    fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32) {
-        let Some(h) = oriented_disk::intersect(ray, splat, self.end) else { return };
-        let first_t = self.first_t;
-        if !self.fixed && h.t <= first_t {
-            self.first_t = h.t;
-            // The window reaches `window` radii past the first crossing; of disks tied for
-            // first, the widest decides, whatever order they arrive in.
-            let end = h.t + self.window * splat.radius;
-            let end = if h.t == first_t { end.max(self.end) } else { end };
-            if end > self.end {
-                self.grew |= self.end.is_finite();
-            } else {
-                let mut kept = 0;
-                for i in 0..self.len {
-                    if self.crossings[i].t <= end {
-                        self.crossings[kept] = self.crossings[i];
-                        kept += 1;
-                    }
-                }
-                self.len = kept;
-            }
-            self.end = end;
-        }
-        // A kd-tree hands a disk that straddles cells over once per cell. (The window's start
-        // and end above are the same for a repeat.)
-        if self.repeats && self.crossings[..self.len].iter().any(|c| c.index == index) {
-            return;
-        }
-        let c = Crossing { t: h.t, dist2: h.dist2, index };
-        if self.len < WINDOW_CAPACITY {
-            self.crossings[self.len] = c;
-            self.len += 1;
-        } else if let Some(far) = self.crossings.iter_mut().max_by(|a, b| a.t.total_cmp(&b.t))
-            && c.t < far.t
-        {
-            *far = c;
-        }
     }
 }
 

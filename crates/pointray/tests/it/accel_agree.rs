@@ -4,8 +4,8 @@
 use glam::Vec3;
 use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, TraversalStats};
 use pointray::math::Aabb;
-use pointray::splat::Splat;
-use pointray::splat::scheme::{self, SurfaceScheme};
+use pointray::splat::scheme::{self, SurfaceKind, SurfaceScheme};
+use pointray::splat::{DiskShape, Splat};
 
 use crate::util::{random_rays, sphere_splats, torus_splats};
 
@@ -23,17 +23,22 @@ fn kdtree(splats: &[Splat], params: &KdTreeParams) -> KdTree {
     tree
 }
 
-/// Compares closest hits (first-hit and SJ) and shadow queries of `accel`, built over
-/// `splats`, against brute force, over `rays` random rays. Returns how many rays hit.
+/// Compares closest hits (first-hit, SJ, PSS on every eighth ray, and RFD if the accelerator
+/// holds ray-facing disks) and shadow queries of `accel`, built over `splats`, against brute
+/// force, over `rays` random rays. Returns how many rays hit.
 fn check_agreement(splats: &[Splat], accel: &impl Accel, rays: usize, seed: u64) -> usize {
     let brute = BruteForce::new(splats.to_vec());
     let target = if splats.is_empty() { Aabb::new(Vec3::splat(-1.0), Vec3::ONE) } else { brute.bounds() };
+    let mut schemes = vec![SurfaceScheme::first_hit(), SurfaceScheme::sj(), SurfaceScheme::pss()];
+    if accel.shape() == DiskShape::RayFacing {
+        schemes.push(SurfaceScheme::rfd());
+    }
     let mut hits = 0;
     for (i, ray) in random_rays(rays, &target, seed).iter().enumerate() {
-        for scheme in [SurfaceScheme::first_hit(), SurfaceScheme::sj()] {
+        for scheme in schemes.iter().filter(|s| s.kind != SurfaceKind::Pss || i % 8 == 0) {
             let mut s = TraversalStats::default();
-            let a = scheme::intersect(&brute, ray, &scheme, &mut s);
-            let b = scheme::intersect(accel, ray, &scheme, &mut s);
+            let a = scheme::intersect(&brute, ray, scheme, &mut s);
+            let b = scheme::intersect(accel, ray, scheme, &mut s);
             match (a, b) {
                 (None, None) => {}
                 (Some(a), Some(b)) => {
@@ -52,11 +57,14 @@ fn check_agreement(splats: &[Splat], accel: &impl Accel, rays: usize, seed: u64)
             }
         }
         let mut s = TraversalStats::default();
-        for t_max in [0.5 * target.diagonal(), f32::INFINITY] {
+        // Shadow rays depend only on the disk shape: one scheme per shape.
+        let shapes = schemes.iter().filter(|s| matches!(s.kind, SurfaceKind::Sj | SurfaceKind::Rfd));
+        for (scheme, t_max) in shapes.flat_map(|s| [(s, 0.5 * target.diagonal()), (s, f32::INFINITY)]) {
             assert_eq!(
-                scheme::occluded(&brute, ray, t_max, &mut s),
-                scheme::occluded(accel, ray, t_max, &mut s),
-                "ray {i}: occlusion differs"
+                scheme::occluded(&brute, ray, t_max, scheme, &mut s),
+                scheme::occluded(accel, ray, t_max, scheme, &mut s),
+                "ray {i} {:?}: occlusion differs",
+                scheme.kind
             );
         }
     }
@@ -173,4 +181,48 @@ fn kdtree_splits_space_and_tests_few_disks_per_ray() {
     let per_ray = stats.splat_tests as f64 / rays.len() as f64;
     // 107 measured: random rays cross the sphere's empty inside and its shell twice.
     assert!(per_ray < 125.0, "{per_ray} splat tests per ray");
+}
+
+/// Built for ray-facing disks (their balls bounded), both accelerators find exactly the RFD
+/// hits of brute force, and still the oriented disks' ones.
+#[test]
+fn accelerators_built_for_ray_facing_disks_match_brute_force() {
+    let sphere = sphere_splats(20_000, 1.0, 1);
+    let torus = torus_splats(20_000, 2);
+    for node_bounds in [NodeBounds::Boxes, NodeBounds::SpheresFrom(0)] {
+        let params = BvhParams { node_bounds, shape: DiskShape::RayFacing, ..BvhParams::standard() };
+        assert!(check_agreement(&sphere, &bvh(&sphere, &params), 2_000, 21) > 1_000);
+        assert!(check_agreement(&torus, &bvh(&torus, &params), 2_000, 22) > 700);
+    }
+    let params = KdTreeParams { shape: DiskShape::RayFacing, ..KdTreeParams::standard() };
+    assert!(check_agreement(&sphere, &kdtree(&sphere, &params), 2_000, 23) > 1_000);
+    assert!(check_agreement(&torus, &kdtree(&torus, &params), 2_000, 24) > 700);
+}
+
+/// The radius query reports each splat within the radius exactly once, as brute force does.
+#[test]
+fn radius_queries_match_brute_force() {
+    fn near(accel: &impl Accel, center: Vec3, radius: f32) -> Vec<[u32; 3]> {
+        let mut found = Vec::new();
+        accel.for_each_near(center, radius, &mut TraversalStats::default(), |_, s| {
+            found.push(s.center.to_array().map(f32::to_bits))
+        });
+        found.sort_unstable();
+        found
+    }
+    let splats = torus_splats(20_000, 3);
+    let brute = BruteForce::new(splats.clone());
+    let bvh = bvh(&splats, &BvhParams::standard());
+    let kd = kdtree(&splats, &KdTreeParams::standard());
+    let mut total = 0;
+    // Around splats (an offset along random directions) and at random places.
+    for (i, ray) in random_rays(300, &brute.bounds(), 4).iter().enumerate() {
+        let c = if i % 2 == 0 { splats[i * 61].center + ray.dir * 0.02 } else { ray.origin };
+        let r = [0.01, 0.05, 0.2][i % 3];
+        let expected = near(&brute, c, r);
+        assert_eq!(expected, near(&bvh, c, r), "query {i}: BVH");
+        assert_eq!(expected, near(&kd, c, r), "query {i}: kd-tree (a straddling splat reported twice?)");
+        total += expected.len();
+    }
+    assert!(total > 1_000, "the queries must find neighbours: {total}");
 }

@@ -5,4 +5,5 @@ mod accel_agree;
 mod analytic;
 mod determinism;
 mod multires;
+mod surfaces;
 mod util;

@@ -38,6 +38,13 @@ pub fn torus_splats(n: usize, seed: u64) -> Vec<Splat> {
     splats(centers, normals, |_| pack_color([0.9, 0.6, 0.2]))
 }
 
+/// `n` splats uniformly on the square [−1, 1]² of the plane z = 0, normals +z.
+pub fn plane_splats(n: usize, seed: u64) -> Vec<Splat> {
+    let mut rng = rng(seed);
+    let centers = (0..n).map(|_| Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), 0.0)).collect();
+    splats(centers, vec![Vec3::Z; n], |_| pack_color([0.5, 0.7, 0.3]))
+}
+
 /// Random rays aimed at random points of `target`'s box from all around it: some hit, some
 /// graze, some miss.
 pub fn random_rays(n: usize, target: &pointray::math::Aabb, seed: u64) -> Vec<pointray::math::Ray> {

@@ -10,7 +10,7 @@ use super::{
 };
 use crate::accel::representative::{LOD_FLOOR_QUANTILE, radius_quantile};
 use crate::math::Aabb;
-use crate::splat::Splat;
+use crate::splat::{DiskShape, Splat};
 
 /// Build parameters, with named presets (as in obvhs).
 #[derive(Clone, Copy, Debug, serde::Serialize)]
@@ -26,6 +26,8 @@ pub struct BvhParams {
     pub intersection_cost: f32,
     /// Which bounds the nodes test (it changes no hit, only the work).
     pub node_bounds: NodeBounds,
+    /// The disks the bounds hold: ray-facing disks need the splats' balls.
+    pub shape: DiskShape,
 }
 
 impl BvhParams {
@@ -38,6 +40,7 @@ impl BvhParams {
             traversal_cost: 2.0,
             intersection_cost: 1.0,
             node_bounds: NodeBounds::Boxes,
+            shape: DiskShape::Oriented,
         }
     }
 
@@ -91,7 +94,7 @@ impl Bvh {
             .iter()
             .enumerate()
             .map(|(i, s)| {
-                let bounds = s.bounds();
+                let bounds = s.bounds_as(params.shape);
                 Prim { bounds, centroid: bounds.center(), index: i as u32 }
             })
             .collect();
@@ -106,7 +109,7 @@ impl Bvh {
             BuildNode::Leaf { count: 0, .. } => 0, // no splats: no nodes
             root => flatten(root, &splats, &mut nodes, &mut packets),
         };
-        let (lod, representatives) = super::lod::build(&mut nodes, &splats, &packets);
+        let (lod, representatives) = super::lod::build(&mut nodes, &splats, &packets, params.shape);
         splats.extend(representatives);
         let lod_floor = radius_quantile(nodes.iter().map(|n| n.min_radius).collect(), LOD_FLOOR_QUANTILE);
         let mut bvh = Bvh {
@@ -120,6 +123,7 @@ impl Bvh {
             depth,
             node_bounds: NodeBounds::Boxes,
             lod_floor,
+            shape: params.shape,
         };
         bvh.set_node_bounds(params.node_bounds);
         bvh

@@ -17,7 +17,7 @@ use rayon::prelude::*;
 
 use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, SplatPacket, WIDTH, leaf_packets};
 use crate::accel::representative::{Representative, representative};
-use crate::splat::Splat;
+use crate::splat::{DiskShape, Splat};
 
 /// What the multiresolution traversal knows of a node's four children besides their boxes,
 /// four lanes side by side like [`Node`]'s planes. Unused slots have radius 0 and a cone that
@@ -84,9 +84,12 @@ struct ChildLod {
     rep: Splat,
 }
 
-/// Distance from `p` to the farthest point of the disk `s`.
-fn farthest(p: DVec3, s: &Splat) -> f64 {
+/// Distance from `p` to the farthest point of the disk `s` (of its ball, for ray-facing disks).
+fn farthest(p: DVec3, s: &Splat, disks: DiskShape) -> f64 {
     let d = s.center.as_dvec3() - p;
+    if disks == DiskShape::RayFacing {
+        return d.length() + f64::from(s.radius);
+    }
     let n = s.normal.as_dvec3();
     let h = d.dot(n);
     let in_plane = (d - h * n).length();
@@ -98,9 +101,9 @@ fn round_up(x: f64) -> f32 {
     (x * (1.0 + 1e-6)) as f32 + f32::MIN_POSITIVE
 }
 
-fn child_lod(box_center: Vec3, disks: &[Splat]) -> ChildLod {
+fn child_lod(box_center: Vec3, disks: &[Splat], shape: DiskShape) -> ChildLod {
     let c = box_center.as_dvec3();
-    let radius = round_up(disks.iter().map(|s| farthest(c, s)).fold(0.0, f64::max));
+    let radius = round_up(disks.iter().map(|s| farthest(c, s, shape)).fold(0.0, f64::max));
     let Representative { splat: rep, coherent } = representative(disks.iter());
     let axis = rep.normal.as_dvec3();
     let cos_angle = if coherent {
@@ -116,7 +119,12 @@ fn child_lod(box_center: Vec3, disks: &[Splat]) -> ChildLod {
 /// Level-of-detail payload of every node (`lod[k]` for `nodes[k]`) and the representative
 /// splats, four per node: child `i` of node `k` is `reps[WIDTH * k + i]`.
 /// Also sets every node's level-of-detail slots and `min_radius`.
-pub(super) fn build(nodes: &mut [Node], splats: &[Splat], packets: &[SplatPacket]) -> (Vec<NodeLod>, Vec<Splat>) {
+pub(super) fn build(
+    nodes: &mut [Node],
+    splats: &[Splat],
+    packets: &[SplatPacket],
+    shape: DiskShape,
+) -> (Vec<NodeLod>, Vec<Splat>) {
     let ranges = node_ranges(nodes, packets);
     let per_node: Vec<(NodeLod, [Splat; WIDTH])> = nodes
         .par_iter()
@@ -124,7 +132,7 @@ pub(super) fn build(nodes: &mut [Node], splats: &[Splat], packets: &[SplatPacket
             let children: [Option<ChildLod>; WIDTH] = std::array::from_fn(|i| {
                 (n.used & (1 << i) != 0).then(|| {
                     let disks = &splats[child_range(n.child[i], packets, &ranges)];
-                    child_lod(n.child_bounds(i).center(), disks)
+                    child_lod(n.child_bounds(i).center(), disks, shape)
                 })
             });
             let lane = |f: &dyn Fn(&ChildLod) -> f32, unused: f32| {
@@ -191,7 +199,7 @@ pub(super) fn check_invariants(bvh: &Bvh) -> Result<(), String> {
             let center = Vec3::new(l.center[0][i], l.center[1][i], l.center[2][i]);
             let axis = Vec3::new(l.axis[0][i], l.axis[1][i], l.axis[2][i]);
             for s in &bvh.splats[child_range(n.child[i], &bvh.packets, &ranges)] {
-                let far = farthest(center.as_dvec3(), s);
+                let far = farthest(center.as_dvec3(), s, bvh.shape);
                 if far > f64::from(l.radius[i]) {
                     return Err(format!("node {k} child {i}: sphere {center} r {} misses {s:?} ({far})", l.radius[i]));
                 }
@@ -220,15 +228,16 @@ mod tests {
     #[test]
     fn farthest_point_of_a_disk() {
         let s = Splat { center: Vec3::new(3.0, 0.0, 0.0), radius: 1.0, normal: Vec3::Z, color: 0 };
-        assert!((farthest(DVec3::ZERO, &s) - 4.0).abs() < 1e-12);
+        assert!((farthest(DVec3::ZERO, &s, DiskShape::Oriented) - 4.0).abs() < 1e-12);
         let s = Splat { normal: Vec3::X, ..s };
-        assert!((farthest(DVec3::ZERO, &s) - 10f64.sqrt()).abs() < 1e-12);
+        assert!((farthest(DVec3::ZERO, &s, DiskShape::Oriented) - 10f64.sqrt()).abs() < 1e-12);
+        assert!((farthest(DVec3::ZERO, &s, DiskShape::RayFacing) - 4.0).abs() < 1e-12);
     }
 
     #[test]
     fn representative_of_one_disk_is_the_disk() {
         let s = Splat { center: Vec3::new(1.0, 2.0, 3.0), radius: 0.5, normal: Vec3::Y, color: 0x00_80_40_20 };
-        let c = child_lod(s.center, &[s]);
+        let c = child_lod(s.center, &[s], DiskShape::Oriented);
         assert_eq!(c.rep, s);
         assert!(c.cos_angle > 0.9999 && (c.radius - 0.5).abs() < 1e-5);
     }
@@ -237,6 +246,6 @@ mod tests {
     fn opposite_normals_never_cull() {
         let a = Splat { center: Vec3::ZERO, radius: 0.5, normal: Vec3::Z, color: 0 };
         let b = Splat { normal: -Vec3::Z, ..a };
-        assert_eq!(child_lod(Vec3::ZERO, &[a, b]).cos_angle, -1.0);
+        assert_eq!(child_lod(Vec3::ZERO, &[a, b], DiskShape::Oriented).cos_angle, -1.0);
     }
 }

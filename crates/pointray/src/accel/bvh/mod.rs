@@ -23,7 +23,7 @@ use glam::{Vec3, Vec4};
 
 use crate::accel::packet::{DiskLanes, LANES};
 use crate::math::Aabb;
-use crate::splat::Splat;
+use crate::splat::{DiskShape, Splat};
 
 /// A child reference is a node index, or for a leaf
 /// `LEAF | (packets − 1) << FIRST_BITS | first packet`: one word on the traversal stack says
@@ -156,6 +156,8 @@ pub struct Bvh {
     /// traversal, forgoing stops only at nodes among the smallest 5 %, where they would save
     /// little. Close up, that keeps level of detail free.
     pub(crate) lod_floor: f32,
+    /// The disks the bounds hold.
+    pub(crate) shape: DiskShape,
 }
 
 impl Bvh {
@@ -222,6 +224,50 @@ impl super::Accel for Bvh {
         self.bounds
     }
 
+    fn shape(&self) -> DiskShape {
+        self.shape
+    }
+
+    fn for_each_near<F: FnMut(u32, &Splat)>(
+        &self,
+        center: Vec3,
+        radius: f32,
+        stats: &mut super::TraversalStats,
+        mut f: F,
+    ) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        let r2 = radius * radius;
+        let mut stack = vec![0u32];
+        while let Some(k) = stack.pop() {
+            let n = &self.nodes[k as usize];
+            stats.nodes_visited += 1;
+            // Squared distance from the centre to each child's box (unused slots: infinite).
+            let gap = |axis: usize| {
+                let c = Vec4::splat(center[axis]);
+                (n.planes[axis] - c).max(c - n.planes[3 + axis]).max(Vec4::ZERO)
+            };
+            let (gx, gy, gz) = (gap(0), gap(1), gap(2));
+            let mut near = (gx * gx + gy * gy + gz * gz).cmple(Vec4::splat(r2)).bitmask() & (n.used & SLOTS);
+            while near != 0 {
+                let child = n.child[near.trailing_zeros() as usize];
+                near &= near - 1;
+                if child & LEAF == 0 {
+                    stack.push(child);
+                    continue;
+                }
+                for j in leaf_packets(child).flat_map(|p| self.packets[p].indices()) {
+                    let s = &self.splats[j];
+                    stats.splat_tests += 1;
+                    if (s.center - center).length_squared() <= r2 {
+                        f(j as u32, s);
+                    }
+                }
+            }
+        }
+    }
+
     fn memory_bytes(&self) -> usize {
         self.nodes.len() * Self::NODE_BYTES
             + self.packets.len() * size_of::<SplatPacket>()
@@ -260,7 +306,7 @@ pub fn check_invariants(bvh: &Bvh) -> Result<(), String> {
                     if std::mem::replace(flag, true) {
                         return Err(format!("splat {j} is in two leaves"));
                     }
-                    b.push(bvh.splats[j].bounds());
+                    b.push(bvh.splats[j].bounds_as(bvh.shape));
                 }
                 b
             } else {

@@ -203,7 +203,7 @@ fn traverse_from<V: SplatVisitor, const MULTIRES: bool>(
             if child & LEAF != 0 {
                 for packet in &bvh.packets[leaf_packets(child)] {
                     stats.splat_tests += u64::from(packet.count);
-                    let mut lanes = slab.ray.candidates(&packet.disks, ray.t_min, visitor.t_max());
+                    let mut lanes = slab.ray.candidates_as(V::SHAPE, &packet.disks, ray.t_min, visitor.t_max());
                     while lanes != 0 {
                         let i = packet.first as usize + lanes.trailing_zeros() as usize;
                         lanes &= lanes - 1;

@@ -11,7 +11,7 @@ use super::{KdNode, KdTree};
 use crate::accel::packet::{LANES, NO_DISK};
 use crate::accel::representative::{LOD_FLOOR_QUANTILE, radius_quantile, representative};
 use crate::math::Aabb;
-use crate::splat::Splat;
+use crate::splat::{DiskShape, Splat};
 
 /// Build parameters, with named presets.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
@@ -28,6 +28,8 @@ pub struct KdTreeParams {
     pub max_leaf_size: usize,
     /// Deepest level; `None`: 8 + 1.3·log₂ n (pbrt's rule).
     pub max_depth: Option<usize>,
+    /// The disks the cells must hold: ray-facing disks need the splats' balls.
+    pub shape: DiskShape,
 }
 
 /// Hard limit on the depth, which the traversal stack is sized for.
@@ -53,6 +55,7 @@ impl KdTreeParams {
             empty_bonus: 0.5,
             max_leaf_size: 2,
             max_depth: None,
+            shape: DiskShape::Oriented,
         }
     }
 
@@ -75,8 +78,8 @@ impl KdTreeParams {
 
 /// A splat's box, padded by a few ulps of its coordinates and a little of its radius: the
 /// rounding of the tight box must not leave out a point the disk test accepts.
-pub(super) fn padded_bounds(s: &Splat) -> Aabb {
-    let b = s.bounds();
+pub(super) fn padded_bounds(s: &Splat, shape: DiskShape) -> Aabb {
+    let b = s.bounds_as(shape);
     let pad = b.min.abs().max(b.max.abs()) * (8.0 * f32::EPSILON) + Vec3::splat(s.radius * 1e-4);
     Aabb::new(b.min - pad, b.max + pad)
 }
@@ -98,7 +101,7 @@ impl KdTree {
     pub fn build(splats: Vec<Splat>, params: &KdTreeParams) -> Self {
         assert!((2..=MAX_BINS).contains(&params.bins), "the build needs 2 to {MAX_BINS} bins");
         assert!(splats.len() <= u32::MAX as usize, "too many splats for a kd-tree");
-        let boxes: Vec<Aabb> = splats.par_iter().map(padded_bounds).collect();
+        let boxes: Vec<Aabb> = splats.par_iter().map(|s| padded_bounds(s, params.shape)).collect();
         let bounds = boxes.iter().fold(Aabb::EMPTY, |b, s| b.union(*s));
         let with_padding = |mut splats: Vec<Splat>| {
             splats.push(NO_DISK);
@@ -106,7 +109,7 @@ impl KdTree {
         };
         if splats.is_empty() {
             let (nodes, refs, reps, disks) = (Vec::new(), Vec::new(), Vec::new(), with_padding(splats));
-            return Self { nodes, refs, disks, reps, lod_floor: f32::INFINITY, bounds, depth: 0 };
+            return Self { nodes, refs, disks, reps, lod_floor: f32::INFINITY, bounds, depth: 0, shape: params.shape };
         }
         let n = splats.len();
         let max_depth =
@@ -119,7 +122,7 @@ impl KdTree {
         assert!(n + nodes.len() <= u32::MAX as usize, "too many splats for a kd-tree");
         let radii = reps.iter().map(|r| r.radius).filter(|&r| r > 0.0).collect();
         let lod_floor = radius_quantile(radii, LOD_FLOOR_QUANTILE);
-        Self { nodes, refs, disks: with_padding(splats), reps, lod_floor, bounds, depth }
+        Self { nodes, refs, disks: with_padding(splats), reps, lod_floor, bounds, depth, shape: params.shape }
     }
 }
 

@@ -20,7 +20,8 @@ pub use build::{KdTreeParams, MAX_BINS};
 use crate::accel::packet::LANES;
 use crate::accel::{Accel, SplatVisitor, TraversalStats};
 use crate::math::{Aabb, Ray};
-use crate::splat::Splat;
+use crate::splat::{DiskShape, Splat};
+use glam::Vec3;
 
 /// A node in 8 bytes (as in pbrt): an inner node holds its split position and, in `bits`, the
 /// axis (0–2) and the index of the child above the plane (the child below follows the node);
@@ -94,6 +95,8 @@ pub struct KdTree {
     /// The root cell: the union of the splats' padded boxes.
     bounds: Aabb,
     depth: usize,
+    /// The disks the cells hold.
+    shape: DiskShape,
 }
 
 impl KdTree {
@@ -140,6 +143,45 @@ impl Accel for KdTree {
         self.bounds
     }
 
+    fn shape(&self) -> DiskShape {
+        self.shape
+    }
+
+    fn for_each_near<F: FnMut(u32, &Splat)>(&self, center: Vec3, radius: f32, stats: &mut TraversalStats, mut f: F) {
+        if self.nodes.is_empty() {
+            return;
+        }
+        let r2 = radius * radius;
+        // A splat straddling cells is listed in each; it is reported from the one cell that
+        // holds its centre. Cells are half-open, [min, max) (a centre on a plane belongs above
+        // it, and the build references it there), except at the root's far faces.
+        let owns = |cell: &Aabb, p: Vec3| {
+            (0..3).all(|a| p[a] >= cell.min[a] && (p[a] < cell.max[a] || cell.max[a] == self.bounds.max[a]))
+        };
+        let mut stack = vec![(0usize, self.bounds)];
+        while let Some((k, cell)) = stack.pop() {
+            let n = self.nodes[k];
+            if n.is_leaf() {
+                for &r in &self.refs[n.padded_refs()][..n.ref_count()] {
+                    let s = &self.disks[r as usize];
+                    stats.splat_tests += 1;
+                    if (s.center - center).length_squared() <= r2 && owns(&cell, s.center) {
+                        f(r, s);
+                    }
+                }
+                continue;
+            }
+            stats.nodes_visited += 1;
+            let (a, split) = (n.axis(), n.split());
+            if center[a] - radius <= split {
+                stack.push((k + 1, Aabb { max: with(cell.max, a, split), ..cell }));
+            }
+            if center[a] + radius >= split {
+                stack.push((n.above(), Aabb { min: with(cell.min, a, split), ..cell }));
+            }
+        }
+    }
+
     fn memory_bytes(&self) -> usize {
         self.nodes.len() * Self::NODE_BYTES + self.refs.len() * size_of::<u32>()
     }
@@ -157,7 +199,7 @@ pub fn check_invariants(tree: &KdTree) -> Result<(), String> {
         return if tree.splats().is_empty() { Ok(()) } else { Err("no nodes for a non-empty tree".into()) };
     }
     for (i, s) in tree.splats().iter().enumerate() {
-        let b = build::padded_bounds(s);
+        let b = build::padded_bounds(s, tree.shape);
         let mut cells = vec![(0usize, tree.bounds)];
         while let Some((k, cell)) = cells.pop() {
             let n = tree.nodes[k];

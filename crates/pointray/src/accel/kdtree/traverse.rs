@@ -115,7 +115,7 @@ fn walk<V: SplatVisitor, const MULTIRES: bool>(
                     let disk = |i: usize| &tree.disks[index[i] as usize];
                     let disks = DiskLanes::new([disk(0), disk(1), disk(2), disk(3)]);
                     // Padding lanes hold a disk no ray hits.
-                    let mut lanes = packet_ray.candidates(&disks, ray.t_min, visitor.t_max());
+                    let mut lanes = packet_ray.candidates_as(V::SHAPE, &disks, ray.t_min, visitor.t_max());
                     while lanes != 0 {
                         let r = index[lanes.trailing_zeros() as usize];
                         lanes &= lanes - 1;

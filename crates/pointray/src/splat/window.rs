@@ -1,0 +1,185 @@
+//! The interpolation window of Schaufler & Jensen (2000), over oriented disks (`sj`) or
+//! ray-facing disks (`rfd`): after the first crossing at t₀, every disk the ray crosses within
+//! `[t₀, t₀ + δ]` is collected, and position, normal and colour are blended with weights
+//! wᵢ = rᵢ − dᵢ (SJ's Eq. 1), dᵢ being the crossing's distance from the disk's centre: in the
+//! disk's plane for an oriented disk, perpendicular to the ray for a ray-facing one.
+
+use std::marker::PhantomData;
+
+use glam::Vec3;
+
+use super::scheme::{SurfaceHit, facing, tie_key};
+use super::{DiskShape, DiskTest, Splat};
+use crate::accel::{Accel, SplatVisitor};
+use crate::math::Ray;
+
+/// Most disks a window holds; on a smooth surface a ray crosses a handful (about the mean
+/// overlap, πr²·density). Past the cap the farthest crossing is dropped; only then can the
+/// order in which disks arrive matter (with more than this many crossings, ties for last).
+const WINDOW_CAPACITY: usize = 24;
+
+#[derive(Clone, Copy, Default)]
+struct Crossing {
+    t: f32,
+    dist2: f32,
+    index: u32,
+}
+
+/// Collects the disks (of shape `D`) crossed within `[t₀, t₀ + δ]` of the nearest crossing t₀
+/// found so far. The accelerator culls against `t_max() = t₀ + δ`, so it keeps delivering
+/// every disk that may still belong to the window, and the window shrinks as nearer crossings
+/// turn up.
+pub(crate) struct Window<D> {
+    window: f32,
+    pub(crate) end: f32,
+    /// Nearest crossing so far (the window's start).
+    first_t: f32,
+    /// The end is known in advance and never moves (a second pass).
+    fixed: bool,
+    /// The end moved outwards during the walk (a tie at the first crossing with a wider disk,
+    /// or a nearer first crossing with a wider disk): crossings may have been turned away
+    /// against the shorter end, so the window must be collected again.
+    pub(crate) grew: bool,
+    /// The accelerator may hand a splat over again (`Accel::REPEATS_SPLATS`): repeats are
+    /// looked for and ignored.
+    repeats: bool,
+    len: usize,
+    crossings: [Crossing; WINDOW_CAPACITY],
+    disk: PhantomData<D>,
+}
+
+impl<D: DiskTest> Window<D> {
+    pub(crate) fn new(window: f32, repeats: bool) -> Self {
+        Self {
+            window,
+            end: f32::INFINITY,
+            first_t: f32::INFINITY,
+            fixed: false,
+            grew: false,
+            repeats,
+            len: 0,
+            crossings: [Crossing::default(); WINDOW_CAPACITY],
+            disk: PhantomData,
+        }
+    }
+
+    /// A window that collects every crossing up to `end`.
+    pub(crate) fn fixed(window: f32, repeats: bool, end: f32) -> Self {
+        Self { end, fixed: true, ..Self::new(window, repeats) }
+    }
+
+    /// The blended hit and the window's coverage Σ(1 − dᵢ/rᵢ) over the blended disks. With
+    /// `tangent_planes`, each crossing's distance is moved onto its splat's tangent plane
+    /// first (for ray-facing disks, whose crossings lie at the centres' projections).
+    pub(crate) fn blend<A: Accel + ?Sized>(
+        &mut self,
+        ray: &Ray,
+        accel: &A,
+        tangent_planes: bool,
+    ) -> Option<(SurfaceHit, f32)> {
+        let list = &mut self.crossings[..self.len];
+        // Sum in a fixed order (by t, then by splat contents) so that every accelerator, which
+        // visits disks in its own order, blends to the same bits.
+        list.sort_unstable_by(|a, b| {
+            a.t.total_cmp(&b.t).then_with(|| tie_key(accel.splat(a.index)).cmp(&tie_key(accel.splat(b.index))))
+        });
+        let first = *list.first()?;
+        let first_splat = accel.splat(first.index);
+        // Blend the disks facing the same way as the first: the back of a thin part may lie
+        // within the window.
+        let side = first_splat.normal.dot(ray.dir) > 0.0;
+        let (mut wsum, mut t, mut n, mut c) = (0.0f32, 0.0f32, Vec3::ZERO, Vec3::ZERO);
+        let mut blended = 0;
+        let mut coverage = 0.0;
+        for x in list.iter() {
+            let s = accel.splat(x.index);
+            if (s.normal.dot(ray.dir) > 0.0) != side {
+                continue;
+            }
+            // SJ Eq. 1: wᵢ = rᵢ − dᵢ. Positive for every accepted crossing (dᵢ < rᵢ).
+            let w = s.radius - x.dist2.sqrt();
+            coverage += w / s.radius;
+            wsum += w;
+            t += w * if tangent_planes { on_tangent_plane(ray, s, x.t) } else { x.t };
+            n += w * s.normal;
+            c += w * Vec3::from(s.color_linear());
+            blended += 1;
+        }
+        let (t, n, c) = if wsum > 0.0 && n.length_squared() > 0.0 {
+            (t / wsum, n.normalize(), c / wsum)
+        } else {
+            // Crossings exactly on the rims carry no weight: fall back to the first disk.
+            (first.t, first_splat.normal, Vec3::from(first_splat.color_linear()))
+        };
+        let hit = SurfaceHit {
+            t,
+            position: ray.at(t),
+            normal: facing(n, ray.dir),
+            color: c.to_array(),
+            radius: first_splat.radius,
+            splat: first.index,
+            blended: blended.max(1),
+        };
+        Some((hit, coverage))
+    }
+}
+
+/// Where the ray crosses the splat's tangent plane (within r/|cos| of `t`, the crossing of its
+/// ray-facing disk), not before `ray.t_min`; `t` itself where the plane is seen nearly edge-on
+/// and the crossing would run off.
+fn on_tangent_plane(ray: &Ray, s: &Splat, t: f32) -> f32 {
+    const MIN_COS: f32 = 0.05;
+    let den = ray.dir.dot(s.normal);
+    if den.abs() < MIN_COS {
+        return t;
+    }
+    ((s.center - ray.origin).dot(s.normal) / den).max(ray.t_min)
+}
+
+impl<D: DiskTest> SplatVisitor for Window<D> {
+    const SHAPE: DiskShape = D::SHAPE;
+
+    fn t_max(&self) -> f32 {
+        self.end
+    }
+
+    #[inline]
+    fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32) {
+        let Some(h) = D::intersect(ray, splat, self.end) else { return };
+        let first_t = self.first_t;
+        if !self.fixed && h.t <= first_t {
+            self.first_t = h.t;
+            // The window reaches `window` radii past the first crossing; of disks tied for
+            // first, the widest decides, whatever order they arrive in.
+            let end = h.t + self.window * splat.radius;
+            let end = if h.t == first_t { end.max(self.end) } else { end };
+            if end > self.end {
+                self.grew |= self.end.is_finite();
+            } else {
+                let mut kept = 0;
+                for i in 0..self.len {
+                    if self.crossings[i].t <= end {
+                        self.crossings[kept] = self.crossings[i];
+                        kept += 1;
+                    }
+                }
+                self.len = kept;
+            }
+            self.end = end;
+        }
+        // A kd-tree hands a disk that straddles cells over once per cell. (The window's start
+        // and end above are the same for a repeat.)
+        if self.repeats && self.crossings[..self.len].iter().any(|c| c.index == index) {
+            return;
+        }
+        let c = Crossing { t: h.t, dist2: h.dist2, index };
+        if self.len < WINDOW_CAPACITY {
+            self.crossings[self.len] = c;
+            self.len += 1;
+        } else if let Some(far) = self.crossings.iter_mut().max_by(|a, b| a.t.total_cmp(&b.t))
+            && c.t < far.t
+        {
+            *far = c;
+        }
+    }
+}
