@@ -50,10 +50,13 @@ pub fn project<A: Accel + ?Sized>(
 ) -> SurfaceHit {
     let h = params.bandwidth * seed.radius;
     let tolerance = params.tolerance * seed.radius;
+    // The side: the seed disk's own normal, as stored (the hit's normal is turned to the ray,
+    // and a ray meeting the surface from behind would otherwise find no neighbour on its side).
+    let side = accel.splat(seed.splat).normal;
     let mut t = seed.t;
     for _ in 0..params.max_steps {
         stats.pss_steps += 1;
-        let Some(plane) = local_plane(accel, ray.at(t), h, params.support * h, seed.normal, stats) else { break };
+        let Some(plane) = local_plane(accel, ray.at(t), h, params.support * h, side, stats) else { break };
         let den = ray.dir.dot(plane.normal);
         if den.abs() < MIN_COS {
             break;
@@ -65,12 +68,10 @@ pub fn project<A: Accel + ?Sized>(
         let step = (next - t).abs();
         t = next;
         if step < tolerance {
-            // Shade with the plane at the converged point.
-            let at = ray.at(t);
-            let plane = local_plane(accel, at, h, params.support * h, seed.normal, stats).unwrap_or(plane);
+            // Shaded with this step's plane: the next one would differ by less than the tolerance.
             return SurfaceHit {
                 t,
-                position: at,
+                position: ray.at(t),
                 normal: facing(plane.normal, ray.dir),
                 color: plane.color,
                 blended: plane.count,

@@ -280,3 +280,27 @@ fn shadow_rays_do_not_hit_their_own_surface() {
         }
     }
 }
+
+/// PSS from inside a closed surface: the rays meet the splats from behind, and the projection
+/// must still find its neighbours (their stored normals face away from the ray) and converge.
+#[test]
+fn pss_converges_when_the_surface_is_seen_from_behind() {
+    let s = sphere();
+    let bvh = bvh(&s);
+    let cam = Camera::look_at(Vec3::new(0.1, -0.2, 0.3), Vec3::new(0.0, 1.0, 0.0), Vec3::Z, 60.0, 48, 48);
+    let mut stats = TraversalStats::default();
+    let mut hits = 0;
+    for y in 0..48 {
+        for x in 0..48 {
+            let ray = cam.ray(x as f32 + 0.5, y as f32 + 0.5);
+            // The far root: the origin is inside the unit sphere.
+            let b = ray.origin.dot(ray.dir);
+            let t = -b + (b * b - (ray.origin.length_squared() - 1.0)).sqrt();
+            let hit = scheme::intersect(&bvh, &ray, &SurfaceScheme::pss(), &mut stats).expect("inside a closed sphere");
+            assert!((hit.t - t).abs() < 0.2 * s.spacing, "hit {} vs exact {t}", hit.t);
+            hits += 1;
+        }
+    }
+    assert_eq!(stats.pss_fallbacks, 0, "{stats:?}");
+    assert!(stats.pss_steps as f32 / (hits as f32) < 3.0, "{stats:?}");
+}
