@@ -65,7 +65,7 @@ pub struct PreprocessArgs {
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {
-    /// PLY or XYZ file; none renders the built-in demo scene.
+    /// PLY or XYZ file, or a Stanford scan set (.conf); none renders the built-in demo scene.
     pub input: Option<PathBuf>,
     /// Output PNG (written atomically).
     #[arg(short, long)]
@@ -182,7 +182,7 @@ pub struct RenderArgs {
 
 #[derive(Args, Debug)]
 pub struct PrepareArgs {
-    /// PLY or XYZ file.
+    /// PLY or XYZ file, or a Stanford scan set (.conf).
     pub input: PathBuf,
     /// Output PLY (binary, with normals, radii and any colours; written atomically).
     #[arg(short, long)]
@@ -193,7 +193,7 @@ pub struct PrepareArgs {
 
 #[derive(Args, Debug)]
 pub struct InfoArgs {
-    /// PLY or XYZ file.
+    /// PLY or XYZ file, or a Stanford scan set (.conf).
     pub input: PathBuf,
 }
 

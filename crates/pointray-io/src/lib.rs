@@ -7,6 +7,7 @@
 pub mod error;
 pub mod image;
 pub mod ply;
+mod scanset;
 pub mod xyz;
 
 mod builder;
@@ -45,15 +46,28 @@ pub struct FileInfo {
 /// Extensions taken as XYZ text even when the first line would not tell.
 const XYZ_EXTENSIONS: [&str; 7] = ["xyz", "txt", "pts", "csv", "asc", "xyzn", "xyzrgb"];
 
-/// Reads a PLY or XYZ file, recognised by content: a file starting with the `ply` line is
-/// PLY; otherwise XYZ when the extension says so or the first data line is all numbers.
+/// Reads a PLY or XYZ file or a Stanford scan set (`.conf`), recognised by content: a file
+/// starting with the `ply` line is PLY; one whose first data line starts with `camera` or
+/// `bmesh` a scan set, whose scans are read and merged; otherwise XYZ when the extension says
+/// so or the first data line is all numbers.
 pub fn read_cloud(path: &Path) -> Result<LoadedCloud, IoError> {
+    read_any(path, true)
+}
+
+/// `read_cloud`, with scan sets allowed or not (a scan set's scans must be single clouds).
+fn read_any(path: &Path, scan_sets: bool) -> Result<LoadedCloud, IoError> {
     let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
     if bytes.is_empty() {
         return Err(IoError::invalid(path, "file is empty"));
     }
     if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
         return ply::parse(path, &bytes);
+    }
+    if scanset::looks_like_conf(&bytes) {
+        if !scan_sets {
+            return Err(IoError::invalid(path, "a scan set cannot list another scan set"));
+        }
+        return scanset::parse(path, &bytes);
     }
     let extension = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
     if extension.as_deref() == Some("ply") {

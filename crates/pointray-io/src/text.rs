@@ -61,6 +61,17 @@ pub(crate) fn as_text(line: &[u8]) -> Option<&str> {
     std::str::from_utf8(line).ok()
 }
 
+/// The values of a line, split at commas and whitespace.
+pub(crate) fn split_values(text: &str) -> Vec<&str> {
+    text.split(|c: char| c == ',' || c.is_ascii_whitespace()).filter(|t| !t.is_empty()).collect()
+}
+
+/// The data part of a line (before any `#`), or `None` for blank and comment-only lines.
+pub(crate) fn data_part(text: &str) -> Option<&str> {
+    let data = text.split('#').next().unwrap_or("").trim();
+    (!data.is_empty()).then_some(data)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

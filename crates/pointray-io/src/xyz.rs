@@ -18,7 +18,7 @@ use std::path::Path;
 use glam::{DVec3, Vec3};
 
 use crate::builder::{Attributes, CloudBuilder, PointRecord};
-use crate::text::{Lines, as_text};
+use crate::text::{Lines, as_text, data_part, split_values};
 use crate::{FileInfo, IoError, LoadedCloud};
 
 /// Reads an XYZ file whatever its extension.
@@ -82,16 +82,6 @@ fn looks_like_rgb(tokens: &[&str]) -> bool {
         Some(channels) => channels.iter().map(|&c| f64::from(c).powi(2)).sum::<f64>() != 1.0,
         None => false,
     }
-}
-
-fn split_values(text: &str) -> Vec<&str> {
-    text.split(|c: char| c == ',' || c.is_ascii_whitespace()).filter(|t| !t.is_empty()).collect()
-}
-
-/// The data part of a line (before any `#`), or `None` for blank and comment-only lines.
-fn data_part(text: &str) -> Option<&str> {
-    let data = text.split('#').next().unwrap_or("").trim();
-    (!data.is_empty()).then_some(data)
 }
 
 /// Whether the content plausibly is XYZ text: the first data line is all numbers, at least

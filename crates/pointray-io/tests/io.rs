@@ -792,3 +792,76 @@ fn crc32(bytes: &[u8]) -> u32 {
     }
     !crc
 }
+
+// ---------------------------------------------------------------- Stanford scan sets
+
+/// An ascii PLY of positions and normals.
+fn ascii_ply(points: &[(DVec3, DVec3)]) -> Vec<u8> {
+    let mut out = format!(
+        "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+         property float nx\nproperty float ny\nproperty float nz\nend_header\n",
+        points.len()
+    );
+    for (p, n) in points {
+        out += &format!("{} {} {} {} {} {}\n", p.x, p.y, p.z, n.x, n.y, n.z);
+    }
+    out.into_bytes()
+}
+
+#[test]
+fn a_scan_set_merges_its_scans_registered() {
+    use glam::DQuat;
+    let dir = temp_dir();
+    // Two scans of one curve in world space, each stored in its own frame: world = R⁻¹·local + t,
+    // so local = R·(world − t).
+    let world: Vec<(DVec3, DVec3)> = (0..200)
+        .map(|i| {
+            let a = i as f64 * 0.05;
+            (DVec3::new(a.cos(), a.sin(), 0.1 * a), DVec3::new(a.cos(), a.sin(), 0.0))
+        })
+        .collect();
+    let frames = [
+        (DQuat::IDENTITY, DVec3::ZERO),
+        (DQuat::from_axis_angle(DVec3::new(0.2, 1.0, 0.3).normalize(), 0.7), DVec3::new(0.05, -0.02, 0.01)),
+    ];
+    let mut conf = String::from("camera 0 0 -1 0 0 0 1\n# a comment\n");
+    for (k, (q, t)) in frames.iter().enumerate() {
+        let local: Vec<(DVec3, DVec3)> =
+            world[k * 100..(k + 1) * 100].iter().map(|(p, n)| (*q * (*p - *t), *q * *n)).collect();
+        write_file(dir.path(), &format!("scan{k}.ply"), &ascii_ply(&local));
+        conf += &format!("bmesh scan{k}.ply {} {} {} {} {} {} {}\n", t.x, t.y, t.z, q.x, q.y, q.z, q.w);
+    }
+    let path = write_file(dir.path(), "set.conf", conf.as_bytes());
+    let loaded = read_cloud(&path).expect("the scan set reads");
+    assert_eq!(loaded.info.elements, vec![("scan0.ply".to_string(), 100), ("scan1.ply".to_string(), 100)]);
+    let normals = loaded.cloud.normals.as_ref().expect("every scan has normals");
+    for (i, p) in world_positions(&loaded.cloud).iter().enumerate() {
+        assert_close(*p, world[i].0, 1e-5);
+        assert_close(normals[i].as_dvec3(), world[i].1, 1e-5);
+    }
+}
+
+#[test]
+fn scan_set_errors_name_the_file_and_line() {
+    let dir = temp_dir();
+    write_file(dir.path(), "ok.ply", &ascii_ply(&[(DVec3::ZERO, DVec3::Z), (DVec3::X, DVec3::Z)]));
+    let cases = [
+        (
+            "word.conf",
+            "bmesh ok.ply 0 0 0 0 0 0 1\nmesh ok.ply 0 0 0 0 0 0 1\n",
+            "line 2: expected 'camera' or 'bmesh'",
+        ),
+        ("short.conf", "bmesh ok.ply 0 0 0 0 0 1\n", "line 1: bmesh ok.ply: expected 7 finite numbers"),
+        ("nan.conf", "bmesh ok.ply 0 0 nan 0 0 0 1\n", "line 1: bmesh ok.ply: expected 7 finite numbers"),
+        ("zero.conf", "bmesh ok.ply 0 0 0 0 0 0 0\n", "far from unit length"),
+        ("missing.conf", "camera 0 0 0 0 0 0 1\nbmesh gone.ply 0 0 0 0 0 0 1\n", "line 2: bmesh gone.ply"),
+        ("none.conf", "camera 0 0 0 0 0 0 1\n", "lists no 'bmesh' scan"),
+        ("nested.conf", "bmesh word.conf 0 0 0 0 0 0 1\n", "cannot list another scan set"),
+    ];
+    for (name, text, _) in cases {
+        write_file(dir.path(), name, text.as_bytes());
+    }
+    for (name, _, fragment) in cases {
+        expect_error(&dir.path().join(name), fragment);
+    }
+}
