@@ -13,7 +13,6 @@ accelerator's LoD-off image.
         [--embree ../shared/bench/embree/bin/embree_points_bench] [--models dragon,bunny]
 """
 
-import argparse
 import array
 import json
 import math
@@ -38,18 +37,9 @@ DISTANCES = [1, 4, 16]
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--pointray", required=True)
-    ap.add_argument("--embree", default="../shared/bench/embree/bin/embree_points_bench")
-    ap.add_argument("--data", default="../shared/data")
-    ap.add_argument("--cache", default="/tmp/pointray-kdtree")
-    ap.add_argument("--models", default=",".join(list(MODELS) + list(SYNTHETIC)))
-    ap.add_argument("--size", type=int, default=1024)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--out", default="docs/kdtree.md")
-    ap.add_argument("--report-only", action="store_true", help="rewrite the report from the JSON lines")
-    a = ap.parse_args()
-    jsonl = os.path.splitext(a.out)[0] + "-results.jsonl"
+    a = reportlib.arguments(__doc__, "/tmp/pointray-kdtree", list(MODELS) + list(SYNTHETIC), 1024, "docs/kdtree.md",
+                            lambda ap: ap.add_argument("--embree", default="../shared/bench/embree/bin/embree_points_bench"))
+    jsonl = a.jsonl
     if a.report_only:
         write_markdown(a, *reportlib.read_jsonl(jsonl))
         return
@@ -162,16 +152,13 @@ def write_markdown(a, header, records):
             "| model | k | accel | LoD τ | ms | Mrays/s | vs BVH same τ | vs Embree | nodes/ray | splat tests/ray | "
             "LoD stops/ray | speed-up vs LoD off | PSNR dB vs LoD off |",
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    def find(**kw):
-        return next((r for r in records if all(r.get(x) == v for x, v in kw.items())), None)
-
     for rec in records:
         if rec["accel"] == "embree":
             continue
         s = rec["stats"]
-        bvh = find(model=rec["model"], k=rec["k"], accel="bvh", lod=rec["lod"])
-        off = find(model=rec["model"], k=rec["k"], accel=rec["accel"], lod="off")
-        emb = find(model=rec["model"], k=rec["k"], accel="embree")
+        bvh = reportlib.find(records, model=rec["model"], k=rec["k"], accel="bvh", lod=rec["lod"])
+        off = reportlib.find(records, model=rec["model"], k=rec["k"], accel=rec["accel"], lod="off")
+        emb = reportlib.find(records, model=rec["model"], k=rec["k"], accel="embree")
         vs_bvh = s["mrays_per_second"] / bvh["stats"]["mrays_per_second"]
         vs_emb = f"{s['mrays_per_second'] / emb['embree']['mrays_s']:.2f}×" if emb and emb["embree"]["mrays_s"] else "–"
         speedup = s["mrays_per_second"] / off["stats"]["mrays_per_second"]
@@ -189,7 +176,7 @@ def write_markdown(a, header, records):
             continue
         cells = []
         for t in LODS[1:]:
-            r = find(model=rec["model"], k=rec["k"], accel=rec["accel"], lod=t)
+            r = reportlib.find(records, model=rec["model"], k=rec["k"], accel=rec["accel"], lod=t)
             if r is None:
                 cells.append("–")
                 continue

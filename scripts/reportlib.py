@@ -1,6 +1,7 @@
 """What the comparison scripts (kdtree_compare.py, surface_compare.py) share: running pointray,
 the run's header, the JSON lines, and the hand-written discussion kept across regenerations."""
 
+import argparse
 import datetime
 import json
 import os
@@ -45,3 +46,26 @@ def write_report(path, lines):
         keep = text[i:] if i >= 0 else ""
     with open(path, "w") as f:
         f.write("\n".join(lines) + "\n" + keep)
+
+
+def arguments(doc, cache, models, size, out, extra=lambda ap: None):
+    """The scripts' common command line (`extra` adds a script's own options), parsed; plus
+    `a.jsonl`, the JSON lines beside the report."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--pointray", required=True)
+    ap.add_argument("--data", default="../shared/data")
+    ap.add_argument("--cache", default=cache)
+    ap.add_argument("--models", default=",".join(models))
+    ap.add_argument("--size", type=int, default=size)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--out", default=out)
+    ap.add_argument("--report-only", action="store_true", help="rewrite the report from the JSON lines")
+    extra(ap)
+    a = ap.parse_args()
+    a.jsonl = os.path.splitext(a.out)[0] + "-results.jsonl"
+    return a
+
+
+def find(records, **fields):
+    """The first record whose fields have these values, or None."""
+    return next((r for r in records if all(r.get(x) == v for x, v in fields.items())), None)

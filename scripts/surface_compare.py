@@ -11,7 +11,6 @@ block, not across the table.
     python3 scripts/surface_compare.py --pointray target/release/pointray [--models dragon,bunny]
 """
 
-import argparse
 import json
 import math
 import os
@@ -35,18 +34,9 @@ STATS = ["points", "rays", "render_seconds", "mrays_per_second", "primary_mrays_
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--pointray", required=True)
-    ap.add_argument("--data", default="../shared/data")
-    ap.add_argument("--cache", default="/tmp/pointray-surfaces")
-    ap.add_argument("--models", default=",".join(MODELS))
-    ap.add_argument("--size", type=int, default=768)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--out", default="docs/surfaces.md")
-    ap.add_argument("--images", default="docs/images/surfaces")
-    ap.add_argument("--report-only", action="store_true", help="rewrite the report from the JSON lines")
-    a = ap.parse_args()
-    jsonl = os.path.splitext(a.out)[0] + "-results.jsonl"
+    a = reportlib.arguments(__doc__, "/tmp/pointray-surfaces", MODELS, 768, "docs/surfaces.md",
+                            lambda ap: ap.add_argument("--images", default="docs/images/surfaces"))
+    jsonl = a.jsonl
     if a.report_only:
         write_markdown(a, *reportlib.read_jsonl(jsonl))
         return
@@ -113,12 +103,9 @@ def write_markdown(a, header, records):
            "PSS steps/hit | PSS fallbacks | PSNR dB vs PSS |",
            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
 
-    def find(**kw):
-        return next((r for r in records if all(r.get(x) == v for x, v in kw.items())), None)
-
     for rec in records:
         s = rec["stats"]
-        sj = find(model=rec["model"], k=rec["k"], lod=rec["lod"], scheme="sj")
+        sj = reportlib.find(records, model=rec["model"], k=rec["k"], lod=rec["lod"], scheme="sj")
         vs_sj = sj["stats"]["render_seconds"] / s["render_seconds"]
         psnr = rec["psnr_vs_pss"]
         psnr = "ref" if psnr is None else psnr if isinstance(psnr, str) else f"{psnr:.1f}"
