@@ -1,4 +1,5 @@
-//! File formats for pointray: point clouds in (PLY, XYZ text), rendered images out and back in (PNG).
+//! File formats for pointray: point clouds in (PLY, LAS/LAZ, XYZ text, Stanford scan sets), rendered
+//! images out and back in (PNG).
 //!
 //! Everything is read into memory first and parsed from the byte slice; every error names
 //! the file and, where there is one, the line or byte offset (see [`IoError`]). No input
@@ -6,6 +7,7 @@
 
 pub mod error;
 pub mod image;
+mod las;
 pub mod ply;
 mod scanset;
 pub mod xyz;
@@ -46,9 +48,9 @@ pub struct FileInfo {
 /// Extensions taken as XYZ text even when the first line would not tell.
 const XYZ_EXTENSIONS: [&str; 7] = ["xyz", "txt", "pts", "csv", "asc", "xyzn", "xyzrgb"];
 
-/// Reads a PLY or XYZ file or a Stanford scan set (`.conf`), recognised by content: a file
-/// starting with the `ply` line is PLY; one whose first data line starts with `camera` or
-/// `bmesh` a scan set, whose scans are read and merged; otherwise XYZ when the extension says
+/// Reads a PLY, LAS/LAZ or XYZ file or a Stanford scan set (`.conf`), recognised by content:
+/// a file starting with the `ply` line is PLY; one starting with `LASF` is LAS or LAZ; one
+/// whose first data line starts with `camera` or `bmesh` a scan set, whose scans are read and merged; otherwise XYZ when the extension says
 /// so or the first data line is all numbers.
 pub fn read_cloud(path: &Path) -> Result<LoadedCloud, IoError> {
     read_any(path, true)
@@ -62,6 +64,9 @@ fn read_any(path: &Path, scan_sets: bool) -> Result<LoadedCloud, IoError> {
     }
     if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
         return ply::parse(path, &bytes);
+    }
+    if las::looks_like_las(&bytes) {
+        return las::parse(path, bytes);
     }
     if scanset::looks_like_conf(&bytes) {
         if !scan_sets {

@@ -564,10 +564,12 @@ fn mutations_never_panic() {
         ("fuzz_le.ply", encode_ply(Enc::Le, &mixed_elements())),
         ("fuzz_be.ply", encode_ply(Enc::Be, &mixed_elements())),
         ("fuzz_ascii.ply", encode_ply(Enc::Ascii, &mixed_elements())),
+        ("fuzz.las", las_bytes(&survey_points(60, |i| i as u16), false)),
+        ("fuzz.laz", las_bytes(&survey_points(60, |i| i as u16), true)),
     ];
     let mut state = 0x2545_f491_4f6c_dd1du64;
     let mut outcomes = [0usize; 2];
-    for round in 0..3000 {
+    for round in 0..5000 {
         let (name, original) = &originals[round % originals.len()];
         let mut bytes = original.clone();
         let random = |state: &mut u64, below: usize| (xorshift(state) % below as u64) as usize;
@@ -863,5 +865,99 @@ fn scan_set_errors_name_the_file_and_line() {
     }
     for (name, _, fragment) in cases {
         expect_error(&dir.path().join(name), fragment);
+    }
+}
+
+// ---------------------------------------------------------------- LAS and LAZ
+
+/// A LAS (or, `compressed`, LAZ) file of `points` (survey coordinates, 16-bit colour channels),
+/// at 0.01 units, offset near the points as survey files are.
+fn las_bytes(points: &[(DVec3, [u16; 3])], compressed: bool) -> Vec<u8> {
+    let mut builder = las::Builder::from((1, 2));
+    builder.point_format = las::point::Format::new(3).unwrap();
+    builder.point_format.is_compressed = compressed;
+    let t = |offset| las::Transform { scale: 0.01, offset };
+    builder.transforms = las::Vector { x: t(636_000.0), y: t(849_000.0), z: t(400.0) };
+    let header = builder.into_header().unwrap();
+    let mut writer = las::Writer::new(std::io::Cursor::new(Vec::new()), header).unwrap();
+    for (p, [red, green, blue]) in points {
+        let point = las::Point {
+            x: p.x,
+            y: p.y,
+            z: p.z,
+            color: Some(las::Color { red: *red, green: *green, blue: *blue }),
+            gps_time: Some(0.0),
+            ..Default::default()
+        };
+        writer.write_point(point).unwrap();
+    }
+    writer.into_inner().unwrap().into_inner()
+}
+
+fn survey_points(n: usize, channel: impl Fn(usize) -> u16) -> Vec<(DVec3, [u16; 3])> {
+    (0..n)
+        .map(|i| {
+            let a = i as f64;
+            let p =
+                DVec3::new(636_001.0 + (a * 0.37).sin() * 500.0, 849_100.0 + a * 0.25, 410.0 + (a * 0.1).cos() * 50.0);
+            // On the file's 0.01 grid, so that reading back is exact up to f64 rounding.
+            ((p * 100.0).round() / 100.0, [channel(i), channel(i + 1), channel(i + 2)])
+        })
+        .collect()
+}
+
+#[test]
+fn las_and_laz_read_to_the_same_survey_cloud_with_its_colours() {
+    let dir = temp_dir();
+    let points = survey_points(3_000, |i| (i % 200) as u16 + 40);
+    let las = write_file(dir.path(), "a.las", &las_bytes(&points, false));
+    let laz = write_file(dir.path(), "b.laz", &las_bytes(&points, true));
+    let (a, b) = (read_cloud(&las).unwrap(), read_cloud(&laz).unwrap());
+    assert_eq!(a.info.format, "LAS 1.2, point format 3");
+    assert_eq!(b.info.format, "LAZ 1.2, point format 3");
+    assert!(std::fs::metadata(&laz).unwrap().len() < std::fs::metadata(&las).unwrap().len() / 2, "LAZ compresses");
+    // Large offsets survive: recentred in f64, positions keep f32 precision over the cloud's
+    // ~1,000-unit extent (6·10⁻⁵), where f32 at 636,000 would round to 0.06.
+    for loaded in [&a, &b] {
+        let world = world_positions(&loaded.cloud);
+        for (w, (p, _)) in world.iter().zip(&points) {
+            assert_close(*w, *p, 1e-4);
+        }
+    }
+    assert_eq!(a.cloud.positions, b.cloud.positions);
+    // 8-bit values in 16-bit fields (all ≤ 255): read as 8-bit.
+    let colors = a.cloud.colors.as_ref().expect("point format 3 has colour");
+    assert_eq!(colors[0], [40.0 / 255.0, 41.0 / 255.0, 42.0 / 255.0]);
+    assert_eq!(a.cloud.colors, b.cloud.colors);
+}
+
+#[test]
+fn las_with_full_range_colour_channels_is_read_as_16_bit() {
+    let dir = temp_dir();
+    let points = survey_points(50, |i| (i * 1000) as u16);
+    let loaded = read_cloud(&write_file(dir.path(), "c.las", &las_bytes(&points, false))).unwrap();
+    let colors = loaded.cloud.colors.unwrap();
+    assert_eq!(colors[1], [1000.0 / 65535.0, 2000.0 / 65535.0, 3000.0 / 65535.0]);
+}
+
+#[test]
+fn broken_las_files_are_refused_with_their_name() {
+    let dir = temp_dir();
+    let bytes = las_bytes(&survey_points(500, |_| 100), false);
+    // Cut in the points, in the header, and a point count raised past the file.
+    write_file(dir.path(), "cut.las", &bytes[..bytes.len() - 700]);
+    write_file(dir.path(), "head.las", &bytes[..100]);
+    let mut more = bytes.clone();
+    more[107..111].copy_from_slice(&1_000_000u32.to_le_bytes()); // legacy point count (LAS 1.2)
+    write_file(dir.path(), "count.las", &more);
+    let laz = las_bytes(&survey_points(500, |_| 100), true);
+    write_file(dir.path(), "cut.laz", &laz[..laz.len() - 300]);
+    for (name, fragment) in [
+        ("cut.las", "more than the file holds"),
+        ("head.las", "not a readable LAS file"),
+        ("count.las", "more than the file holds"),
+        ("cut.laz", "not a readable LAS file"),
+    ] {
+        eprintln!("{}", expect_error(&dir.path().join(name), fragment));
     }
 }

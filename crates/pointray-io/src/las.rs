@@ -1,0 +1,84 @@
+//! LAS and LAZ (airborne and terrestrial LiDAR), through the `las` crate with its pure-Rust
+//! LAZ decompressor. Coordinates come out of the crate scaled and offset in f64 (survey
+//! coordinates are large: Oregon Lambert feet in the hundreds of thousands), and the builder
+//! recentres them before anything becomes f32.
+//!
+//! Colours: LAS stores 16-bit channels, but many writers put 8-bit values in them (the autzen
+//! scans: 40–236). If no channel of any point exceeds 255, the values are taken as 8-bit.
+
+use std::io::Cursor;
+use std::path::Path;
+
+use glam::DVec3;
+
+use crate::builder::{Attributes, CloudBuilder, PointRecord};
+use crate::{FileInfo, IoError, LoadedCloud};
+
+/// Whether `bytes` start with the LAS signature (LAZ files carry it too).
+pub(crate) fn looks_like_las(bytes: &[u8]) -> bool {
+    bytes.starts_with(b"LASF")
+}
+
+/// Points decoded at a time: the header's count is not trusted for an allocation.
+const BATCH: u64 = 1 << 16;
+
+pub(crate) fn parse(path: &Path, bytes: Vec<u8>) -> Result<LoadedCloud, IoError> {
+    let file_bytes = bytes.len() as u64;
+    let mut reader = las::Reader::new(Cursor::new(bytes))
+        .map_err(|e| IoError::invalid(path, format!("not a readable LAS file: {e}")))?;
+    let header = reader.header().clone();
+    let format = *header.point_format();
+    let count = header.number_of_points();
+    // Uncompressed records have a fixed size: a count the file cannot hold is refused outright.
+    if !format.is_compressed && count.saturating_mul(u64::from(format.len())) > file_bytes {
+        return Err(IoError::invalid(
+            path,
+            format!("the header declares {count} points of {} bytes, more than the file holds", format.len()),
+        ));
+    }
+    let attributes = Attributes { colors: format.has_color, ..Attributes::default() };
+    let mut builder = CloudBuilder::new(0, attributes);
+    let mut max_channel = 0u16;
+    let mut batch = las::PointDataBuilder::new().for_header(&header).build();
+    while (builder.len() as u64) < count {
+        let done = builder.len() as u64;
+        let read = reader
+            .fill_points(BATCH.min(count - done), &mut batch)
+            .map_err(|e| IoError::invalid(path, format!("point {done} of {count}: {e}")))?;
+        if read == 0 {
+            return Err(IoError::invalid(path, format!("the file ends after {done} of its {count} points")));
+        }
+        for (i, point) in batch.points().enumerate() {
+            let point =
+                point.map_err(|e| IoError::invalid(path, format!("point {} of {count}: {e}", done + i as u64)))?;
+            let color = point.color.map_or([0; 3], |c| [c.red, c.green, c.blue]);
+            max_channel = color.into_iter().fold(max_channel, u16::max);
+            let position = DVec3::new(point.x, point.y, point.z);
+            builder.push(&PointRecord { position, color: color.map(f32::from), ..PointRecord::default() });
+        }
+    }
+    let mut cloud = builder.finish();
+    if let Some(colors) = &mut cloud.colors {
+        let scale = if max_channel <= 255 { 255.0 } else { 65535.0 };
+        colors.iter_mut().for_each(|c| *c = c.map(|v| v / scale));
+    }
+    let version = header.version();
+    let info = FileInfo {
+        format: format!(
+            "{} {}.{}, point format {}",
+            if format.is_compressed { "LAZ" } else { "LAS" },
+            version.major,
+            version.minor,
+            format.to_u8().map_or_else(|_| "?".to_string(), |n| n.to_string())
+        ),
+        elements: vec![("point".into(), cloud.len())],
+        vertex_properties: ["x", "y", "z"]
+            .into_iter()
+            .chain(format.has_color.then_some(["red", "green", "blue"]).into_iter().flatten())
+            .map(String::from)
+            .collect(),
+        comments: Vec::new(),
+        file_bytes,
+    };
+    Ok(LoadedCloud { cloud, info })
+}
