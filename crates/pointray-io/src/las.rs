@@ -23,6 +23,13 @@ pub(crate) fn looks_like_las(bytes: &[u8]) -> bool {
 const BATCH: u64 = 1 << 16;
 
 pub(crate) fn parse(path: &Path, bytes: Vec<u8>) -> Result<LoadedCloud, IoError> {
+    // The LAZ decoder can panic on corrupt data (found by `mutations_never_panic`: an integer
+    // overflow in its GPS-time model); a broken file must still end in an error that names it.
+    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| decode(path, bytes)))
+        .unwrap_or_else(|_| Err(IoError::invalid(path, "corrupt LAS/LAZ data: the decoder failed")))
+}
+
+fn decode(path: &Path, bytes: Vec<u8>) -> Result<LoadedCloud, IoError> {
     let file_bytes = bytes.len() as u64;
     let mut reader = las::Reader::new(Cursor::new(bytes))
         .map_err(|e| IoError::invalid(path, format!("not a readable LAS file: {e}")))?;

@@ -1,4 +1,4 @@
-//! File formats for pointray: point clouds in (PLY, LAS/LAZ, XYZ text, Stanford scan sets), rendered
+//! File formats for pointray: point clouds in (PLY, LAS/LAZ, PCD, XYZ text, Stanford scan sets), rendered
 //! images out and back in (PNG).
 //!
 //! Everything is read into memory first and parsed from the byte slice; every error names
@@ -8,6 +8,7 @@
 pub mod error;
 pub mod image;
 mod las;
+mod pcd;
 pub mod ply;
 mod scanset;
 pub mod xyz;
@@ -50,7 +51,8 @@ const XYZ_EXTENSIONS: [&str; 7] = ["xyz", "txt", "pts", "csv", "asc", "xyzn", "x
 
 /// Reads a PLY, LAS/LAZ or XYZ file or a Stanford scan set (`.conf`), recognised by content:
 /// a file starting with the `ply` line is PLY; one starting with `LASF` is LAS or LAZ; one
-/// whose first data line starts with `camera` or `bmesh` a scan set, whose scans are read and merged; otherwise XYZ when the extension says
+/// whose header starts with `VERSION` or `FIELDS` is PCD; one whose first data line starts
+/// with `camera` or `bmesh` a scan set, whose scans are read and merged; otherwise XYZ when the extension says
 /// so or the first data line is all numbers.
 pub fn read_cloud(path: &Path) -> Result<LoadedCloud, IoError> {
     read_any(path, true)
@@ -67,6 +69,9 @@ fn read_any(path: &Path, scan_sets: bool) -> Result<LoadedCloud, IoError> {
     }
     if las::looks_like_las(&bytes) {
         return las::parse(path, bytes);
+    }
+    if pcd::looks_like_pcd(&bytes) {
+        return pcd::parse(path, &bytes);
     }
     if scanset::looks_like_conf(&bytes) {
         if !scan_sets {

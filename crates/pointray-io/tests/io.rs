@@ -566,10 +566,11 @@ fn mutations_never_panic() {
         ("fuzz_ascii.ply", encode_ply(Enc::Ascii, &mixed_elements())),
         ("fuzz.las", las_bytes(&survey_points(60, |i| i as u16), false)),
         ("fuzz.laz", las_bytes(&survey_points(60, |i| i as u16), true)),
+        ("fuzz.pcd", pcd_compressed(&pcd_points())),
     ];
     let mut state = 0x2545_f491_4f6c_dd1du64;
     let mut outcomes = [0usize; 2];
-    for round in 0..5000 {
+    for round in 0..6000 {
         let (name, original) = &originals[round % originals.len()];
         let mut bytes = original.clone();
         let random = |state: &mut u64, below: usize| (xorshift(state) % below as u64) as usize;
@@ -959,5 +960,121 @@ fn broken_las_files_are_refused_with_their_name() {
         ("cut.laz", "not a readable LAS file"),
     ] {
         eprintln!("{}", expect_error(&dir.path().join(name), fragment));
+    }
+}
+
+// ---------------------------------------------------------------- PCD
+
+fn pcd_header(fields: &str, size: &str, ty: &str, count: &str, width: usize, height: usize, data: &str) -> String {
+    format!(
+        "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS {fields}\nSIZE {size}\nTYPE {ty}\n\
+         COUNT {count}\nWIDTH {width}\nHEIGHT {height}\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {}\nDATA {data}\n",
+        width * height
+    )
+}
+
+/// Points of a small organised grid, every third one missing (NaN), colour 0x00RRGGBB.
+fn pcd_points() -> Vec<([f32; 3], u32)> {
+    (0..12)
+        .map(|i| {
+            let p = if i % 3 == 2 { [f32::NAN; 3] } else { [i as f32 * 0.1, 1.0 - i as f32 * 0.05, 2.0] };
+            (p, 0x0010_2030 + i as u32)
+        })
+        .collect()
+}
+
+/// A `binary_compressed` PCD of `points`: the fields one after another, as LZF literal runs of
+/// up to 32 bytes.
+fn pcd_compressed(points: &[([f32; 3], u32)]) -> Vec<u8> {
+    let mut columns = Vec::new();
+    for k in 0..3 {
+        points.iter().for_each(|(p, _)| columns.extend_from_slice(&p[k].to_le_bytes()));
+    }
+    points.iter().for_each(|(_, c)| columns.extend_from_slice(&c.to_le_bytes()));
+    let lzf: Vec<u8> = columns.chunks(32).flat_map(|run| [vec![run.len() as u8 - 1], run.to_vec()].concat()).collect();
+    let mut bytes =
+        pcd_header("x y z rgb", "4 4 4 4", "F F F U", "1 1 1 1", points.len(), 1, "binary_compressed").into_bytes();
+    bytes.extend_from_slice(&(lzf.len() as u32).to_le_bytes());
+    bytes.extend_from_slice(&(columns.len() as u32).to_le_bytes());
+    bytes.extend_from_slice(&lzf);
+    bytes
+}
+
+#[test]
+fn pcd_ascii_binary_and_compressed_read_alike_and_drop_nan_points() {
+    let dir = temp_dir();
+    let points = pcd_points();
+    // ascii: the colour as the float whose bits hold it, as PCL writes `rgb`.
+    let mut ascii = pcd_header("x y z rgb", "4 4 4 4", "F F F F", "1 1 1 1", 4, 3, "ascii");
+    for (p, c) in &points {
+        ascii += &format!("{} {} {} {:e}\n", p[0], p[1], p[2], f32::from_bits(*c));
+    }
+    // binary: rows of x y z, a two-value field to skip, rgba as u32.
+    let mut binary = pcd_header("x y z extra rgba", "4 4 4 2 4", "F F F I U", "1 1 1 2 1", 4, 3, "binary").into_bytes();
+    for (p, c) in &points {
+        p.iter().for_each(|v| binary.extend_from_slice(&v.to_le_bytes()));
+        binary.extend_from_slice(&[1, 0, 2, 0]);
+        binary.extend_from_slice(&c.to_le_bytes());
+    }
+    let compressed = pcd_compressed(&points);
+    let read = |name: &str, bytes: &[u8]| read_cloud(&write_file(dir.path(), name, bytes)).unwrap();
+    let clouds = [read("a.pcd", ascii.as_bytes()), read("b.pcd", &binary), read("c.pcd", &compressed)];
+    let finite: Vec<_> = points.iter().filter(|(p, _)| p[0].is_finite()).collect();
+    for loaded in &clouds {
+        assert_eq!(loaded.cloud.len(), 8, "{}: the 4 NaN points are dropped", loaded.info.format);
+        let world = world_positions(&loaded.cloud);
+        let colors = loaded.cloud.colors.as_ref().expect("colour");
+        for (i, (p, c)) in finite.iter().enumerate() {
+            assert_close(world[i], Vec3::from_array(*p).as_dvec3(), 1e-6);
+            let expected = [(c >> 16) & 255, (c >> 8) & 255, c & 255].map(|v| v as f32 / 255.0);
+            assert_eq!(colors[i], expected, "{}", loaded.info.format);
+        }
+    }
+    assert_eq!(clouds.map(|l| l.info.format), ["PCD ascii", "PCD binary", "PCD binary_compressed"]);
+}
+
+#[test]
+fn broken_pcd_files_are_refused_with_their_name_and_place() {
+    let dir = temp_dir();
+    let header = |data: &str| pcd_header("x y z", "4 4 4", "F F F", "1 1 1", 3, 1, data);
+    let cases: Vec<(&str, Vec<u8>, &str)> = vec![
+        ("nodata.pcd", b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\n".to_vec(), "no DATA line"),
+        (
+            "mismatch.pcd",
+            b"VERSION 0.7\nFIELDS x y z\nSIZE 4 4\nTYPE F F F\nPOINTS 1\nDATA ascii\n1 2 3\n".to_vec(),
+            "line 6: FIELDS, SIZE",
+        ),
+        ("noxyz.pcd", pcd_header("a b c", "4 4 4", "F F F", "1 1 1", 1, 1, "ascii").into_bytes(), "no x, y and z"),
+        (
+            "type.pcd",
+            pcd_header("x y z", "4 4 3", "F F F", "1 1 1", 1, 1, "ascii").into_bytes(),
+            "unsupported TYPE F SIZE 3",
+        ),
+        ("short.pcd", (header("ascii") + "1 2 3\n4 5 6\n").into_bytes(), "declares 3 points, the file holds 2"),
+        ("token.pcd", (header("ascii") + "1 2 3\n4 x 6\n7 8 9\n").into_bytes(), "line 13: 'x' is not a number"),
+        ("binary.pcd", [header("binary").into_bytes(), vec![0; 30]].concat(), "more than the data holds"),
+        (
+            "sizes.pcd",
+            [header("binary_compressed").into_bytes(), 4u32.to_le_bytes().to_vec(), 99u32.to_le_bytes().to_vec()]
+                .concat(),
+            "99 bytes uncompressed",
+        ),
+        (
+            "lzf.pcd",
+            [
+                header("binary_compressed").into_bytes(),
+                2u32.to_le_bytes().to_vec(),
+                36u32.to_le_bytes().to_vec(),
+                vec![0x20, 5],
+            ]
+            .concat(),
+            "back-reference before the start",
+        ),
+    ];
+    for (name, bytes, _) in &cases {
+        write_file(dir.path(), name, bytes);
+    }
+    for (name, _, fragment) in &cases {
+        expect_error(&dir.path().join(name), fragment);
     }
 }
