@@ -19,6 +19,32 @@ pub(crate) fn looks_like_las(bytes: &[u8]) -> bool {
     bytes.starts_with(b"LASF")
 }
 
+/// A LAZ file names its chunk count in a table the decoder allocates for before reading a
+/// point, and an allocation that fails aborts the process (no panic to catch): a count the file
+/// cannot hold is refused here. (Header offsets: the point data's at byte 96, the format's
+/// compression bit at 104; the point data starts with the table's offset, -1 for "in the last
+/// 8 bytes"; the table with a version and the count.)
+fn check_laz_chunk_table(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    let u32_at = |at: usize| bytes.get(at..at + 4).map(|b| u32::from_le_bytes([b[0], b[1], b[2], b[3]]));
+    let i64_at = |at: usize| bytes.get(at..at + 8).map(|b| i64::from_le_bytes(b.try_into().expect("8 bytes")));
+    if bytes.get(104).is_none_or(|format| format & 0x80 == 0) {
+        return Ok(()); // not compressed
+    }
+    let Some(points_at) = u32_at(96) else { return Ok(()) };
+    let table_at = match i64_at(points_at as usize) {
+        Some(-1) => i64_at(bytes.len().saturating_sub(8)),
+        other => other,
+    };
+    let chunks = table_at.and_then(|at| usize::try_from(at).ok()).and_then(|at| u32_at(at + 4));
+    match chunks {
+        Some(chunks) if chunks as usize > bytes.len() / 4 => Err(IoError::invalid(
+            path,
+            format!("corrupt LAZ: its chunk table claims {chunks} chunks, more than the file can hold"),
+        )),
+        _ => Ok(()),
+    }
+}
+
 /// Points decoded at a time: the header's count is not trusted for an allocation.
 const BATCH: u64 = 1 << 16;
 
@@ -30,6 +56,7 @@ pub(crate) fn parse(path: &Path, bytes: Vec<u8>) -> Result<LoadedCloud, IoError>
 }
 
 fn decode(path: &Path, bytes: Vec<u8>) -> Result<LoadedCloud, IoError> {
+    check_laz_chunk_table(path, &bytes)?;
     let file_bytes = bytes.len() as u64;
     let mut reader = las::Reader::new(Cursor::new(bytes))
         .map_err(|e| IoError::invalid(path, format!("not a readable LAS file: {e}")))?;

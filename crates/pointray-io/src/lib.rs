@@ -49,11 +49,11 @@ pub struct FileInfo {
 /// Extensions taken as XYZ text even when the first line would not tell.
 const XYZ_EXTENSIONS: [&str; 7] = ["xyz", "txt", "pts", "csv", "asc", "xyzn", "xyzrgb"];
 
-/// Reads a PLY, LAS/LAZ or XYZ file or a Stanford scan set (`.conf`), recognised by content:
-/// a file starting with the `ply` line is PLY; one starting with `LASF` is LAS or LAZ; one
-/// whose header starts with `VERSION` or `FIELDS` is PCD; one whose first data line starts
-/// with `camera` or `bmesh` a scan set, whose scans are read and merged; otherwise XYZ when the extension says
-/// so or the first data line is all numbers.
+/// Reads a PLY, LAS/LAZ, PCD or XYZ file or a Stanford scan set (`.conf`), recognised by
+/// content: a file starting with the `ply` line is PLY; one starting with `LASF` is LAS or LAZ;
+/// one whose header starts with `VERSION` or `FIELDS` is PCD; one whose first data line starts
+/// with `camera` or `bmesh` a scan set, whose scans are read and merged; otherwise XYZ when the
+/// extension says so or the first data line is all numbers.
 pub fn read_cloud(path: &Path) -> Result<LoadedCloud, IoError> {
     read_any(path, true)
 }
@@ -86,7 +86,7 @@ fn read_any(path: &Path, scan_sets: bool) -> Result<LoadedCloud, IoError> {
     if extension.as_deref().is_some_and(|e| XYZ_EXTENSIONS.contains(&e)) || xyz::looks_like_xyz(&bytes) {
         return xyz::parse(path, &bytes);
     }
-    Err(IoError::invalid(path, "unrecognised format: neither PLY (no 'ply' first line) nor XYZ text"))
+    Err(IoError::invalid(path, "unrecognised format: not PLY, LAS/LAZ, PCD, a scan set or XYZ text"))
 }
 
 /// Writes `path` all or nothing: the closure writes (buffered) into a temporary file in the

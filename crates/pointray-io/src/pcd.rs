@@ -104,13 +104,15 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, IoError> {
                 }
                 let mut fields = Vec::new();
                 for (((name, size), kind), count) in names.into_iter().zip(sizes).zip(types).zip(counts) {
-                    let valid = matches!((kind, size), ('F', 4 | 8) | ('U' | 'I', 1 | 2 | 4 | 8)) && count >= 1;
+                    // No field holds more values than the file has bytes: the sums below fit.
+                    let valid = matches!((kind, size), ('F', 4 | 8) | ('U' | 'I', 1 | 2 | 4 | 8))
+                        && (1..=bytes.len()).contains(&count);
                     if !valid {
                         return Err(error(format!("field {name}: unsupported TYPE {kind} SIZE {size} COUNT {count}")));
                     }
                     fields.push(Field { name, size, kind, count });
                 }
-                let points = points.or(width.zip(height).map(|(w, h)| w * h));
+                let points = points.or(width.zip(height).and_then(|(w, h)| w.checked_mul(h)));
                 let points = points.ok_or_else(|| error("no POINTS (nor WIDTH and HEIGHT)".into()))?;
                 let data = rest.first().map(|s| s.to_ascii_lowercase()).unwrap_or_default();
                 return Ok(Header { fields, points, data, body: lines.offset(), body_line: number + 1 });
@@ -129,7 +131,8 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     };
     let normal = find("normal_x").zip(find("normal_y")).zip(find("normal_z")).map(|((a, b), c)| [a, b, c]);
     let color = find("rgb").or(find("rgba")).filter(|&c| header.fields[c].size == 4);
-    let record: usize = header.fields.iter().map(Field::bytes).sum();
+    let record = header.fields.iter().try_fold(0usize, |sum, f| sum.checked_add(f.bytes()));
+    let record = record.ok_or_else(|| IoError::invalid(path, "the PCD fields' sizes overflow"))?;
     let body = &bytes[header.body..];
     let n = header.points;
     // Every layout gives the raw bytes of field f of point i.
@@ -145,7 +148,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     };
     let mut ascii_values = Vec::new();
     if header.data == "ascii" {
-        ascii_values = ascii_records(path, &header, body, n)?;
+        ascii_values = ascii_records(path, &header, body, n, color)?;
     } else if n.checked_mul(record).is_none_or(|total| total > data.len()) {
         return Err(IoError::invalid(
             path,
@@ -182,9 +185,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     };
     let bits = |i: usize, f: usize| {
         if header.data == "ascii" {
-            let v = ascii_values[i * per_point + ascii_index[f]];
-            // ascii colours are written as the float whose bits hold the colour, or as an integer.
-            if header.fields[f].kind == 'F' { (v as f32).to_bits() } else { v as u32 }
+            ascii_values[i * per_point + ascii_index[f]] as u32 // already the bits (`ascii_records`)
         } else {
             header.fields[f].bits(raw(i, f))
         }
@@ -206,7 +207,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         builder.push(&PointRecord { position, normal, color, radius: 0.0 });
     }
     if dropped > 0 {
-        tracing::warn!("{}: {dropped} of {n} points have no coordinates (NaN) and were dropped", path.display());
+        tracing::warn!("{}: {dropped} of {n} points have no finite coordinates (NaN) and were dropped", path.display());
     }
     let info = FileInfo {
         format: format!("PCD {}", header.data),
@@ -222,9 +223,18 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     Ok(LoadedCloud { cloud: builder.finish(), info })
 }
 
-/// The values of the ascii body, `n` lines of every field's values.
-fn ascii_records(path: &Path, header: &Header, body: &[u8], n: usize) -> Result<Vec<f64>, IoError> {
+/// The values of the ascii body, `n` lines of every field's values. The packed colour (field
+/// `color`) becomes its bits: PCL writes it as an integer despite its float type, others as
+/// the float whose bits hold it.
+fn ascii_records(
+    path: &Path,
+    header: &Header,
+    body: &[u8],
+    n: usize,
+    color: Option<usize>,
+) -> Result<Vec<f64>, IoError> {
     let per_point: usize = header.fields.iter().map(|f| f.count).sum();
+    let color_at = color.map(|c| header.fields[..c].iter().map(|f| f.count).sum::<usize>());
     let mut values = Vec::with_capacity(n.min(body.len() / (2 * per_point).max(1)) * per_point);
     let mut read = 0;
     for (number, line) in Lines::new(body, header.body_line) {
@@ -240,8 +250,17 @@ fn ascii_records(path: &Path, header: &Header, body: &[u8], n: usize) -> Result<
         if tokens.len() != per_point {
             return Err(error(format!("expected {per_point} values, found {}", tokens.len())));
         }
-        for t in tokens {
-            values.push(t.parse::<f64>().map_err(|_| error(format!("'{t}' is not a number")))?);
+        for (k, t) in tokens.into_iter().enumerate() {
+            let bad = || error(format!("'{t}' is not a number"));
+            let value = if Some(k) == color_at {
+                match t.parse::<u32>() {
+                    Ok(bits) => f64::from(bits),
+                    Err(_) => f64::from(t.parse::<f32>().map_err(|_| bad())?.to_bits()),
+                }
+            } else {
+                t.parse::<f64>().map_err(|_| bad())?
+            };
+            values.push(value);
         }
         read += 1;
     }
@@ -267,8 +286,8 @@ fn decompress(path: &Path, body_at: usize, body: &[u8], expected: Option<usize>)
     let input = body
         .get(8..8 + compressed)
         .ok_or_else(|| error(format!("binary_compressed: {compressed} bytes promised, fewer present")))?;
-    // An LZF back-reference of 2–3 bytes makes at most 264: a larger ratio is not LZF.
-    if size > compressed.saturating_mul(132) + 64 {
+    // An LZF back-reference of 3 bytes makes at most 264: a larger ratio is not LZF.
+    if size > compressed.saturating_mul(88) + 64 {
         return Err(error(format!("binary_compressed: {size} bytes cannot come from {compressed}")));
     }
     lzf_decompress(input, size).map_err(|e| IoError::at_byte(path, body_at + 8, format!("binary_compressed: {e}")))

@@ -953,11 +953,18 @@ fn broken_las_files_are_refused_with_their_name() {
     write_file(dir.path(), "count.las", &more);
     let laz = las_bytes(&survey_points(500, |_| 100), true);
     write_file(dir.path(), "cut.laz", &laz[..laz.len() - 300]);
+    // A chunk table claiming four billion chunks: the decoder would try to allocate for them.
+    let mut chunks = laz.clone();
+    let points_at = u32::from_le_bytes(laz[96..100].try_into().unwrap()) as usize;
+    let table_at = i64::from_le_bytes(laz[points_at..points_at + 8].try_into().unwrap()) as usize;
+    chunks[table_at + 4..table_at + 8].copy_from_slice(&u32::MAX.to_le_bytes());
+    write_file(dir.path(), "chunks.laz", &chunks);
     for (name, fragment) in [
         ("cut.las", "more than the file holds"),
         ("head.las", "not a readable LAS file"),
         ("count.las", "more than the file holds"),
         ("cut.laz", "not a readable LAS file"),
+        ("chunks.laz", "chunk table claims 4294967295 chunks"),
     ] {
         eprintln!("{}", expect_error(&dir.path().join(name), fragment));
     }
@@ -1004,10 +1011,13 @@ fn pcd_compressed(points: &[([f32; 3], u32)]) -> Vec<u8> {
 fn pcd_ascii_binary_and_compressed_read_alike_and_drop_nan_points() {
     let dir = temp_dir();
     let points = pcd_points();
-    // ascii: the colour as the float whose bits hold it, as PCL writes `rgb`.
+    // ascii: a float `rgb` field written as the integer of its bits (as PCL does), and as the
+    // float whose bits hold the colour (as others do).
     let mut ascii = pcd_header("x y z rgb", "4 4 4 4", "F F F F", "1 1 1 1", 4, 3, "ascii");
+    let mut ascii_float = ascii.clone();
     for (p, c) in &points {
-        ascii += &format!("{} {} {} {:e}\n", p[0], p[1], p[2], f32::from_bits(*c));
+        ascii += &format!("{} {} {} {c}\n", p[0], p[1], p[2]);
+        ascii_float += &format!("{} {} {} {:e}\n", p[0], p[1], p[2], f32::from_bits(*c));
     }
     // binary: rows of x y z, a two-value field to skip, rgba as u32.
     let mut binary = pcd_header("x y z extra rgba", "4 4 4 2 4", "F F F I U", "1 1 1 2 1", 4, 3, "binary").into_bytes();
@@ -1018,7 +1028,12 @@ fn pcd_ascii_binary_and_compressed_read_alike_and_drop_nan_points() {
     }
     let compressed = pcd_compressed(&points);
     let read = |name: &str, bytes: &[u8]| read_cloud(&write_file(dir.path(), name, bytes)).unwrap();
-    let clouds = [read("a.pcd", ascii.as_bytes()), read("b.pcd", &binary), read("c.pcd", &compressed)];
+    let clouds = [
+        read("a.pcd", ascii.as_bytes()),
+        read("f.pcd", ascii_float.as_bytes()),
+        read("b.pcd", &binary),
+        read("c.pcd", &compressed),
+    ];
     let finite: Vec<_> = points.iter().filter(|(p, _)| p[0].is_finite()).collect();
     for loaded in &clouds {
         assert_eq!(loaded.cloud.len(), 8, "{}: the 4 NaN points are dropped", loaded.info.format);
@@ -1030,7 +1045,7 @@ fn pcd_ascii_binary_and_compressed_read_alike_and_drop_nan_points() {
             assert_eq!(colors[i], expected, "{}", loaded.info.format);
         }
     }
-    assert_eq!(clouds.map(|l| l.info.format), ["PCD ascii", "PCD binary", "PCD binary_compressed"]);
+    assert_eq!(clouds.map(|l| l.info.format), ["PCD ascii", "PCD ascii", "PCD binary", "PCD binary_compressed"]);
 }
 
 #[test]
@@ -1058,6 +1073,11 @@ fn broken_pcd_files_are_refused_with_their_name_and_place() {
             [header("binary_compressed").into_bytes(), 4u32.to_le_bytes().to_vec(), 99u32.to_le_bytes().to_vec()]
                 .concat(),
             "99 bytes uncompressed",
+        ),
+        (
+            "count.pcd",
+            pcd_header("x y z", "4 4 4", "F F F", "1 1 18446744073709551615", 1, 1, "ascii").into_bytes(),
+            "COUNT 18446744073709551615",
         ),
         (
             "lzf.pcd",

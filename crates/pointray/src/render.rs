@@ -14,6 +14,7 @@ use crate::camera::{Camera, Region};
 use crate::film::Film;
 use crate::math::Ray;
 use crate::shading::{Light, Material};
+use crate::splat::DiskShape;
 use crate::splat::scheme::{self, SurfaceScheme};
 use crate::stats::RenderStats;
 
@@ -107,7 +108,8 @@ fn render_pixel<A: Accel>(
         let mut ray = camera
             .ray(x as f32 + dx, y as f32 + dy)
             .with_lod_threshold(config.lod_threshold)
-            .with_backface_culling(config.cull_backfaces);
+            // A ray-facing disk faces every ray: nothing is a back face.
+            .with_backface_culling(config.cull_backfaces && config.scheme.kind.shape() == DiskShape::Oriented);
         // Each of n samples stands for 1/n of the pixel, a beam 1/√n as wide (as pbrt scales
         // its ray differentials): more samples resolve finer detail.
         ray.cone.spread *= footprint_scale;

@@ -102,9 +102,9 @@ pub trait Accel: Send + Sync {
     /// The disks the bounds were built to hold: a visitor of another shape may miss hits
     /// unless it is held too ([`DiskShape::holds`]).
     fn shape(&self) -> DiskShape;
-    /// Calls `f` with every input splat (its index and itself) whose centre lies within
-    /// `radius` of `center`, once each, in no particular order (the point-set surface's
-    /// neighbourhoods). Representatives are not included.
+    /// Calls `f` with every input splat (its index, as [`Accel::splat`] takes it, and itself)
+    /// whose centre lies within `radius` of `center`, once each, in no particular order (the
+    /// point-set surface's neighbourhoods). Representatives are not included.
     fn for_each_near<F: FnMut(u32, &Splat)>(&self, center: Vec3, radius: f32, stats: &mut TraversalStats, f: F);
     /// Bytes of the structure itself, excluding the splats.
     fn memory_bytes(&self) -> usize;

@@ -95,7 +95,8 @@ struct LocalPlane {
 /// whose normals lie in the hemisphere of `side`; `None` if none has weight.
 ///
 /// Each accelerator reports the neighbours in its own order; the sums run in f64, where the
-/// order no longer shows once they are rounded to f32 (so all accelerators agree).
+/// order almost never shows once they are rounded to f32 (not guaranteed: the agreement tests
+/// check that accelerators match bit for bit on their rays).
 fn local_plane<A: Accel + ?Sized>(
     accel: &A,
     x: Vec3,

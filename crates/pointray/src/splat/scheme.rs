@@ -153,13 +153,7 @@ pub fn intersect<A: Accel + ?Sized>(
     scheme: &SurfaceScheme,
     stats: &mut TraversalStats,
 ) -> Option<SurfaceHit> {
-    let needs = scheme.kind.shape();
-    assert!(
-        accel.shape().holds(needs),
-        "the {} scheme needs an accelerator built for {needs:?} disks, not {:?}",
-        scheme.kind.name(),
-        accel.shape()
-    );
+    check_shape(accel, scheme);
     match scheme.kind {
         SurfaceKind::FirstHit => nearest(accel, ray, stats),
         SurfaceKind::Sj => windowed::<A, Oriented>(accel, ray, scheme, stats),
@@ -228,8 +222,22 @@ fn windowed<A: Accel + ?Sized, D: DiskTest>(
 /// Most windows a ray skips as too weakly covered before it settles for one.
 const MAX_WEAK_WINDOWS: usize = 4;
 
+/// Panics unless the accelerator's bounds hold the scheme's disks.
+fn check_shape<A: Accel + ?Sized>(accel: &A, scheme: &SurfaceScheme) {
+    let needs = scheme.kind.shape();
+    assert!(
+        accel.shape().holds(needs),
+        "the {} scheme needs an accelerator built for {needs:?} disks, not {:?}",
+        scheme.kind.name(),
+        accel.shape()
+    );
+}
+
 /// Whether anything lies on `ray` before `t_max` (shadow rays), as the scheme's disks. Any
 /// disk counts: a blocker needs no interpolation.
+///
+/// # Panics
+/// As [`intersect`].
 pub fn occluded<A: Accel + ?Sized>(
     accel: &A,
     ray: &Ray,
@@ -237,6 +245,7 @@ pub fn occluded<A: Accel + ?Sized>(
     scheme: &SurfaceScheme,
     stats: &mut TraversalStats,
 ) -> bool {
+    check_shape(accel, scheme);
     fn any<A: Accel + ?Sized, D: DiskTest>(accel: &A, ray: &Ray, t_max: f32, stats: &mut TraversalStats) -> bool {
         let mut v = AnyHit::<D> { t_max, hit: false, disk: std::marker::PhantomData };
         accel.traverse(ray, &mut v, stats);

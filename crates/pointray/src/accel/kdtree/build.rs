@@ -118,6 +118,8 @@ impl KdTree {
         let root = build_node(&input, bounds, (0..n as u32).collect(), 0);
         let (mut nodes, mut refs, mut reps) = (Vec::new(), Vec::new(), Vec::new());
         let depth = flatten(root, n as u32, &mut nodes, &mut refs, &mut reps);
+        // Leaves index their references with u32 (padding included).
+        assert!(refs.len() <= u32::MAX as usize, "too many splat references for a kd-tree");
         // The visitor knows representatives by index after the splats.
         assert!(n + nodes.len() <= u32::MAX as usize, "too many splats for a kd-tree");
         let radii = reps.iter().map(|r| r.radius).filter(|&r| r > 0.0).collect();

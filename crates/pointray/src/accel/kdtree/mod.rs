@@ -173,10 +173,13 @@ impl Accel for KdTree {
             }
             stats.nodes_visited += 1;
             let (a, split) = (n.axis(), n.split());
-            if center[a] - radius <= split {
+            // Pruned with a little more than the radius: the distance test is rounded
+            // differently, and a splat at the edge must not fall in a pruned cell.
+            let reach = radius * (1.0 + 1e-5) + center[a].abs() * f32::EPSILON;
+            if center[a] - reach <= split {
                 stack.push((k + 1, Aabb { max: with(cell.max, a, split), ..cell }));
             }
-            if center[a] + radius >= split {
+            if center[a] + reach >= split {
                 stack.push((n.above(), Aabb { min: with(cell.min, a, split), ..cell }));
             }
         }
