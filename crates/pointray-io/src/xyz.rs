@@ -1,4 +1,5 @@
-//! XYZ text: one point per line, `x y z [nx ny nz] [r g b]`.
+//! XYZ text: one point per line, `x y z [nx ny nz] [r g b]`, or in the PTS layout (Leica and
+//! others) `x y z intensity [r g b]`.
 //!
 //! Rules, chosen to be predictable rather than clever:
 //! - values are separated by whitespace and/or commas; `#` starts a comment (whole-line
@@ -8,7 +9,8 @@
 //! - the first data line fixes the column count for the whole file: 3 = position,
 //!   9 = position + normal + colour, 6 = position + colour if each of its last three values
 //!   is an integer literal in `0..=255` and the triple is not unit length, else
-//!   position + normal;
+//!   position + normal; 4 = position + intensity, 7 = position + intensity + colour (PTS; the
+//!   intensity is read and not kept);
 //! - colours are `0..=255` if any colour value in the file exceeds 1, else `0..=1`;
 //!   clamped to `[0, 1]` either way;
 //! - non-finite coordinates (`nan`, `inf`) are kept, as for PLY.
@@ -33,13 +35,17 @@ enum Columns {
     PositionNormal,
     PositionColor,
     PositionNormalColor,
+    PositionIntensity,
+    PositionIntensityColor,
 }
 
 impl Columns {
     fn count(self) -> usize {
         match self {
             Self::Position => 3,
+            Self::PositionIntensity => 4,
             Self::PositionNormal | Self::PositionColor => 6,
+            Self::PositionIntensityColor => 7,
             Self::PositionNormalColor => 9,
         }
     }
@@ -48,13 +54,16 @@ impl Columns {
         Attributes {
             normals: matches!(self, Self::PositionNormal | Self::PositionNormalColor),
             radii: false,
-            colors: matches!(self, Self::PositionColor | Self::PositionNormalColor),
+            colors: matches!(self, Self::PositionColor | Self::PositionNormalColor | Self::PositionIntensityColor),
         }
     }
 
     fn property_names(self) -> Vec<String> {
         let attributes = self.attributes();
         let mut names = vec!["x", "y", "z"];
+        if matches!(self, Self::PositionIntensity | Self::PositionIntensityColor) {
+            names.push("intensity");
+        }
         if attributes.normals {
             names.extend(["nx", "ny", "nz"]);
         }
@@ -68,10 +77,14 @@ impl Columns {
     fn from_first_line(tokens: &[&str]) -> Result<Self, String> {
         match tokens.len() {
             3 => Ok(Self::Position),
+            4 => Ok(Self::PositionIntensity),
+            7 => Ok(Self::PositionIntensityColor),
             6 if looks_like_rgb(&tokens[3..]) => Ok(Self::PositionColor),
             6 => Ok(Self::PositionNormal),
             9 => Ok(Self::PositionNormalColor),
-            n => Err(format!("expected 3, 6 or 9 values (x y z [nx ny nz] [r g b]), found {n}")),
+            n => Err(format!(
+                "expected 3, 4, 6, 7 or 9 values (x y z [nx ny nz] [r g b], or x y z intensity [r g b]), found {n}"
+            )),
         }
     }
 }
@@ -171,7 +184,8 @@ fn parse_point(values: &[&str], layout: Columns) -> Result<PointRecord, String> 
     let as_vec3 = |[x, y, z]: [f64; 3]| Vec3::new(x as f32, y as f32, z as f32);
     let mut record = PointRecord { position: DVec3::from_array(triple(0)), ..PointRecord::default() };
     match layout {
-        Columns::Position => {}
+        Columns::Position | Columns::PositionIntensity => {}
+        Columns::PositionIntensityColor => record.color = as_vec3(triple(4)).to_array(),
         Columns::PositionNormal => record.normal = as_vec3(triple(3)),
         Columns::PositionColor => record.color = as_vec3(triple(3)).to_array(),
         Columns::PositionNormalColor => {
@@ -192,7 +206,8 @@ mod tests {
         assert_eq!(Columns::from_first_line(&["0", "0", "0", "0", "0", "1"]), Ok(Columns::PositionNormal));
         assert_eq!(Columns::from_first_line(&["0", "0", "0", "0.5", "0.5", "0.7"]), Ok(Columns::PositionNormal));
         assert_eq!(Columns::from_first_line(&["0", "0", "0", "256", "0", "0"]), Ok(Columns::PositionNormal));
-        assert!(Columns::from_first_line(&["0", "0", "0", "1"]).is_err());
+        assert_eq!(Columns::from_first_line(&["0", "0", "0", "1"]), Ok(Columns::PositionIntensity));
+        assert!(Columns::from_first_line(&["0", "0", "0", "1", "2"]).is_err());
     }
 
     #[test]

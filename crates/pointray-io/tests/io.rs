@@ -598,7 +598,7 @@ fn mutations_never_panic() {
 // ---------------------------------------------------------------- XYZ
 
 #[test]
-fn xyz_three_six_and_nine_columns() {
+fn xyz_and_pts_columns() {
     let dir = temp_dir();
     let path = write_file(dir.path(), "plain.xyz", b"# a scan\n\n1 2 3\n4.5 5 6 # trailing\n");
     let loaded = read_cloud(&path).unwrap();
@@ -622,6 +622,16 @@ fn xyz_three_six_and_nine_columns() {
     assert_eq!(cloud.len(), 2);
     assert_eq!(cloud.normals.unwrap()[1], Vec3::X);
     assert_eq!(cloud.colors.unwrap()[0], [0.5, 0.25, 1.0]);
+
+    // PTS as scanners write it: a count, then x y z intensity [r g b].
+    let path = write_file(dir.path(), "scan.pts", b"2\n1 2 3 -1024 255 0 51\n4 5 6 300 0 255 0\n");
+    let loaded = read_cloud(&path).unwrap();
+    assert_eq!(loaded.info.vertex_properties, ["x", "y", "z", "intensity", "red", "green", "blue"]);
+    assert_eq!(loaded.cloud.colors.as_deref(), Some(&[[1.0, 0.0, 0.2], [0.0, 1.0, 0.0]][..]));
+    assert_close(world_positions(&loaded.cloud)[1], DVec3::new(4.0, 5.0, 6.0), 1e-6);
+    let path = write_file(dir.path(), "grey.pts", b"1 2 3 0.5\n4 5 6 0.25\n");
+    let cloud = read_cloud(&path).unwrap().cloud;
+    assert!(cloud.len() == 2 && cloud.colors.is_none() && cloud.normals.is_none());
 }
 
 #[test]
@@ -639,8 +649,8 @@ fn xyz_errors_name_the_line() {
     expect_error(&path, "line 3: bad value 'x' in column 3");
     let path = write_file(dir.path(), "ragged.xyz", b"1 2 3\n\n4 5 6 7\n");
     expect_error(&path, "line 3: expected 3 values, found 4");
-    let path = write_file(dir.path(), "four.xyz", b"1 2 3 4\n");
-    expect_error(&path, "line 1: expected 3, 6 or 9 values");
+    let path = write_file(dir.path(), "five.xyz", b"1 2 3 4 5\n");
+    expect_error(&path, "line 1: expected 3, 4, 6, 7 or 9 values");
 }
 
 // ---------------------------------------------------------------- atomic writes and PNG
