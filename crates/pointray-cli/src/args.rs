@@ -65,7 +65,8 @@ pub struct PreprocessArgs {
 
 #[derive(Args, Debug)]
 pub struct RenderArgs {
-    /// PLY or XYZ file, or a Stanford scan set (.conf); none renders the built-in demo scene.
+    /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, or a Stanford scan set .conf; recognised by
+    /// content); none renders the built-in demo scene.
     pub input: Option<PathBuf>,
     /// Output PNG (written atomically).
     #[arg(short, long)]
@@ -182,7 +183,7 @@ pub struct RenderArgs {
 
 #[derive(Args, Debug)]
 pub struct PrepareArgs {
-    /// PLY or XYZ file, or a Stanford scan set (.conf).
+    /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, or a Stanford scan set .conf).
     pub input: PathBuf,
     /// Output PLY (binary, with normals, radii and any colours; written atomically).
     #[arg(short, long)]
@@ -193,7 +194,7 @@ pub struct PrepareArgs {
 
 #[derive(Args, Debug)]
 pub struct InfoArgs {
-    /// PLY or XYZ file, or a Stanford scan set (.conf).
+    /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, or a Stanford scan set .conf).
     pub input: PathBuf,
 }
 

@@ -287,7 +287,8 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     // Level of detail lives in the BVH's and the kd-tree's nodes, normal cones in the BVH's
     // only; brute force traces at full detail. The statistics say what was used.
     let multires = matches!(a.accel, AccelArg::Bvh | AccelArg::Kdtree);
-    // Ray-facing disks always face the ray: nothing to cull.
+    // Ray-facing disks always face the ray: nothing to cull (`render` ignores culling for them
+    // too; checking here skips the probe and keeps the reported setting true).
     let cones = matches!(a.accel, AccelArg::Bvh) && scheme.kind.shape() == DiskShape::Oriented;
     let backfacing = (cones && a.cull == CullArg::Auto).then(|| accel.backfacing_fraction()).flatten();
     let cull_backfaces = cones

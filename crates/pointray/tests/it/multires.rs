@@ -40,15 +40,15 @@ fn a_coarser_threshold_never_visits_more_nodes() {
     check_coarser_threshold(&KdTree::build(splats, &KdTreeParams::standard()));
 }
 
-fn check_coarser_threshold(bvh: &impl Accel) {
-    let name = bvh.name();
+fn check_coarser_threshold(accel: &impl Accel) {
+    let name = accel.name();
     let thresholds = [0.0, 0.25, 0.5, 1.0, 2.0, 4.0, 16.0];
     let mut stops = 0;
-    for ray in far_camera_rays(&bvh.bounds(), 3.0, 48) {
+    for ray in far_camera_rays(&accel.bounds(), 3.0, 48) {
         let mut previous = u64::MAX;
         for tau in thresholds {
             let mut stats = TraversalStats::default();
-            bvh.traverse(&ray.with_lod_threshold(tau), &mut Everything(0), &mut stats);
+            accel.traverse(&ray.with_lod_threshold(tau), &mut Everything(0), &mut stats);
             assert!(
                 stats.nodes_visited <= previous,
                 "{name} τ = {tau}: {} nodes, more than before",
@@ -60,13 +60,13 @@ fn check_coarser_threshold(bvh: &impl Accel) {
     }
     assert!(stops > 1_000, "{name}: the rays must stop at coarse nodes to test anything ({stops} stops)");
     // The surface schemes narrow the walk as they find hits; the totals still fall.
-    let rays = far_camera_rays(&bvh.bounds(), 3.0, 48);
+    let rays = far_camera_rays(&accel.bounds(), 3.0, 48);
     let totals: Vec<u64> = thresholds
         .iter()
         .map(|&tau| {
             let mut stats = TraversalStats::default();
             for ray in &rays {
-                scheme::intersect(bvh, &ray.with_lod_threshold(tau), &SurfaceScheme::sj(), &mut stats);
+                scheme::intersect(accel, &ray.with_lod_threshold(tau), &SurfaceScheme::sj(), &mut stats);
             }
             stats.nodes_visited
         })
@@ -93,12 +93,12 @@ fn level_of_detail_hits_stay_within_the_footprint_of_the_sphere() {
     check_sphere_hits(&KdTree::build(splats, &KdTreeParams::standard()));
 }
 
-fn check_sphere_hits(bvh: &impl Accel) {
-    let name = bvh.name();
+fn check_sphere_hits(accel: &impl Accel) {
+    let name = accel.name();
     let tau = 1.0;
     let (mut checked, mut stops) = (0, 0);
     let mut normal_err = Vec::new();
-    for ray in far_camera_rays(&bvh.bounds(), 3.0, 128) {
+    for ray in far_camera_rays(&accel.bounds(), 3.0, 128) {
         let Some(t) = unit_sphere_hit(&ray) else { continue };
         let exact_n = ray.at(t).normalize();
         if exact_n.dot(-ray.dir) < 0.3 {
@@ -106,7 +106,7 @@ fn check_sphere_hits(bvh: &impl Accel) {
         }
         let ray = ray.with_lod_threshold(tau);
         let mut stats = TraversalStats::default();
-        let hit = scheme::intersect(bvh, &ray, &SurfaceScheme::sj(), &mut stats)
+        let hit = scheme::intersect(accel, &ray, &SurfaceScheme::sj(), &mut stats)
             .unwrap_or_else(|| panic!("{name}: the ray misses the sphere"));
         let footprint = ray.cone.width_at(t);
         assert!(
