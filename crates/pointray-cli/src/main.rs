@@ -3,6 +3,7 @@
 
 mod args;
 mod commands;
+mod failure;
 mod progress;
 
 use std::io::{self, Write};
@@ -15,6 +16,7 @@ use args::{Cli, Command};
 fn main() -> ExitCode {
     let cli = Cli::parse();
     init_logging(&cli);
+    failure::exit_cleanly_on_interrupt();
     let result = match &cli.command {
         Command::Render(a) => commands::render::run(a, cli.quiet),
         Command::Prepare(a) => commands::prepare::run(a, cli.quiet),
@@ -27,7 +29,7 @@ fn main() -> ExitCode {
         Err(e) if is_broken_pipe(&e) => ExitCode::SUCCESS,
         Err(e) => {
             let _ = writeln!(io::stderr(), "pointray: error: {e:#}");
-            ExitCode::FAILURE
+            ExitCode::from(failure::exit_status(&e))
         }
     }
 }
@@ -44,5 +46,5 @@ fn init_logging(cli: &Cli) {
         (false, 2) => tracing::Level::DEBUG,
         _ => tracing::Level::TRACE,
     };
-    tracing_subscriber::fmt().with_max_level(level).with_writer(io::stderr).with_target(false).init();
+    tracing_subscriber::fmt().with_max_level(level).with_writer(io::stderr).event_format(failure::PlainFormat).init();
 }

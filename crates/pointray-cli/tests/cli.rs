@@ -548,10 +548,87 @@ fn cloud_without_finite_points_is_an_error() {
     run_in(dir.path(), &["info", "zero.ply"]).assert_success().assert_stdout_contains("points:      0");
 }
 
+/// The fixture directory: one small file per class of bad input, with its exact outcome.
+fn bad_input_dir() -> std::path::PathBuf {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/bad-input")
+}
+
+/// Every file in `tests/bad-input` through `prepare` (whose exit status and whole stderr must
+/// match `NAME.expected` exactly) and `render` (same exit status; quiet, so only an error).
+#[test]
+fn bad_input_classes_have_exact_outcomes() {
+    let mut checked = 0;
+    for entry in std::fs::read_dir(bad_input_dir()).unwrap() {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_str().unwrap().to_string();
+        if name.ends_with(".expected") || name == "README.md" {
+            continue;
+        }
+        let expected = std::fs::read_to_string(path.with_file_name(format!("{name}.expected")))
+            .unwrap_or_else(|e| panic!("{name}: no .expected file: {e}"));
+        let (status_line, expected_stderr) = expected.split_once('\n').unwrap();
+        let status: i32 = status_line.strip_prefix("exit ").unwrap().parse().unwrap();
+
+        let dir = temp_dir();
+        std::fs::copy(&path, dir.path().join(&name)).unwrap();
+        let run = run_in(dir.path(), &["prepare", &name, "-o", "out.ply"]);
+        run.assert_no_panic();
+        assert_eq!(run.code, Some(status), "{name}: {run}");
+        assert_eq!(run.stderr, expected_stderr, "{name}: stderr");
+        let render = render_in(dir.path(), &[&name, "-o", "out.png"]);
+        assert_eq!(render.code, Some(status), "{name}: render: {render}");
+        if status == 0 {
+            assert!(render.stderr.is_empty(), "{name}: render: {render}");
+            assert_dir_contains_exactly(dir.path(), &[&name, "out.ply", "out.png"]);
+        } else {
+            let error_line = expected_stderr.lines().last().unwrap();
+            assert_eq!(render.stderr.trim_end(), error_line, "{name}: render");
+            assert_dir_contains_exactly(dir.path(), &[&name]);
+        }
+        checked += 1;
+    }
+    assert!(checked >= 20, "only {checked} bad-input files found");
+}
+
+// ---------------------------------------------------------------------------------------------
+// 7a. Exit statuses and Ctrl-C
+// ---------------------------------------------------------------------------------------------
+
+#[test]
+fn exit_statuses_tell_input_usage_and_output_failures_apart() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    render_in(dir.path(), &["sphere.ply", "-o", "a.png"]).assert_success();
+    render_in(dir.path(), &["missing.ply", "-o", "b.png"]).assert_failure(1);
+    render_in(dir.path(), &["sphere.ply", "-o", "b.png", "--fov", "0"]).assert_failure(2);
+    render_in(dir.path(), &["sphere.ply", "-o", "b.png", "--no-such-flag"]).assert_failure(2);
+    run_in(dir.path(), &["-q", "prepare", "sphere.ply", "-o", "b.ply", "--k-normals", "1"]).assert_failure(2);
+    render_in(dir.path(), &["sphere.ply", "-o", "no/such/dir/b.png"]).assert_failure(3);
+    render_in(dir.path(), &["sphere.ply", "-o", "."]).assert_failure(3);
+    assert_dir_contains_exactly(dir.path(), &["sphere.ply", "a.png"]);
+}
+
+/// Ctrl-C in the middle of a render: status 130, a message, and no file at all.
+#[cfg(unix)]
+#[test]
+fn interrupted_render_exits_130_and_leaves_nothing() {
+    let dir = temp_dir();
+    let args = ["render", "-o", "big.png", "--stats", "big.json", "--width", "1500", "--height", "1500", "--spp", "64"];
+    let mut child = pointray().current_dir(dir.path()).args(args).stderr(Stdio::piped()).spawn().unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(1500));
+    assert!(child.try_wait().unwrap().is_none(), "the render must still be running when interrupted");
+    let kill = std::process::Command::new("kill").args(["-INT", &child.id().to_string()]).status().unwrap();
+    assert!(kill.success());
+    let output = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&output.stderr);
+    assert_eq!(output.status.code(), Some(130), "{stderr}");
+    assert!(stderr.ends_with("pointray: interrupted\n"), "{stderr}");
+    assert_dir_contains_exactly(dir.path(), &[]);
+}
+
 fn write_tiny_clouds(dir: &std::path::Path) {
-    write_file(dir, "one.xyz", "1 2 3\n");
     write_file(dir, "two.xyz", "1 2 3\n1 2 4\n");
-    write_file(dir, "same.xyz", "1 2 3\n".repeat(50));
+    write_file(dir, "same.xyz", "1 2 3\n1 2 4\n".repeat(50));
     write_file(dir, "line.xyz", (0..50).map(|i| format!("{i} 0 0\n")).collect::<String>());
 }
 
@@ -570,13 +647,13 @@ fn assert_tiny_cloud_renders(dir: &std::path::Path, name: &str) {
     run_in(dir, &["-q", "prepare", name, "-o", &format!("{name}.ply")]).assert_success();
 }
 
-/// One point, two points, 50 coincident points and 50 collinear ones: defined results, the
-/// same with every accelerator, and no panic.
+/// Two points, 100 points repeating two positions, and 50 collinear ones: defined results,
+/// the same with every accelerator, and no panic.
 #[test]
 fn tiny_and_degenerate_clouds_render_without_panicking() {
     let dir = temp_dir();
     write_tiny_clouds(dir.path());
-    for name in ["one.xyz", "two.xyz", "same.xyz", "line.xyz"] {
+    for name in ["two.xyz", "same.xyz", "line.xyz"] {
         assert_tiny_cloud_renders(dir.path(), name);
     }
 }
@@ -591,22 +668,22 @@ fn bad_flags_are_rejected_with_clear_messages() {
     write_sphere(dir.path());
     // (extra args, exit code, words the message must contain)
     let cases: &[(&[&str], i32, &[&str])] = &[
-        (&["--width", "0", "--height", "40"], 1, &["--width", "positive"]),
-        (&["--width", "48", "--height", "0"], 1, &["--height", "positive"]),
-        (&["--width", "48", "--height", "40", "--fov", "0"], 1, &["--fov"]),
-        (&["--width", "48", "--height", "40", "--fov", "180"], 1, &["--fov"]),
-        (&["--width", "48", "--height", "40", "--distance=-1"], 1, &["--distance", "positive"]),
-        (&["--width", "48", "--height", "40", "--distance", "0"], 1, &["--distance", "positive"]),
+        (&["--width", "0", "--height", "40"], 2, &["--width", "positive"]),
+        (&["--width", "48", "--height", "0"], 2, &["--height", "positive"]),
+        (&["--width", "48", "--height", "40", "--fov", "0"], 2, &["--fov"]),
+        (&["--width", "48", "--height", "40", "--fov", "180"], 2, &["--fov"]),
+        (&["--width", "48", "--height", "40", "--distance=-1"], 2, &["--distance", "positive"]),
+        (&["--width", "48", "--height", "40", "--distance", "0"], 2, &["--distance", "positive"]),
         // `-1` looks like a flag to clap: a usage error that tells how to pass it.
         (&["--width", "48", "--height", "40", "--distance", "-1"], 2, &["-1"]),
-        (&["--width", "48", "--height", "40", "--spp", "0"], 1, &["--spp"]),
-        (&["--width", "48", "--height", "40", "--k-normals", "2"], 1, &["--k-normals"]),
-        (&["--width", "48", "--height", "40", "--k-radius", "0"], 1, &["--k-radius"]),
-        (&["--width", "48", "--height", "40", "--radius-scale", "0"], 1, &["--radius-scale"]),
+        (&["--width", "48", "--height", "40", "--spp", "0"], 2, &["--spp"]),
+        (&["--width", "48", "--height", "40", "--k-normals", "2"], 2, &["--k-normals"]),
+        (&["--width", "48", "--height", "40", "--k-radius", "0"], 2, &["--k-radius"]),
+        (&["--width", "48", "--height", "40", "--radius-scale", "0"], 2, &["--radius-scale"]),
         (&["--width", "48", "--height", "40", "--region", "5,5,2,2"], 2, &["--region", "empty region"]),
         (&["--width", "48", "--height", "40", "--region", "1,2,3"], 2, &["--region", "4"]),
         (&["--width", "48", "--height", "40", "--region", "1.5,0,3,3"], 2, &["--region", "integers"]),
-        (&["--width", "48", "--height", "40", "--region", "100,100,200,200"], 1, &["--region", "outside"]),
+        (&["--width", "48", "--height", "40", "--region", "100,100,200,200"], 2, &["--region", "outside"]),
         (&["--width", "48", "--height", "40", "--region", "0,0,8,8", "--crop-to-model"], 2, &["--crop-to-model"]),
         (&["--width", "48", "--height", "40", "--eye", "0,0,3"], 2, &["--look-at"]),
         (&["--width", "48", "--height", "40", "--view-dir", "1,2"], 2, &["--view-dir", "3"]),
@@ -614,8 +691,8 @@ fn bad_flags_are_rejected_with_clear_messages() {
         (&["--width", "48", "--height", "40", "--accel", "octree"], 2, &["--accel", "bvh", "kdtree", "brute"]),
         (&["--width", "48", "--height", "40", "--surface", "nope"], 2, &["--surface", "first-hit"]),
         (&["--width", "abc"], 2, &["--width"]),
-        (&["--width", "48", "--height", "40", "--lod-threshold", "0"], 1, &["--lod-threshold", "positive"]),
-        (&["--width", "48", "--height", "40", "--lod-threshold", "inf"], 1, &["--lod-threshold", "positive"]),
+        (&["--width", "48", "--height", "40", "--lod-threshold", "0"], 2, &["--lod-threshold", "positive"]),
+        (&["--width", "48", "--height", "40", "--lod-threshold", "inf"], 2, &["--lod-threshold", "positive"]),
         (&["--width", "48", "--height", "40", "--lod", "maybe"], 2, &["--lod", "on", "off"]),
         (&["--width", "48", "--height", "40", "--cull", "always"], 2, &["--cull", "auto"]),
         (&["--width", "48", "--height", "40", "--sphere-from-level", "deep"], 2, &["--sphere-from-level", "never"]),
@@ -639,7 +716,7 @@ fn region_outside_frame_message_shows_the_region_as_typed() {
     let dir = temp_dir();
     write_sphere(dir.path());
     let run = render_in(dir.path(), &["sphere.ply", "-o", "out.png", "--region", "100,100,200,200"]);
-    run.assert_failure(1).assert_stderr_contains("100,100,200,200");
+    run.assert_failure(2).assert_stderr_contains("100,100,200,200");
     assert!(!run.stderr.contains("Some("), "{run}");
     assert!(!run.stderr.contains("Region {"), "{run}");
 }
@@ -653,7 +730,7 @@ fn degenerate_camera_is_rejected() {
         let mut args = vec!["sphere.ply", "-o", "out.png"];
         args.extend_from_slice(extra);
         let run = render_in(dir.path(), &args);
-        run.assert_failure(1).assert_stderr_contains("error");
+        run.assert_failure(2).assert_stderr_contains("error");
         assert!(!dir.path().join("out.png").exists(), "{run}");
     }
 }
@@ -674,7 +751,7 @@ fn huge_frames_are_rejected_up_front() {
             .output()
             .unwrap();
         let stderr = String::from_utf8_lossy(&output.stderr);
-        assert_eq!(output.status.code(), Some(1), "size {size}: {stderr}");
+        assert_eq!(output.status.code(), Some(2), "size {size}: {stderr}");
         assert!(!stderr.contains("panicked") && !stderr.contains("memory allocation"), "size {size}: {stderr}");
         assert!(stderr.contains("--width"), "size {size}: {stderr}");
         assert_dir_contains_exactly(dir.path(), &["sphere.ply"]);
@@ -702,20 +779,27 @@ fn failed_render_keeps_the_existing_output() {
     write_file(dir.path(), "s.json", &old_json);
 
     let runs = [
-        render_in(dir.path(), &["empty.ply", "-o", "out.png", "--stats", "s.json"]),
-        render_in(dir.path(), &["garbage.ply", "-o", "out.png", "--stats", "s.json"]),
-        render_in(dir.path(), &["missing.ply", "-o", "out.png", "--stats", "s.json"]),
-        render_in(dir.path(), &["-o", "out.png", "--stats", "s.json", "--fov", "0"]),
-        run_in(dir.path(), &["-q", "prepare", "garbage.ply", "-o", "out.ply"]),
-        run_in(dir.path(), &["-q", "prepare", "empty.ply", "-o", "out.ply"]),
+        (1, render_in(dir.path(), &["empty.ply", "-o", "out.png", "--stats", "s.json"])),
+        (1, render_in(dir.path(), &["garbage.ply", "-o", "out.png", "--stats", "s.json"])),
+        (1, render_in(dir.path(), &["missing.ply", "-o", "out.png", "--stats", "s.json"])),
+        (2, render_in(dir.path(), &["-o", "out.png", "--stats", "s.json", "--fov", "0"])),
+        (1, run_in(dir.path(), &["-q", "prepare", "garbage.ply", "-o", "out.ply"])),
+        (1, run_in(dir.path(), &["-q", "prepare", "empty.ply", "-o", "out.ply"])),
     ];
-    for run in &runs {
-        run.assert_failure(1);
+    for (status, run) in &runs {
+        run.assert_failure(*status);
         assert_eq!(std::fs::read(dir.path().join("out.png")).unwrap(), old_png, "out.png clobbered by {run}");
         assert_eq!(std::fs::read(dir.path().join("out.ply")).unwrap(), old_ply, "out.ply clobbered by {run}");
         assert_eq!(std::fs::read(dir.path().join("s.json")).unwrap(), old_json, "s.json clobbered by {run}");
     }
     assert_dir_contains_exactly(dir.path(), &["empty.ply", "garbage.ply", "out.png", "out.ply", "s.json"]);
+}
+
+#[track_caller]
+fn assert_output_failure(run: &Run, file: &str) {
+    run.assert_failure(3);
+    run.assert_stderr_contains(file);
+    run.assert_stderr_contains("error");
 }
 
 #[test]
@@ -726,9 +810,9 @@ fn unwritable_outputs_fail_without_leftovers() {
     // -o names an existing directory, or a file in a directory that does not exist.
     for out in ["adir", "nodir/out.png"] {
         let run = render_in(dir.path(), &["sphere.ply", "-o", out]);
-        assert_clean_failure(&run, out);
+        assert_output_failure(&run, out);
         let run = run_in(dir.path(), &["-q", "prepare", "sphere.ply", "-o", out]);
-        assert_clean_failure(&run, out);
+        assert_output_failure(&run, out);
     }
     assert_dir_contains_exactly(dir.path(), &["adir", "sphere.ply"]);
     assert_dir_contains_exactly(&dir.path().join("adir"), &[]);
@@ -741,7 +825,7 @@ fn failed_stats_write_keeps_the_existing_png() {
     let old = b"precious".to_vec();
     write_file(dir.path(), "out.png", &old);
     let run = render_in(dir.path(), &["sphere.ply", "-o", "out.png", "--stats", "nodir/s.json"]);
-    assert_clean_failure(&run, "nodir/s.json");
+    assert_output_failure(&run, "nodir/s.json");
     assert_eq!(std::fs::read(dir.path().join("out.png")).unwrap(), old, "the failed run replaced out.png");
 }
 
@@ -1002,6 +1086,6 @@ fn compare_region_counts_only_its_pixels() {
     let run = run_in(dir.path(), &["compare", "a.png", "b.png", "--region", "4,0,8,4"]);
     run.assert_success().assert_stdout_contains("PSNR inf");
     run_in(dir.path(), &["compare", "a.png", "b.png", "--region", "0,0,9,4"])
-        .assert_failure(1)
+        .assert_failure(2)
         .assert_stderr_contains("outside");
 }

@@ -17,7 +17,7 @@ mod builder;
 mod text;
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 pub use error::IoError;
 pub use image::{read_png, write_png};
@@ -92,7 +92,8 @@ fn read_any(path: &Path, scan_sets: bool) -> Result<LoadedCloud, IoError> {
 /// Writes `path` all or nothing: the closure writes (buffered) into a temporary file in the
 /// same directory, which replaces `path` only after the closure succeeded and the data is
 /// flushed and synced. On any failure the temporary file is removed and `path` is untouched,
-/// so a crash or a full disk never leaves a half-written image or cloud behind.
+/// so a crash or a full disk never leaves a half-written image or cloud behind. A process
+/// stopped by a signal runs no destructors: its handler calls [`discard_unfinished_writes`].
 pub fn atomic_write(path: &Path, write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<(), IoError> {
     let io_error = |e: std::io::Error| IoError::io(path, e);
     let directory = match path.parent() {
@@ -106,13 +107,57 @@ pub fn atomic_write(path: &Path, write: impl FnOnce(&mut dyn Write) -> std::io::
     // The default 0600 would survive the rename; ask for what `File::create` gives.
     #[cfg(unix)]
     builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+    // Declared before the file so that it drops after it: the entry goes only once the
+    // file is deleted or renamed.
+    let mut registration = Unfinished(None);
     let mut temp = builder.tempfile_in(directory).map_err(io_error)?;
+    registration.register(temp.path());
     {
         let mut buffered = std::io::BufWriter::new(temp.as_file_mut());
         write(&mut buffered).map_err(io_error)?;
         buffered.flush().map_err(io_error)?;
     }
     temp.as_file().sync_all().map_err(io_error)?;
+    // Renamed under the registry's lock, so an interrupt finds the write either pending or done.
+    let mut unfinished = unfinished_writes();
     temp.persist(path).map_err(|e| io_error(e.error))?;
+    if let Some(temp) = registration.0.take() {
+        unfinished.retain(|p| *p != temp);
+    }
     Ok(())
+}
+
+/// Temporary files of [`atomic_write`]s in progress.
+static UNFINISHED: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
+
+fn unfinished_writes() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
+    // A writer that panicked leaves the list as valid as before.
+    UNFINISHED.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+/// One write's entry in [`UNFINISHED`], removed when dropped.
+struct Unfinished(Option<PathBuf>);
+
+impl Unfinished {
+    fn register(&mut self, temp: &Path) {
+        unfinished_writes().push(temp.to_path_buf());
+        self.0 = Some(temp.to_path_buf());
+    }
+}
+
+impl Drop for Unfinished {
+    fn drop(&mut self) {
+        if let Some(temp) = self.0.take() {
+            unfinished_writes().retain(|p| *p != temp);
+        }
+    }
+}
+
+/// Deletes the temporary files of every [`atomic_write`] in progress, for a signal handler
+/// that is about to end the process; outputs already written are not touched. Writes that
+/// go on afterwards fail or vanish with the process.
+pub fn discard_unfinished_writes() {
+    for temp in unfinished_writes().drain(..) {
+        let _ = std::fs::remove_file(temp);
+    }
 }

@@ -31,11 +31,12 @@ impl PointCloud {
 
     /// Builds a cloud from world coordinates in `f64`: recentres them on the bounding-box
     /// centre of the finite ones and stores `f32` offsets from it. Non-finite coordinates stay
-    /// non-finite (preprocessing drops them); they do not move the origin.
+    /// non-finite (preprocessing drops them); they do not move the origin. Neither do
+    /// coordinates beyond `f32`'s range (±3.4·10³⁸), which become infinite.
     pub fn from_world_positions(world: &[DVec3]) -> Self {
         let (lo, hi) = world
             .iter()
-            .filter(|p| p.is_finite())
+            .filter(|p| p.abs().max_element() <= f64::from(f32::MAX))
             .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), p| {
                 (lo.min(*p), hi.max(*p))
             });
@@ -100,5 +101,9 @@ mod tests {
         assert_eq!(cloud.positions[0], Vec3::new(-1.0, -1.0, -1.0));
         assert!(!cloud.positions[2].is_finite());
         assert_eq!(PointCloud::from_world_positions(&[DVec3::NAN]).origin, DVec3::ZERO);
+        // Finite in f64, infinite in f32: it must not pull the others out of range.
+        let cloud = PointCloud::from_world_positions(&[DVec3::ONE, DVec3::new(1e39, 0.0, 0.0), DVec3::splat(3.0)]);
+        assert_eq!((cloud.origin, cloud.positions[0]), (DVec3::splat(2.0), Vec3::splat(-1.0)));
+        assert!(cloud.positions[1].x.is_infinite());
     }
 }

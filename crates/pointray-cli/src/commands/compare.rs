@@ -19,14 +19,11 @@ pub fn run(a: &CompareArgs) -> anyhow::Result<()> {
     let (rgb_a, rgb_b) = match a.region {
         None => (rgb_a, rgb_b),
         Some(r) => {
-            anyhow::ensure!(
-                r.x1 <= wa && r.y1 <= ha,
-                "--region {},{},{},{} lies outside the {wa}x{ha} images",
-                r.x0,
-                r.y0,
-                r.x1,
-                r.y1
-            );
+            if r.x1 > wa || r.y1 > ha {
+                let e =
+                    anyhow::anyhow!("--region {},{},{},{} lies outside the {wa}x{ha} images", r.x0, r.y0, r.x1, r.y1);
+                return Err(crate::failure::usage(e));
+            }
             (crop(&rgb_a, wa, r), crop(&rgb_b, wa, r))
         }
     };

@@ -11,14 +11,23 @@ use pointray::PointCloud;
 use pointray::preprocess::{PreprocessConfig, PreprocessStats, preprocess};
 
 use crate::args::PreprocessArgs;
+use crate::failure;
 
 /// Refuses an output path that cannot be written, before any work is done: a directory, or a
 /// file in a directory that does not exist. (Writes are atomic, so a failure later leaves no
 /// partial file either; this only saves a wasted render.)
 pub fn check_output_path(path: &Path) -> anyhow::Result<()> {
-    anyhow::ensure!(!path.is_dir(), "{}: is a directory, not an output file", path.display());
+    if path.is_dir() {
+        return Err(failure::output(anyhow::anyhow!("{}: is a directory, not an output file", path.display())));
+    }
     let parent = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    anyhow::ensure!(parent.is_dir(), "{}: directory {} does not exist", path.display(), parent.display());
+    if !parent.is_dir() {
+        return Err(failure::output(anyhow::anyhow!(
+            "{}: directory {} does not exist",
+            path.display(),
+            parent.display()
+        )));
+    }
     Ok(())
 }
 
@@ -30,10 +39,12 @@ pub fn load(path: &Path) -> anyhow::Result<(pointray_io::LoadedCloud, f64)> {
     Ok((loaded, t.elapsed().as_secs_f64()))
 }
 
+/// The preprocessing settings; bad values are usage errors.
 pub fn preprocess_config(a: &PreprocessArgs) -> anyhow::Result<PreprocessConfig> {
-    anyhow::ensure!(a.k_normals >= 3, "--k-normals must be at least 3 (a plane needs 3 points)");
-    anyhow::ensure!(a.k_radius >= 1, "--k-radius must be at least 1");
-    anyhow::ensure!(a.radius_scale > 0.0 && a.radius_scale.is_finite(), "--radius-scale must be positive");
+    let check = |ok: bool, message: &str| if ok { Ok(()) } else { Err(failure::usage(anyhow::anyhow!("{message}"))) };
+    check(a.k_normals >= 3, "--k-normals must be at least 3 (a plane needs 3 points)")?;
+    check(a.k_radius >= 1, "--k-radius must be at least 1")?;
+    check(a.radius_scale > 0.0 && a.radius_scale.is_finite(), "--radius-scale must be positive")?;
     Ok(PreprocessConfig {
         k_normals: a.k_normals,
         k_radius: a.k_radius,
@@ -42,8 +53,14 @@ pub fn preprocess_config(a: &PreprocessArgs) -> anyhow::Result<PreprocessConfig>
     })
 }
 
-/// Fills in what the cloud lacks; with `recompute`, replaces what it has.
-pub fn prepare_cloud(cloud: &mut PointCloud, a: &PreprocessArgs, quiet: bool) -> anyhow::Result<PreprocessStats> {
+/// Fills in what the cloud lacks; with `recompute`, replaces what it has. What was dropped
+/// or repaired is reported as warnings naming `input`.
+pub fn prepare_cloud(
+    cloud: &mut PointCloud,
+    a: &PreprocessArgs,
+    input: &str,
+    quiet: bool,
+) -> anyhow::Result<PreprocessStats> {
     let config = preprocess_config(a)?;
     if a.recompute {
         cloud.normals = None;
@@ -52,7 +69,54 @@ pub fn prepare_cloud(cloud: &mut PointCloud, a: &PreprocessArgs, quiet: bool) ->
     let spinner = crate::progress::spinner("preprocess", quiet);
     let stats = preprocess(cloud, &config);
     spinner.finish_and_clear();
-    anyhow::ensure!(!cloud.is_empty(), "the cloud has no (finite) points");
+    let stats = stats.with_context(|| format!("{input}: preprocessing"))?;
     cloud.check_lengths().map_err(anyhow::Error::msg).context("preprocessing left inconsistent attributes")?;
+    warn_about_repairs(input, &stats);
     Ok(stats)
+}
+
+/// One warning per kind of bad point the preprocessing dropped or repaired.
+fn warn_about_repairs(input: &str, s: &PreprocessStats) {
+    let plural = |n: usize, one: &'static str, many: &'static str| if n == 1 { one } else { many };
+    if s.dropped_non_finite > 0 {
+        let n = s.dropped_non_finite;
+        tracing::warn!("{input}: dropped {n} {} with a non-finite coordinate", plural(n, "point", "points"));
+    }
+    if s.dropped_duplicates > 0 {
+        let n = s.dropped_duplicates;
+        tracing::warn!(
+            "{input}: dropped {n} {} at the exact position of an earlier point",
+            plural(n, "point", "points")
+        );
+    }
+    if s.invalid_normals > 0 {
+        let n = s.invalid_normals;
+        tracing::warn!(
+            "{input}: {n} {} zero or non-finite; estimated from the neighbours",
+            plural(n, "normal was", "normals were")
+        );
+    }
+    if s.invalid_radii > 0 {
+        let n = s.invalid_radii;
+        tracing::warn!(
+            "{input}: {n} {} zero, negative or non-finite; computed from the neighbours",
+            plural(n, "radius was", "radii were")
+        );
+    }
+    if s.degenerate_normals > 0 {
+        let n = s.degenerate_normals;
+        tracing::warn!(
+            "{input}: {n} {} no plane through the neighbours (collinear or coincident points); set perpendicular to their line",
+            plural(n, "normal has", "normals have")
+        );
+    }
+}
+
+/// The process's peak resident set so far (`VmHWM` in `/proc/self/status`); `None` where the
+/// system does not say.
+pub fn peak_memory_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmHWM:"))?;
+    let kib: u64 = line.trim_start_matches("VmHWM:").trim().trim_end_matches("kB").trim().parse().ok()?;
+    Some(kib * 1024)
 }

@@ -6,15 +6,14 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     super::check_output_path(&a.output)?;
     let (loaded, _) = super::load(&a.input)?;
     let mut cloud = loaded.cloud;
-    let stats = super::prepare_cloud(&mut cloud, &a.preprocess, quiet)
-        .map_err(|e| e.context(format!("{}: preprocessing", a.input.display())))?;
-    pointray_io::write_ply(&a.output, &cloud)?;
+    let stats = super::prepare_cloud(&mut cloud, &a.preprocess, &a.input.display().to_string(), quiet)?;
+    pointray_io::write_ply(&a.output, &cloud).map_err(crate::failure::output)?;
     if !quiet {
         eprintln!(
-            "{}: {} points (dropped {} non-finite), normals {}, radii {}, wrote {}",
+            "{}: {} {}, normals {}, radii {}, wrote {}",
             a.input.display(),
             cloud.len(),
-            stats.dropped_non_finite,
+            if cloud.len() == 1 { "point" } else { "points" },
             if stats.computed_normals { "computed" } else { "from file" },
             if stats.computed_radii { "computed" } else { "from file" },
             a.output.display()

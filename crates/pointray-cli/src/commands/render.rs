@@ -2,8 +2,6 @@
 
 use std::time::Instant;
 
-use anyhow::Context;
-
 use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, backfacing_fraction};
 use pointray::camera::{Camera, Region};
 use pointray::film::Film;
@@ -98,6 +96,9 @@ const CULL_AUTO_MAX_BACKFACING: f64 = 0.01;
 #[derive(Serialize)]
 struct StatsReport {
     input: String,
+    /// Points in the file.
+    points_read: usize,
+    /// Points rendered: those read less the non-finite and repeated ones.
     points: usize,
     width: u32,
     height: u32,
@@ -145,6 +146,10 @@ struct StatsReport {
     mean_radius: f64,
     bounds_diagonal: f32,
     camera_distance: Option<f32>,
+    /// The process's peak resident memory (load, preprocessing, build and render), where the
+    /// system tells it (Linux).
+    peak_memory_bytes: Option<u64>,
+    peak_memory_bytes_per_point: Option<f64>,
     counters: RenderStats,
 }
 
@@ -167,7 +172,7 @@ struct PreprocessSeconds {
 const MAX_PIXELS: u64 = 1 << 28;
 
 pub fn run(a: &RenderArgs, quiet: bool) -> anyhow::Result<()> {
-    check_args(a)?;
+    check_args(a).map_err(crate::failure::usage)?;
     // Fail before the work, not after it, when an output cannot be written.
     super::check_output_path(&a.output)?;
     if let Some(stats) = &a.stats {
@@ -222,8 +227,8 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         cloud.len(),
         pointray::accel::bvh::MAX_SPLATS
     );
-    let pre = super::prepare_cloud(&mut cloud, &a.preprocess, quiet)
-        .with_context(|| format!("{input_name}: preprocessing"))?;
+    let points_read = cloud.len();
+    let pre = super::prepare_cloud(&mut cloud, &a.preprocess, &input_name, quiet)?;
     let bounds = cloud.bounds();
 
     // 2. The accelerator.
@@ -270,13 +275,25 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     };
     let region = if a.crop_to_model {
         let r = camera.region_of(&bounds);
-        anyhow::ensure!(r.pixel_count() > 0, "{input_name}: --crop-to-model: the model lies outside the view");
+        if r.pixel_count() == 0 {
+            let e = anyhow::anyhow!("{input_name}: --crop-to-model: the model lies outside the view");
+            return Err(crate::failure::usage(e));
+        }
         r
     } else {
         a.region.map_or(Region::full(a.width, a.height), |r| r.clamp_to(a.width, a.height))
     };
     if let Some(r) = a.region.filter(|_| region.pixel_count() == 0) {
-        anyhow::bail!("--region {},{},{},{} lies outside the {}x{} frame", r.x0, r.y0, r.x1, r.y1, a.width, a.height);
+        let e = anyhow::anyhow!(
+            "--region {},{},{},{} lies outside the {}x{} frame",
+            r.x0,
+            r.y0,
+            r.x1,
+            r.y1,
+            a.width,
+            a.height
+        );
+        return Err(crate::failure::usage(e));
     }
     let defaults = SurfaceScheme::of_kind(surface_kind(a.surface));
     let scheme = SurfaceScheme {
@@ -336,7 +353,8 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         a.width,
         a.height,
         &film.frame_srgb8(a.width, a.height, config.background),
-    )?;
+    )
+    .map_err(crate::failure::output)?;
     let nodes_max = film.nodes_visited.iter().copied().max().unwrap_or(0);
     if a.aov.contains(&AovArg::Nodes) {
         let mut heat = vec![0u8; a.width as usize * a.height as usize * 3];
@@ -347,7 +365,8 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
             let dst = (y as usize * a.width as usize + r.x0 as usize) * 3;
             heat[dst..dst + r.width() as usize * 3].copy_from_slice(&colours[src..src + r.width() as usize * 3]);
         }
-        pointray_io::image::write_png(&aov_path(&a.output, "nodes"), a.width, a.height, &heat)?;
+        pointray_io::image::write_png(&aov_path(&a.output, "nodes"), a.width, a.height, &heat)
+            .map_err(crate::failure::output)?;
     }
     let mrays = stats.rays as f64 / render_seconds / 1e6;
     if !quiet {
@@ -369,8 +388,10 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         let per_ray = |n: u64| if stats.rays == 0 { 0.0 } else { n as f64 / stats.rays as f64 };
         let per_hit = |n: u64| if stats.primary_hits == 0 { 0.0 } else { n as f64 / stats.primary_hits as f64 };
         let (nodes, sphere_nodes, bytes_per_node) = accel.node_summary();
+        let peak_memory_bytes = super::peak_memory_bytes();
         let report = StatsReport {
             input: input_name,
+            points_read,
             points: cloud.len(),
             width: a.width,
             height: a.height,
@@ -414,10 +435,12 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
             mean_radius,
             bounds_diagonal: bounds.diagonal(),
             camera_distance: a.eye.is_none().then(|| distance * bounds.diagonal()),
+            peak_memory_bytes,
+            peak_memory_bytes_per_point: peak_memory_bytes.map(|b| b as f64 / points_read.max(1) as f64),
             counters: stats,
         };
         let json = serde_json::to_string_pretty(&report)?;
-        pointray_io::atomic_write(path, |w| w.write_all(json.as_bytes()))?;
+        pointray_io::atomic_write(path, |w| w.write_all(json.as_bytes())).map_err(crate::failure::output)?;
     }
     Ok(())
 }

@@ -5,6 +5,13 @@
 //! Input normals and radii are trusted where valid; invalid entries (non-finite, zero-length
 //! normals; non-finite or non-positive radii) are treated as missing for that point only and
 //! recomputed. Computed normals are oriented to agree with any given ones.
+//!
+//! Bad input has defined outcomes, each counted in [`PreprocessStats`] for the caller to
+//! report: points with a non-finite coordinate are dropped, so are repeats of an earlier
+//! point's exact position (they would give zero neighbour distances and doubled disks);
+//! collinear or coincident neighbourhoods get a defined normal and are counted as degenerate.
+//! A radius cannot be estimated without two distinct points: [`preprocess`] returns
+//! [`PreprocessError`] then, and for a cloud with no points left.
 
 pub mod normals;
 pub mod orient;
@@ -69,6 +76,12 @@ impl StageSeconds {
 #[derive(Debug, Clone, Default, serde::Serialize)]
 pub struct PreprocessStats {
     pub dropped_non_finite: usize,
+    /// Points dropped because an earlier point has exactly the same position.
+    pub dropped_duplicates: usize,
+    /// Given normals that were zero or non-finite, re-estimated.
+    pub invalid_normals: usize,
+    /// Given radii that were zero, negative or non-finite, recomputed.
+    pub invalid_radii: usize,
     /// Reported on its own (`--stats` writes it as `preprocess_seconds`).
     #[serde(skip)]
     pub seconds: StageSeconds,
@@ -77,21 +90,39 @@ pub struct PreprocessStats {
     /// Some radii (possibly all) were computed.
     pub computed_radii: bool,
     pub flipped_normals: usize,
+    /// Estimated normals whose neighbourhood was collinear or coincident (a defined fallback
+    /// direction was used, see [`normals::pca_normal`]).
     pub degenerate_normals: usize,
     pub orientation_components: usize,
 }
 
+/// Why a cloud cannot be made into splats.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum PreprocessError {
+    #[error("the cloud has no (finite) points")]
+    NoPoints,
+    #[error("a splat radius cannot be estimated from a single distinct point (the file must give its radius)")]
+    SinglePointWithoutRadius,
+}
+
 /// Makes `cloud` ready for splatting, in order: drops points with non-finite coordinates
-/// (with their attributes), Morton-sorts (if `cfg.sort`), re-normalises given normals,
-/// computes kNN once (only if normals or radii are missing), PCA normals where missing,
-/// orients the computed ones, and computes radii where missing.
+/// and exact repeats (with their attributes), Morton-sorts (if `cfg.sort`), re-normalises
+/// given normals, computes kNN once (only if normals or radii are missing), PCA normals where
+/// missing, orients the computed ones, and computes radii where missing.
 ///
 /// Panics if an attribute does not have one entry per point ([`PointCloud::check_lengths`]).
-pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> PreprocessStats {
+pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> Result<PreprocessStats, PreprocessError> {
     if let Err(e) = cloud.check_lengths() {
         panic!("preprocess: inconsistent point cloud: {e}");
     }
-    let mut stats = PreprocessStats { dropped_non_finite: drop_non_finite(cloud), ..Default::default() };
+    let mut stats = PreprocessStats {
+        dropped_non_finite: drop_non_finite(cloud),
+        dropped_duplicates: drop_duplicates(cloud),
+        ..Default::default()
+    };
+    if cloud.is_empty() {
+        return Err(PreprocessError::NoPoints);
+    }
     if cfg.sort && cloud.len() > 1 {
         let start = Instant::now();
         cloud.permute(&morton::sort_order(&cloud.positions));
@@ -104,11 +135,20 @@ pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> PreprocessS
     // Even an empty cloud leaves with (empty) normals and radii.
     let need_normals = cloud.normals.is_none() || normals_missing.contains(&true);
     let need_radii = cloud.radii.is_none() || radii_missing.contains(&true);
+    if cloud.normals.is_some() {
+        stats.invalid_normals = normals_missing.iter().filter(|&&m| m).count();
+    }
+    if cloud.radii.is_some() {
+        stats.invalid_radii = radii_missing.iter().filter(|&&m| m).count();
+    }
     stats.computed_normals = need_normals;
     stats.computed_radii = need_radii;
+    if need_radii && n < 2 {
+        return Err(PreprocessError::SinglePointWithoutRadius);
+    }
     if !need_normals && !need_radii {
         info!(points = n, "preprocess: normals and radii given, nothing to compute");
-        return stats;
+        return Ok(stats);
     }
 
     let k = match (need_normals, need_radii) {
@@ -145,7 +185,7 @@ pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> PreprocessS
         seconds = stats.seconds.total(),
         "preprocess done"
     );
-    stats
+    Ok(stats)
 }
 
 /// Removes points with a non-finite coordinate; returns how many.
@@ -155,6 +195,30 @@ fn drop_non_finite(cloud: &mut PointCloud) -> usize {
     if dropped > 0 {
         cloud.permute(&keep);
         info!(dropped, "dropped points with non-finite coordinates");
+    }
+    dropped
+}
+
+/// Removes every point whose position (bit for bit, with -0 = +0) repeats an earlier one's,
+/// keeping the first with its attributes; returns how many. Sorting the positions' bits finds
+/// them in O(n log n) whatever the input order.
+fn drop_duplicates(cloud: &mut PointCloud) -> usize {
+    let bits = |p: Vec3| (p + Vec3::ZERO).to_array().map(f32::to_bits);
+    let mut keyed: Vec<([u32; 3], u32)> =
+        cloud.positions.par_iter().enumerate().map(|(i, &p)| (bits(p), i as u32)).collect();
+    keyed.par_sort_unstable();
+    let mut repeat = vec![false; cloud.len()];
+    for pair in keyed.windows(2) {
+        if pair[0].0 == pair[1].0 {
+            repeat[pair[1].1 as usize] = true;
+        }
+    }
+    drop(keyed);
+    let keep: Vec<u32> = (0..cloud.len() as u32).filter(|&i| !repeat[i as usize]).collect();
+    let dropped = cloud.len() - keep.len();
+    if dropped > 0 {
+        cloud.permute(&keep);
+        info!(dropped, "dropped points repeating an earlier point's position");
     }
     dropped
 }
@@ -235,7 +299,7 @@ mod tests {
     fn fills_everything_for_bare_positions() {
         let (points, outward) = sphere(5_000, 1);
         let mut cloud = PointCloud::from_positions(points);
-        let stats = preprocess(&mut cloud, &PreprocessConfig { sort: false, ..PreprocessConfig::standard() });
+        let stats = preprocess(&mut cloud, &PreprocessConfig { sort: false, ..PreprocessConfig::standard() }).unwrap();
         assert!(stats.computed_normals && stats.computed_radii);
         assert_eq!((stats.degenerate_normals, stats.orientation_components), (0, 1));
         let normals = cloud.normals.unwrap();
@@ -248,7 +312,7 @@ mod tests {
         let (points, outward) = torus(5_000, 1.0, 0.35, 2);
         let mut cloud = PointCloud::from_positions(points);
         cloud.colors = Some(outward.iter().map(|n| n.to_array()).collect());
-        preprocess(&mut cloud, &PreprocessConfig::standard());
+        preprocess(&mut cloud, &PreprocessConfig::standard()).unwrap();
         let normals = cloud.normals.unwrap();
         for (n, c) in normals.iter().zip(cloud.colors.unwrap()) {
             assert!(n.dot(Vec3::from(c)) > 0.9);
@@ -270,8 +334,9 @@ mod tests {
         let mut cloud = PointCloud::from_positions(points);
         cloud.normals = Some(given);
         cloud.radii = Some(radii);
-        let stats = preprocess(&mut cloud, &PreprocessConfig { sort: false, ..PreprocessConfig::standard() });
+        let stats = preprocess(&mut cloud, &PreprocessConfig { sort: false, ..PreprocessConfig::standard() }).unwrap();
         assert_eq!(stats.dropped_non_finite, 2);
+        assert_eq!((stats.invalid_normals, stats.invalid_radii, stats.dropped_duplicates), (2, 1, 0));
         assert_eq!(cloud.len(), 2_998);
         assert!(stats.computed_normals && stats.computed_radii);
         let normals = cloud.normals.as_ref().unwrap();
@@ -291,7 +356,7 @@ mod tests {
         let mut cloud = PointCloud::from_positions(points);
         cloud.normals = Some(given.iter().map(|n| -*n).collect());
         cloud.radii = Some(vec![0.1; 1_000]);
-        let stats = preprocess(&mut cloud, &PreprocessConfig { sort: false, ..PreprocessConfig::standard() });
+        let stats = preprocess(&mut cloud, &PreprocessConfig { sort: false, ..PreprocessConfig::standard() }).unwrap();
         assert!(!stats.computed_normals && !stats.computed_radii);
         assert!((cloud.normals.unwrap()[0] + given[0]).length() < 1e-6);
     }
@@ -299,18 +364,62 @@ mod tests {
     #[test]
     fn tiny_and_degenerate_clouds() {
         let cfg = PreprocessConfig::standard();
-        for n in 0..4 {
+        for n in 2..5 {
             let mut cloud = PointCloud::from_positions((0..n).map(|i| Vec3::X * i as f32).collect());
-            preprocess(&mut cloud, &cfg);
+            let stats = preprocess(&mut cloud, &cfg).unwrap();
+            assert_eq!(stats.degenerate_normals, n, "collinear: no normal is determined");
             assert_eq!(cloud.normals.as_ref().map(Vec::len), Some(n));
-            assert_eq!(cloud.radii.as_ref().map(Vec::len), Some(n));
+            assert!(cloud.radii.as_ref().unwrap().iter().all(|&r| r > 0.0));
         }
         let mut cloud = PointCloud::from_positions(vec![Vec3::splat(f32::NAN); 3]);
-        assert_eq!(preprocess(&mut cloud, &cfg).dropped_non_finite, 3);
+        assert_eq!(preprocess(&mut cloud, &cfg).unwrap_err(), PreprocessError::NoPoints);
+        let mut cloud = PointCloud::from_positions(Vec::new());
+        assert_eq!(preprocess(&mut cloud, &cfg).unwrap_err(), PreprocessError::NoPoints);
+        // One distinct point: no density to take a radius from, unless the file gives one.
         let mut cloud = PointCloud::from_positions(vec![Vec3::ONE; 100]);
-        let stats = preprocess(&mut cloud, &cfg);
-        assert_eq!(stats.degenerate_normals, 100);
-        assert!(cloud.normals.unwrap().iter().all(|n| n.is_normalized()));
+        assert_eq!(preprocess(&mut cloud, &cfg).unwrap_err(), PreprocessError::SinglePointWithoutRadius);
+        let mut cloud = PointCloud::from_positions(vec![Vec3::ONE; 100]);
+        cloud.radii = Some(vec![0.5; 100]);
+        let stats = preprocess(&mut cloud, &cfg).unwrap();
+        assert_eq!((stats.dropped_duplicates, stats.degenerate_normals, cloud.len()), (99, 1, 1));
+        assert_eq!((cloud.normals.unwrap(), cloud.radii.unwrap()), (vec![Vec3::Z], vec![0.5]));
+    }
+
+    #[test]
+    fn exact_repeats_are_dropped_keeping_the_first() {
+        let (points, outward) = sphere(2_000, 5);
+        // Every tenth point again, after the originals, with other attributes; -0 repeats +0.
+        let mut positions = points.clone();
+        positions.extend(points.iter().step_by(10));
+        positions.push(Vec3::new(0.0, 0.0, 0.0));
+        positions.push(Vec3::new(-0.0, 0.0, -0.0));
+        let n = positions.len();
+        let mut cloud = PointCloud::from_positions(positions);
+        let mut colors = vec![[0.0; 3]; n];
+        colors[2_000..].iter_mut().for_each(|c| *c = [1.0; 3]);
+        cloud.colors = Some(colors);
+        cloud.normals = Some(outward.iter().chain(outward.iter().step_by(10)).copied().chain([Vec3::Z; 2]).collect());
+        let stats = preprocess(&mut cloud, &cfg_unsorted()).unwrap();
+        assert_eq!(stats.dropped_duplicates, 201);
+        assert_eq!(cloud.len(), 2_001);
+        assert_eq!(cloud.positions[..2_000], points[..]);
+        assert!(cloud.colors.unwrap()[..2_000].iter().all(|c| *c == [0.0; 3]), "the first occurrence is kept");
+    }
+
+    fn cfg_unsorted() -> PreprocessConfig {
+        PreprocessConfig { sort: false, ..PreprocessConfig::standard() }
+    }
+
+    #[test]
+    fn a_plane_gets_one_consistent_normal() {
+        let points: Vec<Vec3> = (0..900).map(|i| Vec3::new((i % 30) as f32, (i / 30) as f32, 2.0)).collect();
+        let mut cloud = PointCloud::from_positions(points);
+        let stats = preprocess(&mut cloud, &cfg_unsorted()).unwrap();
+        assert_eq!((stats.degenerate_normals, stats.orientation_components), (0, 1));
+        let normals = cloud.normals.unwrap();
+        assert!(normals.iter().all(|n| (*n - normals[0]).length() < 1e-5 && n.z.abs() > 0.99999));
+        // The 8th neighbour: √2 inside the grid, √8 at a corner.
+        assert!(cloud.radii.unwrap().iter().all(|&r| (2f32.sqrt()..=8f32.sqrt()).contains(&r)));
     }
 
     /// Per-stage timing on 1M points of a torus (run in release:
@@ -322,7 +431,7 @@ mod tests {
         let mut cloud = PointCloud::from_positions(points);
         cloud.colors = Some(outward.iter().map(|n| n.to_array()).collect());
         let start = Instant::now();
-        let stats = preprocess(&mut cloud, &PreprocessConfig::standard());
+        let stats = preprocess(&mut cloud, &PreprocessConfig::standard()).unwrap();
         let total = start.elapsed().as_secs_f64();
         println!(
             "1M torus, {} threads: sort {:.3} s, kNN {:.3} s, normals {:.3} s, orient {:.3} s, \

@@ -120,7 +120,7 @@ mod tests {
     /// radii by the default rule), and the mean radius over the mean NN spacing.
     fn standard_coverage(points: Vec<Vec3>, probes: &[Vec3]) -> (f32, f32) {
         let mut cloud = PointCloud::from_positions(points);
-        preprocess(&mut cloud, &PreprocessConfig::standard());
+        preprocess(&mut cloud, &PreprocessConfig::standard()).unwrap();
         let nbrs = k_nearest(&cloud.positions, 1);
         let radii = cloud.radii.unwrap();
         let ratio = radii.iter().sum::<f32>() / radii.len() as f32 / mean_nn_spacing(&nbrs);
