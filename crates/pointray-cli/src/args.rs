@@ -11,7 +11,11 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
   pointray render bunny.ply -o bunny.png --width 800 --height 800
   pointray render dragon.ply -o d.png --distance 4 --crop-to-model --stats d.json
   pointray prepare scan.ply -o scan_prepared.ply      compute normals and radii once
-  pointray info scan.ply")]
+  pointray sample mesh.ply -n 5000000 -o dense.ply    a dense cloud from a mesh
+  pointray info scan.ply
+
+Exit status: 0 success, 1 bad or unreadable input, 2 bad command line, 3 output not writable,
+130 interrupted (Ctrl-C). No output file is left half-written.")]
 pub struct Cli {
     /// More log output (-v: info, -vv: debug, -vvv: trace).
     #[arg(short, long, action = clap::ArgAction::Count, global = true)]
@@ -36,6 +40,10 @@ pub enum Command {
     #[command(after_help = "Example:
   pointray prepare bun_zipper.ply -o bunny_prepared.ply")]
     Prepare(PrepareArgs),
+    /// Place N points uniformly over a triangle mesh's surface, with its smooth normals.
+    #[command(after_help = "Example:
+  pointray sample dragon_vrip_res2.binary_le.ply -n 20000000 -o dragon_20m.ply")]
+    Sample(SampleArgs),
     /// Describe a point-cloud file: format, elements, properties, bounds.
     #[command(after_help = "Example:
   pointray info dragon.ply")]
@@ -190,6 +198,31 @@ pub struct PrepareArgs {
     pub output: PathBuf,
     #[command(flatten)]
     pub preprocess: PreprocessArgs,
+}
+
+#[derive(Args, Debug)]
+pub struct SampleArgs {
+    /// Triangle mesh (PLY with a 'face' element).
+    pub input: PathBuf,
+    /// Points to place on the surface.
+    #[arg(short = 'n', long)]
+    pub points: u64,
+    /// Output PLY (binary, with normals; written atomically).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Random seed: the same seed gives the same points.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// smooth: the vertex normals interpolated (smooth shading; disks near sharp edges lean off
+    /// their faces); face: each triangle's own normal (disks lie in their faces, facets show).
+    #[arg(long, value_enum, default_value_t = NormalsArg::Smooth)]
+    pub normals: NormalsArg,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum NormalsArg {
+    Smooth,
+    Face,
 }
 
 #[derive(Args, Debug)]

@@ -20,7 +20,8 @@ fn main() -> ExitCode {
     let result = match &cli.command {
         Command::Render(a) => commands::render::run(a, cli.quiet),
         Command::Prepare(a) => commands::prepare::run(a, cli.quiet),
-        Command::Info(a) => commands::info::run(a),
+        Command::Sample(a) => commands::sample::run(a, cli.quiet),
+        Command::Info(a) => commands::info::run(a, cli.quiet),
         Command::Compare(a) => commands::compare::run(a),
     };
     match result {

@@ -425,6 +425,49 @@ fn info_reads_xyz_text() {
     assert!(run.stderr.is_empty(), "info writes nothing to stderr on success: {run}");
 }
 
+/// A closed mesh: the octahedron |x| + |y| + |z| = 1, wound outwards.
+fn octahedron_ply() -> String {
+    let mut text = "ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float z\n\
+                    element face 8\nproperty list uchar int vertex_indices\nend_header\n"
+        .to_string();
+    text += "1 0 0\n-1 0 0\n0 1 0\n0 -1 0\n0 0 1\n0 0 -1\n";
+    for [a, b, c] in [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]] {
+        text += &format!("3 {a} {b} {c}\n");
+    }
+    text
+}
+
+#[test]
+fn sample_makes_a_dense_cloud_on_a_mesh() {
+    let dir = temp_dir();
+    write_file(dir.path(), "octa.ply", octahedron_ply());
+    let run = run_in(dir.path(), &["sample", "octa.ply", "-n", "20000", "-o", "dense.ply"]);
+    run.assert_success().assert_stderr_contains("octa.ply: 8 triangles, area 6.928203; 20000 points");
+    let info = run_in(dir.path(), &["info", "dense.ply"]);
+    info.assert_success().assert_stdout_contains("points:      20000").assert_stdout_contains("normals:     yes");
+    // The same seed, the same file; every point on the surface.
+    run_in(dir.path(), &["-q", "sample", "octa.ply", "-n", "20000", "-o", "again.ply"]).assert_success();
+    assert_eq!(
+        std::fs::read(dir.path().join("dense.ply")).unwrap(),
+        std::fs::read(dir.path().join("again.ply")).unwrap()
+    );
+    let stats = dir.path().join("s.json");
+    let args = ["dense.ply", "-o", "dense.png", "--crop-to-model", "--stats", stats.to_str().unwrap()];
+    render_in(dir.path(), &args).assert_success();
+    let stats = read_stats(&stats);
+    assert_eq!(stat_u64(&stats, "points"), 20_000);
+    // From the default view the octahedron's outline covers about a fifth of its bounding
+    // box's projection (0.19 here, 0.22 at 256 x 256): a solid surface, no empty crop.
+    assert!((0.15..0.3).contains(&stat_f64(&stats, "hit_fraction")), "{stats}");
+
+    run_in(dir.path(), &["-q", "sample", "octa.ply", "-n", "0", "-o", "x.ply"]).assert_failure(2);
+    run_in(dir.path(), &["-q", "sample", "dense.ply", "-n", "10", "-o", "x.ply"])
+        .assert_failure(1)
+        .assert_stderr_contains("dense.ply: no 'face' element: not a mesh");
+    run_in(dir.path(), &["-q", "sample", "octa.ply", "-n", "10", "-o", "no/x.ply"]).assert_failure(3);
+    assert_dir_contains_exactly(dir.path(), &["octa.ply", "dense.ply", "again.ply", "dense.png", "s.json"]);
+}
+
 #[test]
 fn render_and_prepare_accept_xyz() {
     let dir = temp_dir();

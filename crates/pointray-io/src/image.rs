@@ -34,14 +34,18 @@ const MAX_DEFLATE_RATIO: u128 = 1032;
 /// high byte, gray is replicated into all three channels, and alpha is dropped (not composited).
 /// Only the first frame of an animated PNG is read.
 pub fn read_png(path: &Path) -> Result<(u32, u32, Vec<u8>), IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    decode_png(path, &std::fs::read(path).map_err(|e| IoError::io(path, e))?)
+}
+
+/// [`read_png`] for a file already in memory (`path` names it in errors).
+pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<(u32, u32, Vec<u8>), IoError> {
     let decode_error = |e: png::DecodingError| match e {
         png::DecodingError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
             IoError::invalid(path, "the PNG ends early (truncated file?)")
         }
         e => IoError::invalid(path, format!("not a readable PNG: {e}")),
     };
-    let mut decoder = png::Decoder::new(std::io::Cursor::new(&bytes[..]));
+    let mut decoder = png::Decoder::new(std::io::Cursor::new(bytes));
     decoder.set_transformations(png::Transformations::normalize_to_color8());
     let mut reader = decoder.read_info().map_err(decode_error)?;
 

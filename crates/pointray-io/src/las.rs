@@ -7,6 +7,8 @@
 //! scans: 40–236). If no channel of any point exceeds 255, the values are taken as 8-bit.
 
 use std::io::Cursor;
+
+use crate::file::FileBytes;
 use std::path::Path;
 
 use glam::DVec3;
@@ -48,14 +50,14 @@ fn check_laz_chunk_table(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
 /// Points decoded at a time: the header's count is not trusted for an allocation.
 const BATCH: u64 = 1 << 16;
 
-pub(crate) fn parse(path: &Path, bytes: Vec<u8>) -> Result<LoadedCloud, IoError> {
+pub(crate) fn parse(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
     // The LAZ decoder can panic on corrupt data (found by `mutations_never_panic`: an integer
     // overflow in its GPS-time model); a broken file must still end in an error that names it.
     std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| decode(path, bytes)))
         .unwrap_or_else(|_| Err(IoError::invalid(path, "corrupt LAS/LAZ data: the decoder failed")))
 }
 
-fn decode(path: &Path, bytes: Vec<u8>) -> Result<LoadedCloud, IoError> {
+fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
     check_laz_chunk_table(path, &bytes)?;
     let file_bytes = bytes.len() as u64;
     let mut reader = las::Reader::new(Cursor::new(bytes))

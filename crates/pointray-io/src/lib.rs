@@ -1,7 +1,7 @@
 //! File formats for pointray: point clouds in (PLY, LAS/LAZ, PCD, XYZ text, Stanford scan sets), rendered
 //! images out and back in (PNG).
 //!
-//! Everything is read into memory first and parsed from the byte slice; every error names
+//! Every file is memory-mapped (or read, where it cannot be) and parsed from the byte slice; every error names
 //! the file and, where there is one, the line or byte offset (see [`IoError`]). No input
 //! makes a reader panic or allocate more than the file could describe.
 
@@ -14,14 +14,16 @@ mod scanset;
 pub mod xyz;
 
 mod builder;
+mod file;
 mod text;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
 pub use error::IoError;
-pub use image::{read_png, write_png};
-pub use ply::{read_ply, write_ply};
+use file::{FileBytes, read_file};
+pub use image::{decode_png, read_png, write_png};
+pub use ply::{Mesh, parse_mesh, read_mesh, read_ply, write_ply};
 pub use xyz::read_xyz;
 
 /// A cloud and what its file said about itself.
@@ -58,12 +60,21 @@ pub fn read_cloud(path: &Path) -> Result<LoadedCloud, IoError> {
     read_any(path, true)
 }
 
-/// `read_cloud`, with scan sets allowed or not (a scan set's scans must be single clouds).
-fn read_any(path: &Path, scan_sets: bool) -> Result<LoadedCloud, IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+/// [`read_cloud`] for a file already in memory: `path` names it in errors, and gives the
+/// extension hint and the folder a scan set's scans are read from.
+pub fn parse_cloud(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     if bytes.is_empty() {
         return Err(IoError::invalid(path, "file is empty"));
     }
+    parse_any(path, FileBytes::Read(bytes.to_vec()), true)
+}
+
+/// `read_cloud`, with scan sets allowed or not (a scan set's scans must be single clouds).
+fn read_any(path: &Path, scan_sets: bool) -> Result<LoadedCloud, IoError> {
+    parse_any(path, read_file(path)?, scan_sets)
+}
+
+fn parse_any(path: &Path, bytes: FileBytes, scan_sets: bool) -> Result<LoadedCloud, IoError> {
     if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
         return ply::parse(path, &bytes);
     }

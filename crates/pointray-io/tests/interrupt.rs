@@ -2,7 +2,6 @@
 //! deletes the temporary files of every write in the process, which would break other tests'
 //! writes running beside it.
 
-
 use pointray_io::{atomic_write, discard_unfinished_writes};
 
 fn entries(dir: &std::path::Path) -> Vec<String> {

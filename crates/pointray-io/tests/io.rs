@@ -1108,3 +1108,63 @@ fn broken_pcd_files_are_refused_with_their_name_and_place() {
         expect_error(&dir.path().join(name), fragment);
     }
 }
+
+// ---------------------------------------------------------------- meshes (`pointray sample`)
+
+/// A unit square split as a quad and a triangle over five vertices, an element between the
+/// vertices and the faces, and a degenerate two-vertex face.
+fn mesh_elements(faces: Vec<Vec<f64>>) -> Vec<Elem> {
+    let xyz = |x: f64, y: f64| vec![Val::S(x), Val::S(y), Val::S(0.0)];
+    let scalar = |name| Prop::Scalar(Ty::F32, name);
+    vec![
+        Elem {
+            name: "vertex",
+            props: vec![scalar("x"), scalar("y"), scalar("z")],
+            records: vec![xyz(0.0, 0.0), xyz(1.0, 0.0), xyz(1.0, 1.0), xyz(0.0, 1.0), xyz(2.0, 0.0)],
+        },
+        Elem { name: "material", props: vec![Prop::Scalar(Ty::U8, "id")], records: vec![vec![Val::S(3.0)]] },
+        Elem {
+            name: "face",
+            props: vec![Prop::Scalar(Ty::U8, "flags"), Prop::List(Ty::U8, Ty::I32, "vertex_indices")],
+            records: faces.into_iter().map(|f| vec![Val::S(1.0), Val::L(f)]).collect(),
+        },
+    ]
+}
+
+#[test]
+fn meshes_read_alike_in_every_encoding_with_polygons_as_fans() {
+    let dir = temp_dir();
+    let faces = vec![vec![0.0, 1.0, 2.0, 3.0], vec![1.0, 4.0, 2.0], vec![0.0, 4.0]];
+    for (name, encoding) in [("a.ply", Enc::Ascii), ("le.ply", Enc::Le), ("be.ply", Enc::Be)] {
+        let path = write_file(dir.path(), name, &encode_ply(encoding, &mesh_elements(faces.clone())));
+        let mesh = pointray_io::read_mesh(&path).unwrap();
+        assert_eq!(mesh.triangles, [[0, 1, 2], [0, 2, 3], [1, 4, 2]], "{name}");
+        assert_eq!((mesh.vertices.len(), mesh.skipped_faces), (5, 1), "{name}");
+        let world = world_positions(&mesh.vertices);
+        assert_close(world[4], DVec3::new(2.0, 0.0, 0.0), 1e-12);
+    }
+}
+
+#[test]
+fn mesh_errors_name_the_face_and_where_it_is() {
+    let dir = temp_dir();
+    let bad = vec![vec![0.0, 1.0, 2.0], vec![0.0, 5.0, 2.0]];
+    let ascii = write_file(dir.path(), "a.ply", &encode_ply(Enc::Ascii, &mesh_elements(bad.clone())));
+    let message = pointray_io::read_mesh(&ascii).unwrap_err().to_string();
+    // Header lines 1-14, five vertices, one material: the second face is on line 22.
+    assert!(message.ends_with("a.ply: line 22: face 1: vertex index 5 is not one of the 5 vertices"), "{message}");
+    let binary = write_file(dir.path(), "b.ply", &encode_ply(Enc::Le, &mesh_elements(bad)));
+    let message = pointray_io::read_mesh(&binary).unwrap_err().to_string();
+    assert!(message.contains("b.ply: byte ") && message.contains("face 1: vertex index 5"), "{message}");
+
+    let cloud = write_file(dir.path(), "cloud.ply", &encode_ply(Enc::Le, &mesh_elements(vec![])[..1]));
+    let message = pointray_io::read_mesh(&cloud).unwrap_err().to_string();
+    assert!(message.ends_with("cloud.ply: no 'face' element: not a mesh"), "{message}");
+    let text = write_file(dir.path(), "c.xyz", b"0 0 0\n");
+    assert!(pointray_io::read_mesh(&text).unwrap_err().to_string().contains("not a PLY file"));
+    let mut truncated = encode_ply(Enc::Le, &mesh_elements(vec![vec![0.0, 1.0, 2.0]]));
+    truncated.truncate(truncated.len() - 3);
+    let path = write_file(dir.path(), "t.ply", &truncated);
+    let message = pointray_io::read_mesh(&path).unwrap_err().to_string();
+    assert!(message.contains("t.ply: byte") && message.contains("face 0"), "{message}");
+}

@@ -17,6 +17,7 @@ pub mod demo;
 pub mod film;
 pub mod knn;
 pub mod math;
+pub mod mesh_sampling;
 pub mod metrics;
 pub mod preprocess;
 pub mod render;

@@ -4,8 +4,8 @@ use std::io::{self, Write};
 
 use crate::args::InfoArgs;
 
-pub fn run(a: &InfoArgs) -> anyhow::Result<()> {
-    let (loaded, seconds) = super::load(&a.input)?;
+pub fn run(a: &InfoArgs, quiet: bool) -> anyhow::Result<()> {
+    let (loaded, seconds) = super::load(&a.input, quiet)?;
     let (info, cloud) = (&loaded.info, &loaded.cloud);
     let mut out = io::stdout().lock();
     writeln!(out, "file:        {}", a.input.display())?;

@@ -2,13 +2,14 @@ pub mod compare;
 pub mod info;
 pub mod prepare;
 pub mod render;
+pub mod sample;
 
 use std::path::Path;
 use std::time::Instant;
 
 use anyhow::Context;
 use pointray::PointCloud;
-use pointray::preprocess::{PreprocessConfig, PreprocessStats, preprocess};
+use pointray::preprocess::{PreprocessConfig, PreprocessStats, preprocess_with_progress};
 
 use crate::args::PreprocessArgs;
 use crate::failure;
@@ -32,9 +33,12 @@ pub fn check_output_path(path: &Path) -> anyhow::Result<()> {
 }
 
 /// Reads a cloud file, with the file name in any error.
-pub fn load(path: &Path) -> anyhow::Result<(pointray_io::LoadedCloud, f64)> {
+pub fn load(path: &Path, quiet: bool) -> anyhow::Result<(pointray_io::LoadedCloud, f64)> {
     let t = Instant::now();
-    let loaded = pointray_io::read_cloud(path)?;
+    let spinner = crate::progress::spinner("read", quiet);
+    let loaded = pointray_io::read_cloud(path);
+    spinner.finish_and_clear();
+    let loaded = loaded?;
     tracing::info!("read {} points from {} in {:.3} s", loaded.cloud.len(), path.display(), t.elapsed().as_secs_f64());
     Ok((loaded, t.elapsed().as_secs_f64()))
 }
@@ -67,7 +71,7 @@ pub fn prepare_cloud(
         cloud.radii = None;
     }
     let spinner = crate::progress::spinner("preprocess", quiet);
-    let stats = preprocess(cloud, &config);
+    let stats = preprocess_with_progress(cloud, &config, &|stage| spinner.set_message(format!("preprocess: {stage}")));
     spinner.finish_and_clear();
     let stats = stats.with_context(|| format!("{input}: preprocessing"))?;
     cloud.check_lengths().map_err(anyhow::Error::msg).context("preprocessing left inconsistent attributes")?;

@@ -215,7 +215,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     // 1. The cloud.
     let (mut cloud, input_name, load_seconds) = match &a.input {
         Some(path) => {
-            let (loaded, secs) = super::load(path)?;
+            let (loaded, secs) = super::load(path, quiet)?;
             (loaded.cloud, path.display().to_string(), secs)
         }
         None => (pointray::demo::demo_cloud(a.demo_points, a.seed), "demo".to_string(), 0.0),

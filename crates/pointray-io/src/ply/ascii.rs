@@ -34,10 +34,43 @@ pub(crate) fn read_vertices(
         let (line_number, line) = next_record(path, lines, vertex, index)?;
         let error = |message: String| IoError::at_line(path, line_number, format!("vertex {index}: {message}"));
         let text = as_text(line).ok_or_else(|| error("line is not text".into()))?;
-        parse_record(text, vertex, &mut values).map_err(error)?;
+        parse_record(text, vertex, &mut values, None).map_err(error)?;
         builder.push(&layout.record(&values));
     }
     Ok(builder)
+}
+
+/// From the start of element `from`, skips to element `target` and hands the items of list
+/// property `list` of each of its records to `visit`, which may refuse them.
+pub(crate) fn for_each_list(
+    path: &Path,
+    lines: &mut Lines<'_>,
+    elements: &[Element],
+    (from, target, list): (usize, usize, usize),
+    mut visit: impl FnMut(usize, &[f64]) -> Result<(), String>,
+) -> Result<(), IoError> {
+    for element in &elements[from..target] {
+        ensure_room(path, lines, element)?;
+        if element.properties.is_empty() {
+            continue;
+        }
+        for index in 0..element.count {
+            next_record(path, lines, element, index)?;
+        }
+    }
+    let element = &elements[target];
+    ensure_room(path, lines, element)?;
+    let mut values = vec![0.0; element.properties.len()];
+    let mut items = Vec::new();
+    for index in 0..element.count {
+        let (line_number, line) = next_record(path, lines, element, index)?;
+        let error =
+            |message: String| IoError::at_line(path, line_number, format!("{} {index}: {message}", element.name));
+        let text = as_text(line).ok_or_else(|| error("line is not text".into()))?;
+        parse_record(text, element, &mut values, Some((list, &mut items))).map_err(error)?;
+        visit(index, &items).map_err(error)?;
+    }
+    Ok(())
 }
 
 /// Every record takes at least one character and a line break, so a count beyond half the
@@ -69,8 +102,14 @@ fn next_record<'a>(
     })
 }
 
-/// Fills `values[i]` with scalar property `i`; lists are counted and stepped over.
-fn parse_record(text: &str, element: &Element, values: &mut [f64]) -> Result<(), String> {
+/// Fills `values[i]` with scalar property `i`, and `list.1` with the items of list property
+/// `list.0` when given; other lists are counted and stepped over.
+fn parse_record(
+    text: &str,
+    element: &Element,
+    values: &mut [f64],
+    mut list: Option<(usize, &mut Vec<f64>)>,
+) -> Result<(), String> {
     let has_lists = element.fixed_size().is_none();
     let mut tokens = text.split_ascii_whitespace();
     let mut found = 0;
@@ -97,9 +136,19 @@ fn parse_record(text: &str, element: &Element, values: &mut [f64]) -> Result<(),
                 let length = token
                     .parse::<u64>()
                     .map_err(|_| format!("bad list length '{}' for property '{}'", clip(token), property.name))?;
+                let mut items = list.as_mut().filter(|(wanted, _)| *wanted == index).map(|(_, items)| items);
+                if let Some(items) = items.as_mut() {
+                    items.clear();
+                }
                 for _ in 0..length {
-                    tokens.next().ok_or_else(|| ends_early(&property.name, found))?;
+                    let item = tokens.next().ok_or_else(|| ends_early(&property.name, found))?;
                     found += 1;
+                    if let Some(items) = items.as_mut() {
+                        let value = item
+                            .parse::<f64>()
+                            .map_err(|_| format!("bad value '{}' in list '{}'", clip(item), property.name))?;
+                        items.push(value);
+                    }
                 }
             }
         }

@@ -45,15 +45,15 @@ pub(crate) struct Body<'a> {
 }
 
 impl Body<'_> {
-    /// Skips the elements before the vertex element, then decodes the vertices. Elements
-    /// after it are never looked at.
+    /// Skips the elements before the vertex element, then decodes the vertices. Returns them
+    /// and the byte offset after them; elements after them are not looked at here.
     pub(crate) fn read_vertices(
         &self,
         body_start: usize,
         elements: &[Element],
         vertex_index: usize,
         layout: &VertexLayout,
-    ) -> Result<CloudBuilder, IoError> {
+    ) -> Result<(CloudBuilder, usize), IoError> {
         let mut pos = body_start;
         for element in elements.iter().take(vertex_index) {
             pos = self.skip_element(element, pos)?;
@@ -61,9 +61,34 @@ impl Body<'_> {
         let vertex = elements.get(vertex_index).ok_or_else(|| IoError::invalid(self.path, "no 'vertex' element"))?;
         self.ensure_room(vertex, pos)?;
         match vertex.fixed_size() {
-            Some(size) => self.read_fixed_vertices(vertex, pos, size, layout),
+            Some(size) => Ok((self.read_fixed_vertices(vertex, pos, size, layout)?, pos + vertex.count * size)),
             None => self.read_variable_vertices(vertex, pos, layout),
         }
+    }
+
+    /// From `pos`, the start of element `from`, skips to element `target` and hands the items
+    /// of list property `list` of each of its records to `visit`, which may refuse them.
+    pub(crate) fn for_each_list(
+        &self,
+        mut pos: usize,
+        elements: &[Element],
+        (from, target, list): (usize, usize, usize),
+        mut visit: impl FnMut(usize, &[f64]) -> Result<(), String>,
+    ) -> Result<(), IoError> {
+        for element in &elements[from..target] {
+            pos = self.skip_element(element, pos)?;
+        }
+        let element = &elements[target];
+        self.ensure_room(element, pos)?;
+        let mut items = Vec::new();
+        for index in 0..element.count {
+            let start = pos;
+            pos = self.walk_record(element, index, pos, None, Some((list, &mut items)))?;
+            visit(index, &items).map_err(|message| {
+                IoError::at_byte(self.path, start, format!("{} {index}: {message}", element.name))
+            })?;
+        }
+        Ok(())
     }
 
     /// Refuses counts the rest of the file cannot hold, before anything is allocated.
@@ -103,19 +128,21 @@ impl Body<'_> {
         }
         let mut pos = pos;
         for index in 0..element.count {
-            pos = self.walk_record(element, index, pos, None)?;
+            pos = self.walk_record(element, index, pos, None, None)?;
         }
         Ok(pos)
     }
 
     /// Steps over one record that may contain lists, storing scalar values into `values`
-    /// (indexed by property) when given. Returns the position after the record.
+    /// (indexed by property) and the items of list property `list.0` into `list.1`, when
+    /// given. Returns the position after the record.
     fn walk_record(
         &self,
         element: &Element,
         index: usize,
         mut pos: usize,
         mut values: Option<&mut [f64]>,
+        mut list: Option<(usize, &mut Vec<f64>)>,
     ) -> Result<usize, IoError> {
         for (property_index, property) in element.properties.iter().enumerate() {
             let start = pos;
@@ -139,11 +166,18 @@ impl Body<'_> {
                         ));
                     }
                     // Integer count types hold at most u32::MAX, exact in f64 and usize.
+                    let items_start = pos + count.size();
                     pos = (length as usize)
                         .checked_mul(item.size())
-                        .and_then(|n| n.checked_add(pos + count.size()))
+                        .and_then(|n| n.checked_add(items_start))
                         .filter(|&end| end <= self.bytes.len())
                         .ok_or_else(|| self.truncated(element, index))?;
+                    if let Some((_, items)) = list.as_mut().filter(|(wanted, _)| *wanted == property_index) {
+                        items.clear();
+                        // In bounds: the whole list was checked to end before the file does.
+                        let decoded = (items_start..pos).step_by(item.size());
+                        items.extend(decoded.filter_map(|at| decode(self.bytes, at, item, self.order)));
+                    }
                 }
             }
         }
@@ -180,15 +214,15 @@ impl Body<'_> {
         vertex: &Element,
         start: usize,
         layout: &VertexLayout,
-    ) -> Result<CloudBuilder, IoError> {
+    ) -> Result<(CloudBuilder, usize), IoError> {
         let mut values = vec![0.0; vertex.properties.len()];
         let mut builder = CloudBuilder::new(vertex.count, layout.attributes());
         let mut pos = start;
         for index in 0..vertex.count {
-            pos = self.walk_record(vertex, index, pos, Some(&mut values))?;
+            pos = self.walk_record(vertex, index, pos, Some(&mut values), None)?;
             builder.push(&layout.record(&values));
         }
-        Ok(builder)
+        Ok((builder, pos))
     }
 }
 

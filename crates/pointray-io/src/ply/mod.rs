@@ -10,13 +10,17 @@
 mod ascii;
 mod binary;
 mod header;
+mod mesh;
 mod vertex;
+
+pub use mesh::{Mesh, parse_mesh, read_mesh};
 
 use std::path::Path;
 
 use glam::DVec3;
 use pointray::PointCloud;
 
+use crate::builder::CloudBuilder;
 use crate::text::Lines;
 use crate::{FileInfo, IoError, LoadedCloud, atomic_write};
 use binary::{Body, ByteOrder};
@@ -25,25 +29,47 @@ use vertex::VertexLayout;
 
 /// Reads a PLY file whatever its extension.
 pub fn read_ply(path: &Path) -> Result<LoadedCloud, IoError> {
-    let bytes = std::fs::read(path).map_err(|e| IoError::io(path, e))?;
+    let bytes = crate::file::read_file(path)?;
     parse(path, &bytes)
 }
 
 /// Parses a whole PLY file already in memory.
 pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     let header = parse_header(path, bytes)?;
-    let vertex_index = header
+    let vertex_index = vertex_element(path, &header)?;
+    let (builder, _) = read_vertex_element(path, bytes, &header, vertex_index)?;
+    tracing::debug!(path = %path.display(), points = builder.len(), format = %header.format_name(), "read PLY");
+    let info = file_info(&header, vertex_index, bytes.len());
+    Ok(LoadedCloud { cloud: builder.finish(), info })
+}
+
+fn vertex_element(path: &Path, header: &Header) -> Result<usize, IoError> {
+    header
         .elements
         .iter()
         .position(|e| e.name == "vertex")
-        .ok_or_else(|| IoError::invalid(path, "no 'vertex' element in the header"))?;
-    let vertex = &header.elements[vertex_index];
-    let layout = VertexLayout::new(path, vertex)?;
-    let builder = match header.encoding {
+        .ok_or_else(|| IoError::invalid(path, "no 'vertex' element in the header"))
+}
+
+/// The body after the vertex element, for readers of the elements that follow it.
+enum Rest<'a> {
+    Ascii(Lines<'a>),
+    Binary(Body<'a>, usize),
+}
+
+fn read_vertex_element<'a>(
+    path: &'a Path,
+    bytes: &'a [u8],
+    header: &Header,
+    vertex_index: usize,
+) -> Result<(CloudBuilder, Rest<'a>), IoError> {
+    let layout = VertexLayout::new(path, &header.elements[vertex_index])?;
+    match header.encoding {
         Encoding::Ascii => {
             let body = bytes.get(header.body_start..).unwrap_or_default();
             let mut lines = Lines::new(body, header.body_first_line);
-            ascii::read_vertices(path, &mut lines, &header.elements, vertex_index, &layout)?
+            let builder = ascii::read_vertices(path, &mut lines, &header.elements, vertex_index, &layout)?;
+            Ok((builder, Rest::Ascii(lines)))
         }
         Encoding::BinaryLittleEndian | Encoding::BinaryBigEndian => {
             let order = match header.encoding {
@@ -51,12 +77,10 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
                 _ => ByteOrder::Little,
             };
             let body = Body { path, bytes, order };
-            body.read_vertices(header.body_start, &header.elements, vertex_index, &layout)?
+            let (builder, end) = body.read_vertices(header.body_start, &header.elements, vertex_index, &layout)?;
+            Ok((builder, Rest::Binary(body, end)))
         }
-    };
-    tracing::debug!(path = %path.display(), points = builder.len(), format = %header.format_name(), "read PLY");
-    let info = file_info(&header, vertex_index, bytes.len());
-    Ok(LoadedCloud { cloud: builder.finish(), info })
+    }
 }
 
 fn file_info(header: &Header, vertex_index: usize, file_bytes: usize) -> FileInfo {

@@ -59,6 +59,8 @@ impl PreprocessConfig {
 /// Seconds spent in each stage of [`preprocess`] (0 for a stage that did not run).
 #[derive(Debug, Clone, Copy, Default, serde::Serialize)]
 pub struct StageSeconds {
+    /// Dropping non-finite and repeated points.
+    pub clean: f64,
     pub sort: f64,
     pub knn: f64,
     pub normals: f64,
@@ -68,7 +70,7 @@ pub struct StageSeconds {
 
 impl StageSeconds {
     pub fn total(&self) -> f64 {
-        self.sort + self.knn + self.normals + self.orient + self.radii
+        self.clean + self.sort + self.knn + self.normals + self.orient + self.radii
     }
 }
 
@@ -112,18 +114,32 @@ pub enum PreprocessError {
 ///
 /// Panics if an attribute does not have one entry per point ([`PointCloud::check_lengths`]).
 pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> Result<PreprocessStats, PreprocessError> {
+    preprocess_with_progress(cloud, cfg, &|_| {})
+}
+
+/// [`preprocess`], telling `stage` the name of each stage as it starts (`"clean"`, `"sort"`,
+/// `"kNN"`, `"normals"`, `"orient"`, `"radii"`), for a progress display.
+pub fn preprocess_with_progress(
+    cloud: &mut PointCloud,
+    cfg: &PreprocessConfig,
+    stage: &dyn Fn(&'static str),
+) -> Result<PreprocessStats, PreprocessError> {
     if let Err(e) = cloud.check_lengths() {
         panic!("preprocess: inconsistent point cloud: {e}");
     }
+    stage("clean");
+    let start = Instant::now();
     let mut stats = PreprocessStats {
         dropped_non_finite: drop_non_finite(cloud),
         dropped_duplicates: drop_duplicates(cloud),
         ..Default::default()
     };
+    stats.seconds.clean = start.elapsed().as_secs_f64();
     if cloud.is_empty() {
         return Err(PreprocessError::NoPoints);
     }
     if cfg.sort && cloud.len() > 1 {
+        stage("sort");
         let start = Instant::now();
         cloud.permute(&morton::sort_order(&cloud.positions));
         stats.seconds.sort = start.elapsed().as_secs_f64();
@@ -156,15 +172,17 @@ pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> Result<Prep
         (true, false) => cfg.k_normals,
         _ => cfg.k_radius,
     };
+    stage("kNN");
     let start = Instant::now();
     let nbrs = k_nearest(&cloud.positions, k);
     stats.seconds.knn = start.elapsed().as_secs_f64();
     debug!(k = nbrs.k, seconds = stats.seconds.knn, "kNN");
 
     if need_normals {
-        fill_normals(cloud, &nbrs, cfg.k_normals, &normals_missing, &mut stats);
+        fill_normals(cloud, &nbrs, cfg.k_normals, &normals_missing, &mut stats, stage);
     }
     if need_radii {
+        stage("radii");
         let start = Instant::now();
         let computed = radii::splat_radii(&cloud.positions, &nbrs, cfg.k_radius, cfg.radius_scale);
         let radii = cloud.radii.get_or_insert_with(|| vec![0.0; n]);
@@ -261,7 +279,9 @@ fn fill_normals(
     k: usize,
     missing: &[bool],
     stats: &mut PreprocessStats,
+    stage: &dyn Fn(&'static str),
 ) {
+    stage("normals");
     let start = Instant::now();
     let positions = &cloud.positions;
     let normals = cloud.normals.get_or_insert_with(|| vec![Vec3::Z; positions.len()]);
@@ -280,6 +300,7 @@ fn fill_normals(
     stats.seconds.normals = start.elapsed().as_secs_f64();
     debug!(degenerate, seconds = stats.seconds.normals, "PCA normals");
 
+    stage("orient");
     let start = Instant::now();
     let fixed: Vec<bool> = missing.iter().map(|m| !m).collect();
     let some_given = fixed.contains(&true);

@@ -1,0 +1,91 @@
+//! Triangle meshes from PLY: the `vertex` element and the `vertex_indices` (or
+//! `vertex_index`) lists of the `face` element, for `pointray sample`.
+
+use std::path::Path;
+
+use pointray::PointCloud;
+
+use super::header::{Header, PropertyKind, parse_header};
+use super::{Rest, ascii, read_vertex_element, vertex_element};
+use crate::IoError;
+
+/// A mesh as read: its vertices (with whatever attributes the file has, recentred like any
+/// cloud) and its faces as triangles.
+#[derive(Clone, Debug)]
+pub struct Mesh {
+    pub vertices: PointCloud,
+    /// Polygons are split into fans of triangles around their first vertex.
+    pub triangles: Vec<[u32; 3]>,
+    /// Faces with fewer than three vertices, which cover nothing and are left out.
+    pub skipped_faces: usize,
+}
+
+/// Reads a PLY mesh. Errors name the file, and the face and its line or byte offset for a
+/// vertex index that is not an index of a vertex in the file.
+pub fn read_mesh(path: &Path) -> Result<Mesh, IoError> {
+    parse_mesh(path, &crate::file::read_file(path)?)
+}
+
+/// [`read_mesh`] for a file already in memory (`path` names it in errors).
+pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
+    if !(bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n")) {
+        return Err(IoError::invalid(path, "not a PLY file: it does not start with the line 'ply'"));
+    }
+    let header = parse_header(path, bytes)?;
+    let vertex_index = vertex_element(path, &header)?;
+    let (face_index, list) = face_list(path, &header, vertex_index)?;
+    let (builder, rest) = read_vertex_element(path, bytes, &header, vertex_index)?;
+    let vertices = builder.len();
+
+    // Never more triangles than a file of this size can describe (three bytes per index).
+    let mut triangles = Vec::with_capacity(header.elements[face_index].count.min(bytes.len() / 12));
+    let mut skipped_faces = 0;
+    let visit = |_: usize, items: &[f64]| {
+        if items.len() < 3 {
+            skipped_faces += 1;
+            return Ok(());
+        }
+        let index = |value: f64| {
+            if value >= 0.0 && value < vertices as f64 && value.fract() == 0.0 {
+                Ok(value as u32)
+            } else {
+                Err(format!("vertex index {value} is not one of the {vertices} vertices"))
+            }
+        };
+        let first = index(items[0])?;
+        let mut previous = index(items[1])?;
+        for &item in &items[2..] {
+            let next = index(item)?;
+            triangles.push([first, previous, next]);
+            previous = next;
+        }
+        Ok(())
+    };
+    let elements = &header.elements;
+    let which = (vertex_index + 1, face_index, list);
+    match rest {
+        Rest::Ascii(mut lines) => ascii::for_each_list(path, &mut lines, elements, which, visit)?,
+        Rest::Binary(body, end) => body.for_each_list(end, elements, which, visit)?,
+    }
+    Ok(Mesh { vertices: builder.finish(), triangles, skipped_faces })
+}
+
+/// The face element after the vertices and its list of vertex indices.
+fn face_list(path: &Path, header: &Header, vertex_index: usize) -> Result<(usize, usize), IoError> {
+    let face_index = header
+        .elements
+        .iter()
+        .position(|e| e.name == "face")
+        .ok_or_else(|| IoError::invalid(path, "no 'face' element: not a mesh"))?;
+    if face_index < vertex_index {
+        return Err(IoError::invalid(path, "the 'face' element comes before the 'vertex' element (not supported)"));
+    }
+    let list = header.elements[face_index]
+        .properties
+        .iter()
+        .position(|p| {
+            matches!(p.kind, PropertyKind::List { .. }) && (p.name == "vertex_indices" || p.name == "vertex_index")
+        })
+        .ok_or_else(|| IoError::invalid(path, "the 'face' element has no 'vertex_indices' list"))?;
+    Ok((face_index, list))
+}

@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# Runs every fuzz target for SECONDS each (default 60), seeded with the bad-input fixtures.
+# Needs a nightly toolchain and cargo-fuzz:
+#   rustup toolchain install nightly && cargo install cargo-fuzz
+# Crashes land in fuzz/artifacts/TARGET/; reproduce one with `cargo +nightly fuzz run TARGET FILE`.
+set -euo pipefail
+cd "$(dirname "$0")"
+seconds=${1:-60}
+fixtures=../crates/pointray-cli/tests/bad-input
+
+seed() { # target, then files to copy in, with the first N bytes (the target's own prefix) cut
+  local target=$1 cut=$2
+  shift 2
+  mkdir -p "corpus/$target"
+  for f in "$@"; do
+    [ -f "$f" ] && tail -c +"$((cut + 1))" "$f" > "corpus/$target/seed-$(basename "$f")"
+  done
+  return 0
+}
+seed cloud 0 "$fixtures"/*.ply "$fixtures"/*.xyz "$fixtures"/*.pcd "$fixtures"/*.conf
+seed xyz 0 "$fixtures"/*.xyz
+seed ply 4 "$fixtures"/*.ply
+seed pcd 11 "$fixtures"/*.pcd
+seed scan_set 6 "$fixtures"/*.conf
+mkdir -p corpus/las corpus/mesh corpus/png
+printf 'format ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n4 1 3 2 0\n' \
+  > corpus/mesh/seed-quad.ply
+python3 -c '
+import struct, sys, zlib
+def chunk(kind, data):
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+raw = b"".join(b"\0" + bytes(range(i, i + 12)) for i in range(4))
+png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 4, 4, 8, 2, 0, 0, 0))
+png += chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
+open("corpus/png/seed-4x4.png", "wb").write(png)'
+
+for target in cloud ply las pcd xyz scan_set mesh png; do
+  echo "== $target: $seconds s"
+  cargo +nightly fuzz run "$target" "corpus/$target" -- \
+    -max_total_time="$seconds" -max_len=65536 -rss_limit_mb=4096 -print_final_stats=1 2>&1 |
+    grep -E "^(stat::number_of_executed_runs|stat::peak_rss_mb|Done|==.*ERROR|SUMMARY)|panicked" || true
+  # A crash leaves its input in artifacts/ and a non-zero status; stop at the first.
+  if ls "artifacts/$target"/crash-* "artifacts/$target"/oom-* "artifacts/$target"/timeout-* >/dev/null 2>&1; then
+    echo "$target: failing inputs in fuzz/artifacts/$target"; exit 1
+  fi
+done
