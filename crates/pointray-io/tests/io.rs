@@ -884,7 +884,11 @@ fn scan_set_errors_name_the_file_and_line() {
 /// A LAS (or, `compressed`, LAZ) file of `points` (survey coordinates, 16-bit colour channels),
 /// at 0.01 units, offset near the points as survey files are.
 fn las_bytes(points: &[(DVec3, [u16; 3])], compressed: bool) -> Vec<u8> {
-    let mut builder = las::Builder::from((1, 2));
+    las_bytes_of_version(points, compressed, (1, 2))
+}
+
+fn las_bytes_of_version(points: &[(DVec3, [u16; 3])], compressed: bool, version: (u8, u8)) -> Vec<u8> {
+    let mut builder = las::Builder::from(version);
     builder.point_format = las::point::Format::new(3).unwrap();
     builder.point_format.is_compressed = compressed;
     let t = |offset| las::Transform { scale: 0.01, offset };
@@ -969,12 +973,17 @@ fn broken_las_files_are_refused_with_their_name() {
     let table_at = i64::from_le_bytes(laz[points_at..points_at + 8].try_into().unwrap()) as usize;
     chunks[table_at + 4..table_at + 8].copy_from_slice(&u32::MAX.to_le_bytes());
     write_file(dir.path(), "chunks.laz", &chunks);
+    // LAS 1.4's 64-bit count (byte 247) so large that count × record length overflows.
+    let mut overflow = las_bytes_of_version(&survey_points(50, |_| 100), false, (1, 4));
+    overflow[247..255].copy_from_slice(&u64::MAX.to_le_bytes());
+    write_file(dir.path(), "overflow.las", &overflow);
     for (name, fragment) in [
         ("cut.las", "more than the file holds"),
         ("head.las", "not a readable LAS file"),
         ("count.las", "more than the file holds"),
         ("cut.laz", "not a readable LAS file"),
         ("chunks.laz", "chunk table claims 4294967295 chunks"),
+        ("overflow.las", "declares 18446744073709551615 points of 34 bytes, more than any file can hold"),
     ] {
         eprintln!("{}", expect_error(&dir.path().join(name), fragment));
     }

@@ -77,6 +77,7 @@ pub fn sample_surface(
             vertex_normals[i as usize] += *v;
         }
     }
+    vertex_normals.iter_mut().for_each(|n| *n = n.normalize_or_zero());
     // Inclusive prefix sums of the areas: a uniform number below the total picks a triangle.
     let cumulative: Vec<f64> = face_vectors
         .iter()
@@ -106,7 +107,7 @@ pub fn sample_surface(
                 let w = [1.0 - s, s * (1.0 - r), s * r];
                 *p = (a * w[0] + b * w[1] + c * w[2]).as_vec3();
                 let smooth = || {
-                    let [na, nb, nc] = triangles[t].map(|v| vertex_normals[v as usize].normalize_or_zero());
+                    let [na, nb, nc] = triangles[t].map(|v| vertex_normals[v as usize]);
                     (na * w[0] + nb * w[1] + nc * w[2]).try_normalize()
                 };
                 let smooth = if kind == SampleNormals::Smooth { smooth() } else { None };
