@@ -48,9 +48,9 @@ fn check_laz_chunk_table(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
 
 /// The header's point count times its record length, plus the offset of the point data,
 /// must fit in 64 bits: the `las` crate computes the end of the points unchecked (a release
-/// build wraps, a checked one panics; found by the `las` fuzz target). Offsets: the minor
-/// version at byte 25, the header size at 94, the point data's at 96, the record length at
-/// 105, the legacy count at 107, and in a LAS 1.4 header the 64-bit count at 247.
+/// build wraps, a checked one panics; found by the `las` and `cloud` fuzz targets). Offsets:
+/// the version at bytes 24 and 25, the point data's at 96, the record length at 105, the
+/// legacy count at 107, and in a LAS 1.4 header the 64-bit count at 247.
 fn check_point_extent(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
     let u64_at = |at: usize, n: usize| {
         bytes.get(at..at + n).map(|b| b.iter().rev().fold(0u64, |v, &byte| v << 8 | u64::from(byte)))
@@ -58,8 +58,8 @@ fn check_point_extent(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
     let (Some(offset), Some(length), Some(legacy)) = (u64_at(96, 4), u64_at(105, 2), u64_at(107, 4)) else {
         return Ok(()); // too short: the crate reports the truncated header
     };
-    let header_size = u64_at(94, 2).unwrap_or(0);
-    let wide = (bytes[25] >= 4 && header_size >= 255).then(|| u64_at(247, 8)).flatten();
+    // The crate reads the 64-bit count for version 1.4 exactly, whatever the header size says.
+    let wide = (bytes[24..26] == [1, 4]).then(|| u64_at(247, 8)).flatten();
     let count = legacy.max(wide.unwrap_or(0));
     if count.checked_mul(length).and_then(|n| n.checked_add(offset)).is_none() {
         return Err(IoError::invalid(

@@ -977,6 +977,10 @@ fn broken_las_files_are_refused_with_their_name() {
     let mut overflow = las_bytes_of_version(&survey_points(50, |_| 100), false, (1, 4));
     overflow[247..255].copy_from_slice(&u64::MAX.to_le_bytes());
     write_file(dir.path(), "overflow.las", &overflow);
+    // The crate reads that count for every 1.4 header, even one whose size field (byte 94)
+    // says it is too short to hold it (found by the `cloud` fuzz target).
+    overflow[94..96].copy_from_slice(&0u16.to_le_bytes());
+    write_file(dir.path(), "overflow-short-header.las", &overflow);
     for (name, fragment) in [
         ("cut.las", "more than the file holds"),
         ("head.las", "not a readable LAS file"),
@@ -984,6 +988,7 @@ fn broken_las_files_are_refused_with_their_name() {
         ("cut.laz", "not a readable LAS file"),
         ("chunks.laz", "chunk table claims 4294967295 chunks"),
         ("overflow.las", "declares 18446744073709551615 points of 34 bytes, more than any file can hold"),
+        ("overflow-short-header.las", "declares 18446744073709551615 points of 34 bytes"),
     ] {
         eprintln!("{}", expect_error(&dir.path().join(name), fragment));
     }

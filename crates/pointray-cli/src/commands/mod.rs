@@ -81,38 +81,24 @@ pub fn prepare_cloud(
 
 /// One warning per kind of bad point the preprocessing dropped or repaired.
 fn warn_about_repairs(input: &str, s: &PreprocessStats) {
-    let plural = |n: usize, one: &'static str, many: &'static str| if n == 1 { one } else { many };
-    if s.dropped_non_finite > 0 {
-        let n = s.dropped_non_finite;
-        tracing::warn!("{input}: dropped {n} {} with a non-finite coordinate", plural(n, "point", "points"));
-    }
-    if s.dropped_duplicates > 0 {
-        let n = s.dropped_duplicates;
-        tracing::warn!(
-            "{input}: dropped {n} {} at the exact position of an earlier point",
-            plural(n, "point", "points")
-        );
-    }
-    if s.invalid_normals > 0 {
-        let n = s.invalid_normals;
-        tracing::warn!(
-            "{input}: {n} {} zero or non-finite; estimated from the neighbours",
-            plural(n, "normal was", "normals were")
-        );
-    }
-    if s.invalid_radii > 0 {
-        let n = s.invalid_radii;
-        tracing::warn!(
-            "{input}: {n} {} zero, negative or non-finite; computed from the neighbours",
-            plural(n, "radius was", "radii were")
-        );
-    }
-    if s.degenerate_normals > 0 {
-        let n = s.degenerate_normals;
-        tracing::warn!(
-            "{input}: {n} {} no plane through the neighbours (collinear or coincident points); set perpendicular to their line",
-            plural(n, "normal has", "normals have")
-        );
+    // (count, what comes before it, the noun for one and for many, what comes after)
+    let repairs = [
+        (s.dropped_non_finite, "dropped ", "point", "points", "with a non-finite coordinate"),
+        (s.dropped_duplicates, "dropped ", "point", "points", "at the exact position of an earlier point"),
+        (s.invalid_normals, "", "normal was", "normals were", "zero or non-finite; estimated from the neighbours"),
+        (s.invalid_radii, "", "radius was", "radii were", "zero, negative or non-finite; computed from the neighbours"),
+        (
+            s.degenerate_normals,
+            "",
+            "normal has",
+            "normals have",
+            "no plane through the neighbours (collinear or coincident points); set perpendicular to their line",
+        ),
+    ];
+    for (n, before, one, many, after) in repairs {
+        if n > 0 {
+            tracing::warn!("{input}: {before}{n} {} {after}", if n == 1 { one } else { many });
+        }
     }
 }
 
