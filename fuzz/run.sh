@@ -8,20 +8,24 @@ cd "$(dirname "$0")"
 seconds=${1:-60}
 fixtures=../crates/pointray-cli/tests/bad-input
 
-seed() { # target, then files to copy in, with the first N bytes (the target's own prefix) cut
-  local target=$1 cut=$2
+seed() { # target, the signature its inputs follow, then files; a file starting with the
+          # signature goes in without it, others are left out (an empty signature takes all)
+  local target=$1 signature=$2
   shift 2
   mkdir -p "corpus/$target"
   for f in "$@"; do
-    [ -f "$f" ] && tail -c +"$((cut + 1))" "$f" > "corpus/$target/seed-$(basename "$f")"
+    [ -f "$f" ] || continue
+    if printf '%s' "$signature" | cmp -s -n "${#signature}" - "$f"; then
+      tail -c +"$((${#signature} + 1))" "$f" > "corpus/$target/seed-$(basename "$f")"
+    fi
   done
-  return 0
 }
-seed cloud 0 "$fixtures"/*.ply "$fixtures"/*.xyz "$fixtures"/*.pcd "$fixtures"/*.conf
-seed xyz 0 "$fixtures"/*.xyz
-seed ply 4 "$fixtures"/*.ply
-seed pcd 11 "$fixtures"/*.pcd
-seed scan_set 6 "$fixtures"/*.conf
+seed cloud '' "$fixtures"/*.ply "$fixtures"/*.xyz "$fixtures"/*.pcd "$fixtures"/*.conf
+seed xyz '' "$fixtures"/*.xyz
+seed ply $'ply\n' "$fixtures"/*.ply
+seed pcd $'VERSION .7\n' "$fixtures"/*.pcd
+seed scan_set 'bmesh ' "$fixtures"/*.conf
+printf 'scan.ply 0 0 0 0 0 0 1\n' > corpus/scan_set/seed-one-scan.conf
 mkdir -p corpus/las corpus/mesh corpus/png
 printf 'format ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n4 1 3 2 0\n' \
   > corpus/mesh/seed-quad.ply

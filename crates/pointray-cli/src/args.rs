@@ -40,7 +40,7 @@ pub enum Command {
     #[command(after_help = "Example:
   pointray prepare bun_zipper.ply -o bunny_prepared.ply")]
     Prepare(PrepareArgs),
-    /// Place N points uniformly over a triangle mesh's surface, with its smooth normals.
+    /// Place N points uniformly over a triangle mesh's surface, with its smooth (or face) normals.
     #[command(after_help = "Example:
   pointray sample dragon_vrip_res2.binary_le.ply -n 20000000 -o dragon_20m.ply")]
     Sample(SampleArgs),

@@ -7,9 +7,10 @@
 //! | 1 | an input is missing, unreadable or invalid, or has no usable points (the message names the file and, where it can, the element and line or byte) |
 //! | 2 | the command line is invalid (unknown flag, value out of range) |
 //! | 3 | an output cannot be written (missing directory, no permission, full disk) |
-//! | 130 | interrupted by Ctrl-C |
+//! | 130 | interrupted by Ctrl-C (or SIGTERM, SIGHUP) |
 //!
-//! In every failure no output file is left behind, finished or half-written.
+//! No output file is ever left half-written: each is complete or absent. (A failure after
+//! one output was written, say the statistics after the image, leaves that one.)
 
 use std::fmt;
 
@@ -60,17 +61,28 @@ pub fn exit_status(error: &anyhow::Error) -> u8 {
     }
 }
 
-/// On Ctrl-C: remove the temporary files of writes in progress (finished outputs are never
-/// touched), say so, and exit with [`EXIT_INTERRUPTED`].
+/// On Ctrl-C (or SIGTERM, SIGHUP): remove the temporary files of writes in progress
+/// (finished outputs are never touched), say so, and exit with [`EXIT_INTERRUPTED`], before
+/// any write can finish or report its failure.
 pub fn exit_cleanly_on_interrupt() {
     let handler = || {
-        pointray_io::discard_unfinished_writes();
-        eprintln!("pointray: interrupted");
-        std::process::exit(i32::from(EXIT_INTERRUPTED));
+        pointray_io::discard_unfinished_writes_then(|| {
+            eprintln!("pointray: interrupted");
+            std::process::exit(i32::from(EXIT_INTERRUPTED))
+        })
     };
     if let Err(e) = ctrlc::set_handler(handler) {
         tracing::debug!("no Ctrl-C handler: {e}");
     }
+}
+
+/// Whether a closed pipe on stdout or stderr ended the run, anywhere in the chain (which
+/// [`Marked`] errors hide from `chain()`).
+pub fn is_broken_pipe(error: &anyhow::Error) -> bool {
+    error.chain().any(|e| match e.downcast_ref::<Marked>() {
+        Some(marked) => is_broken_pipe(&marked.error),
+        None => e.downcast_ref::<std::io::Error>().is_some_and(|e| e.kind() == std::io::ErrorKind::BrokenPipe),
+    })
 }
 
 /// Writes log events as `pointray: warning: MESSAGE`, like the final `pointray: error:` line.

@@ -27,16 +27,12 @@ fn main() -> ExitCode {
     match result {
         Ok(()) => ExitCode::SUCCESS,
         // Piped into `head`: the reader left, which is not an error (ripgrep does the same).
-        Err(e) if is_broken_pipe(&e) => ExitCode::SUCCESS,
+        Err(e) if failure::is_broken_pipe(&e) => ExitCode::SUCCESS,
         Err(e) => {
             let _ = writeln!(io::stderr(), "pointray: error: {e:#}");
             ExitCode::from(failure::exit_status(&e))
         }
     }
-}
-
-fn is_broken_pipe(e: &anyhow::Error) -> bool {
-    e.chain().any(|c| c.downcast_ref::<io::Error>().is_some_and(|e| e.kind() == io::ErrorKind::BrokenPipe))
 }
 
 fn init_logging(cli: &Cli) {

@@ -656,7 +656,8 @@ fn exit_statuses_tell_input_usage_and_output_failures_apart() {
 #[test]
 fn interrupted_render_exits_130_and_leaves_nothing() {
     let dir = temp_dir();
-    let args = ["render", "-o", "big.png", "--stats", "big.json", "--width", "1500", "--height", "1500", "--spp", "64"];
+    let args =
+        ["render", "-o", "big.png", "--stats", "big.json", "--width", "2000", "--height", "2000", "--spp", "256"];
     let mut child = pointray().current_dir(dir.path()).args(args).stderr(Stdio::piped()).spawn().unwrap();
     std::thread::sleep(std::time::Duration::from_millis(1500));
     assert!(child.try_wait().unwrap().is_none(), "the render must still be running when interrupted");

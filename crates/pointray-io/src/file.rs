@@ -2,6 +2,7 @@
 //! parsed straight from the page cache without a second copy in memory.
 
 use std::fs::File;
+use std::io::Read;
 use std::path::Path;
 
 use crate::IoError;
@@ -29,15 +30,23 @@ impl std::ops::Deref for FileBytes {
     }
 }
 
-/// Opens `path` and maps it; pipes and other files that cannot be mapped are read. An
-/// empty file is an error.
-pub(crate) fn read_file(path: &Path) -> Result<FileBytes, IoError> {
+/// Opens `path` and maps it. Pipes and other files that cannot be mapped are read, unless
+/// `regular_only` (a scan set's scans: a `.conf` line must not make us read `/dev/zero` or
+/// wait on a FIFO). An empty file is an error.
+pub(crate) fn read_file(path: &Path, regular_only: bool) -> Result<FileBytes, IoError> {
     let io_error = |e| IoError::io(path, e);
-    let file = File::open(path).map_err(io_error)?;
+    let mut file = File::open(path).map_err(io_error)?;
     let regular = file.metadata().map_err(io_error)?.is_file();
+    if regular_only && !regular {
+        return Err(IoError::invalid(path, "not a regular file"));
+    }
     let bytes = match regular.then(|| map(&file)).and_then(Result::ok) {
         Some(map) => FileBytes::Mapped(map),
-        None => FileBytes::Read(std::fs::read(path).map_err(io_error)?),
+        None => {
+            let mut bytes = Vec::new();
+            file.read_to_end(&mut bytes).map_err(io_error)?;
+            FileBytes::Read(bytes)
+        }
     };
     if bytes.is_empty() {
         return Err(IoError::invalid(path, "file is empty"));
@@ -47,10 +56,12 @@ pub(crate) fn read_file(path: &Path) -> Result<FileBytes, IoError> {
 
 #[allow(unsafe_code)]
 fn map(file: &File) -> std::io::Result<memmap2::Mmap> {
-    // SAFETY: the map is only read, and lives no longer than one parse. The one hazard is
-    // another process truncating the file while it is parsed, which ends this process with
-    // SIGBUS; a file that changes while it is read cannot be read correctly any other way
-    // either. (memmap2 maps an empty file as an empty slice.)
+    // SAFETY: the slice is valid only while no one changes the file: another process writing
+    // to it during a parse breaks the guarantees of `&[u8]` (undefined behaviour; in practice
+    // wrong values), and truncating it ends this process with SIGBUS. pointray never writes
+    // a file it reads (outputs are new files renamed into place), and a map lives no longer
+    // than one parse; for everything else this is the documented risk of reading a file that
+    // another program is rewriting. (memmap2 maps an empty file as an empty slice.)
     let map = unsafe { memmap2::Mmap::map(file) }?;
     #[cfg(unix)]
     let _ = map.advise(memmap2::Advice::Sequential);

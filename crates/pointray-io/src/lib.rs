@@ -69,9 +69,10 @@ pub fn parse_cloud(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     parse_any(path, FileBytes::Read(bytes.to_vec()), true)
 }
 
-/// `read_cloud`, with scan sets allowed or not (a scan set's scans must be single clouds).
+/// `read_cloud`, for a file named on the command line (`scan_sets`) or for a scan set's scan,
+/// which must be a regular file holding a single cloud.
 fn read_any(path: &Path, scan_sets: bool) -> Result<LoadedCloud, IoError> {
-    parse_any(path, read_file(path)?, scan_sets)
+    parse_any(path, read_file(path, !scan_sets)?, scan_sets)
 }
 
 fn parse_any(path: &Path, bytes: FileBytes, scan_sets: bool) -> Result<LoadedCloud, IoError> {
@@ -104,7 +105,8 @@ fn parse_any(path: &Path, bytes: FileBytes, scan_sets: bool) -> Result<LoadedClo
 /// same directory, which replaces `path` only after the closure succeeded and the data is
 /// flushed and synced. On any failure the temporary file is removed and `path` is untouched,
 /// so a crash or a full disk never leaves a half-written image or cloud behind. A process
-/// stopped by a signal runs no destructors: its handler calls [`discard_unfinished_writes`].
+/// ended by a signal runs no destructors: its handler calls
+/// [`discard_unfinished_writes_then`].
 pub fn atomic_write(path: &Path, write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<(), IoError> {
     let io_error = |e: std::io::Error| IoError::io(path, e);
     let directory = match path.parent() {
@@ -121,54 +123,72 @@ pub fn atomic_write(path: &Path, write: impl FnOnce(&mut dyn Write) -> std::io::
     // Declared before the file so that it drops after it: the entry goes only once the
     // file is deleted or renamed.
     let mut registration = Unfinished(None);
-    let mut temp = builder.tempfile_in(directory).map_err(io_error)?;
-    registration.register(temp.path());
+    // Created and registered under the registry's lock, and renamed under it, so that an
+    // interrupt finds every temporary file registered, and a write either pending or done.
+    let mut temp = {
+        let mut registry = registry();
+        if registry.closed {
+            return Err(io_error(interrupted()));
+        }
+        let temp = builder.tempfile_in(directory).map_err(io_error)?;
+        registry.pending.push(temp.path().to_path_buf());
+        registration.0 = Some(temp.path().to_path_buf());
+        temp
+    };
     {
         let mut buffered = std::io::BufWriter::new(temp.as_file_mut());
         write(&mut buffered).map_err(io_error)?;
         buffered.flush().map_err(io_error)?;
     }
     temp.as_file().sync_all().map_err(io_error)?;
-    // Renamed under the registry's lock, so an interrupt finds the write either pending or done.
-    let mut unfinished = unfinished_writes();
+    let mut registry = registry();
+    if registry.closed {
+        return Err(io_error(interrupted())); // its file is already gone
+    }
     temp.persist(path).map_err(|e| io_error(e.error))?;
     if let Some(temp) = registration.0.take() {
-        unfinished.retain(|p| *p != temp);
+        registry.pending.retain(|p| *p != temp);
     }
     Ok(())
 }
 
-/// Temporary files of [`atomic_write`]s in progress.
-static UNFINISHED: std::sync::Mutex<Vec<PathBuf>> = std::sync::Mutex::new(Vec::new());
-
-fn unfinished_writes() -> std::sync::MutexGuard<'static, Vec<PathBuf>> {
-    // A writer that panicked leaves the list as valid as before.
-    UNFINISHED.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+/// The temporary files of [`atomic_write`]s in progress, and whether writing has stopped.
+struct Registry {
+    pending: Vec<PathBuf>,
+    closed: bool,
 }
 
-/// One write's entry in [`UNFINISHED`], removed when dropped.
+static REGISTRY: std::sync::Mutex<Registry> = std::sync::Mutex::new(Registry { pending: Vec::new(), closed: false });
+
+fn registry() -> std::sync::MutexGuard<'static, Registry> {
+    // A writer that panicked leaves the registry as valid as before.
+    REGISTRY.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+fn interrupted() -> std::io::Error {
+    std::io::Error::new(std::io::ErrorKind::Interrupted, "interrupted: the process is ending")
+}
+
+/// One write's entry in [`REGISTRY`], removed when dropped.
 struct Unfinished(Option<PathBuf>);
-
-impl Unfinished {
-    fn register(&mut self, temp: &Path) {
-        unfinished_writes().push(temp.to_path_buf());
-        self.0 = Some(temp.to_path_buf());
-    }
-}
 
 impl Drop for Unfinished {
     fn drop(&mut self) {
         if let Some(temp) = self.0.take() {
-            unfinished_writes().retain(|p| *p != temp);
+            registry().pending.retain(|p| *p != temp);
         }
     }
 }
 
-/// Deletes the temporary files of every [`atomic_write`] in progress, for a signal handler
-/// that is about to end the process; outputs already written are not touched. Writes that
-/// go on afterwards fail or vanish with the process.
-pub fn discard_unfinished_writes() {
-    for temp in unfinished_writes().drain(..) {
+/// For a signal handler that ends the process: deletes the temporary file of every
+/// [`atomic_write`] in progress (finished outputs are not touched), makes every later one
+/// fail, and calls `exit` with the registry still locked, so that no write can finish, or fail
+/// and report it, before the process ends.
+pub fn discard_unfinished_writes_then(exit: impl FnOnce() -> std::convert::Infallible) -> ! {
+    let mut registry = registry();
+    for temp in registry.pending.drain(..) {
         let _ = std::fs::remove_file(temp);
     }
+    registry.closed = true;
+    match exit() {}
 }

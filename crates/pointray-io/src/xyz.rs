@@ -25,7 +25,7 @@ use crate::{FileInfo, IoError, LoadedCloud};
 
 /// Reads an XYZ file whatever its extension.
 pub fn read_xyz(path: &Path) -> Result<LoadedCloud, IoError> {
-    let bytes = crate::file::read_file(path)?;
+    let bytes = crate::file::read_file(path, false)?;
     parse(path, &bytes)
 }
 

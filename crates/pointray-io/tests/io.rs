@@ -870,6 +870,8 @@ fn scan_set_errors_name_the_file_and_line() {
         ("missing.conf", "camera 0 0 0 0 0 0 1\nbmesh gone.ply 0 0 0 0 0 0 1\n", "line 2: bmesh gone.ply"),
         ("none.conf", "camera 0 0 0 0 0 0 1\n", "lists no 'bmesh' scan"),
         ("nested.conf", "bmesh word.conf 0 0 0 0 0 0 1\n", "cannot list another scan set"),
+        // A device would be read without end; a scan must be a regular file.
+        ("device.conf", "bmesh /dev/zero 0 0 0 0 0 0 1\n", "line 1: bmesh /dev/zero: /dev/zero: not a regular file"),
     ];
     for (name, text, _) in cases {
         write_file(dir.path(), name, text.as_bytes());

@@ -36,6 +36,8 @@ pub struct SurfaceSamples {
     pub normals: Vec<Vec3>,
     /// The surface's area (of the triangles with a finite area).
     pub area: f64,
+    /// Triangles with no area, or a non-finite one (a vertex at NaN or infinity): no points.
+    pub empty_triangles: usize,
 }
 
 /// Samples per random stream: the streams, not the threads, fix the result, so it is the
@@ -115,7 +117,8 @@ pub fn sample_surface(
             }
         },
     );
-    Ok(SurfaceSamples { positions, normals, area: total / 2.0 })
+    let empty_triangles = face_vectors.iter().filter(|v| **v == DVec3::ZERO).count();
+    Ok(SurfaceSamples { positions, normals, area: total / 2.0, empty_triangles })
 }
 
 #[cfg(test)]
@@ -187,6 +190,7 @@ mod tests {
         t.push([0, 2, 6]);
         t.push([0, 0, 2]);
         let s = sample_surface(&v, &t, 1000, 3, SampleNormals::Face).unwrap();
+        assert_eq!(s.empty_triangles, 2);
         assert!(s.positions.iter().all(|p| p.is_finite() && (p.abs().element_sum() - 1.0).abs() < 1e-5));
         assert_eq!(sample_surface(&v, &t, 0, 3, SampleNormals::Face).unwrap().positions.len(), 0);
     }

@@ -92,7 +92,7 @@ fn warn_about_repairs(input: &str, s: &PreprocessStats) {
             "",
             "normal has",
             "normals have",
-            "no plane through the neighbours (collinear or coincident points); set perpendicular to their line",
+            "no plane through their neighbours (collinear, or none); set to a fallback direction",
         ),
     ];
     for (n, before, one, many, after) in repairs {

@@ -96,7 +96,7 @@ const CULL_AUTO_MAX_BACKFACING: f64 = 0.01;
 #[derive(Serialize)]
 struct StatsReport {
     input: String,
-    /// Points in the file.
+    /// Points the reader returned (a PCD's NaN points are already dropped there).
     points_read: usize,
     /// Points rendered: those read less the non-finite and repeated ones.
     points: usize,

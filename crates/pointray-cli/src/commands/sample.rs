@@ -10,8 +10,10 @@ use crate::args::{NormalsArg, SampleArgs};
 use crate::failure;
 
 pub fn run(a: &SampleArgs, quiet: bool) -> anyhow::Result<()> {
-    if a.points == 0 || a.points > u64::from(u32::MAX) {
-        return Err(failure::usage(anyhow::anyhow!("--points must be between 1 and {}", u32::MAX)));
+    // No more than `render` can index: a larger cloud could be written but never rendered.
+    let max = pointray::accel::bvh::MAX_SPLATS;
+    if a.points == 0 || a.points > max as u64 {
+        return Err(failure::usage(anyhow::anyhow!("--points must be between 1 and {max}")));
     }
     super::check_output_path(&a.output)?;
     let t = Instant::now();
@@ -21,7 +23,9 @@ pub fn run(a: &SampleArgs, quiet: bool) -> anyhow::Result<()> {
     let mesh = mesh?;
     let read_seconds = t.elapsed().as_secs_f64();
     if mesh.skipped_faces > 0 {
-        tracing::warn!("{}: {} faces with fewer than 3 vertices left out", a.input.display(), mesh.skipped_faces);
+        let n = mesh.skipped_faces;
+        let faces = if n == 1 { "face" } else { "faces" };
+        tracing::warn!("{}: {n} {faces} with fewer than 3 vertices left out", a.input.display());
     }
 
     let t = Instant::now();
@@ -34,6 +38,11 @@ pub fn run(a: &SampleArgs, quiet: bool) -> anyhow::Result<()> {
     spinner.finish_and_clear();
     let samples = samples.with_context(|| format!("{}: sampling", a.input.display()))?;
     let sample_seconds = t.elapsed().as_secs_f64();
+    if samples.empty_triangles > 0 {
+        let n = samples.empty_triangles;
+        let triangles = if n == 1 { "triangle has" } else { "triangles have" };
+        tracing::warn!("{}: {n} {triangles} no area or a non-finite vertex; no points on them", a.input.display());
+    }
 
     let t = Instant::now();
     let area = samples.area;
@@ -48,6 +57,7 @@ pub fn run(a: &SampleArgs, quiet: bool) -> anyhow::Result<()> {
     let written = pointray_io::write_ply(&a.output, &cloud);
     spinner.finish_and_clear();
     written.map_err(failure::output)?;
+    let write_seconds = t.elapsed().as_secs_f64();
     if !quiet {
         eprintln!(
             "{}: {} triangles, area {area:.6}; {} points in {:.2} s (read {read_seconds:.2} s, sample \
@@ -55,8 +65,8 @@ pub fn run(a: &SampleArgs, quiet: bool) -> anyhow::Result<()> {
             a.input.display(),
             mesh.triangles.len(),
             cloud.len(),
-            read_seconds + sample_seconds + t.elapsed().as_secs_f64(),
-            t.elapsed().as_secs_f64(),
+            read_seconds + sample_seconds + write_seconds,
+            write_seconds,
             a.output.display()
         );
     }

@@ -17,15 +17,7 @@ pub(crate) fn read_vertices(
     vertex_index: usize,
     layout: &VertexLayout,
 ) -> Result<CloudBuilder, IoError> {
-    for element in elements.iter().take(vertex_index) {
-        ensure_room(path, lines, element)?;
-        if element.properties.is_empty() {
-            continue;
-        }
-        for index in 0..element.count {
-            next_record(path, lines, element, index)?;
-        }
-    }
+    skip_elements(path, lines, &elements[..vertex_index])?;
     let vertex = elements.get(vertex_index).ok_or_else(|| IoError::invalid(path, "no 'vertex' element"))?;
     ensure_room(path, lines, vertex)?;
     let mut values = vec![0.0; vertex.properties.len()];
@@ -49,15 +41,7 @@ pub(crate) fn for_each_list(
     (from, target, list): (usize, usize, usize),
     mut visit: impl FnMut(usize, &[f64]) -> Result<(), String>,
 ) -> Result<(), IoError> {
-    for element in &elements[from..target] {
-        ensure_room(path, lines, element)?;
-        if element.properties.is_empty() {
-            continue;
-        }
-        for index in 0..element.count {
-            next_record(path, lines, element, index)?;
-        }
-    }
+    skip_elements(path, lines, &elements[from..target])?;
     let element = &elements[target];
     ensure_room(path, lines, element)?;
     let mut values = vec![0.0; element.properties.len()];
@@ -69,6 +53,20 @@ pub(crate) fn for_each_list(
         let text = as_text(line).ok_or_else(|| error("line is not text".into()))?;
         parse_record(text, element, &mut values, Some((list, &mut items))).map_err(error)?;
         visit(index, &items).map_err(error)?;
+    }
+    Ok(())
+}
+
+/// Steps over the records of `elements`, a line each (none for an element without properties).
+fn skip_elements(path: &Path, lines: &mut Lines<'_>, elements: &[Element]) -> Result<(), IoError> {
+    for element in elements {
+        ensure_room(path, lines, element)?;
+        if element.properties.is_empty() {
+            continue;
+        }
+        for index in 0..element.count {
+            next_record(path, lines, element, index)?;
+        }
     }
     Ok(())
 }

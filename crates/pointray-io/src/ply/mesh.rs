@@ -23,7 +23,7 @@ pub struct Mesh {
 /// Reads a PLY mesh. Errors name the file, and the face and its line or byte offset for a
 /// vertex index that is not an index of a vertex in the file.
 pub fn read_mesh(path: &Path) -> Result<Mesh, IoError> {
-    parse_mesh(path, &crate::file::read_file(path)?)
+    parse_mesh(path, &crate::file::read_file(path, false)?)
 }
 
 /// [`read_mesh`] for a file already in memory (`path` names it in errors).
@@ -36,8 +36,11 @@ pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
     let (face_index, list) = face_list(path, &header, vertex_index)?;
     let (builder, rest) = read_vertex_element(path, bytes, &header, vertex_index)?;
     let vertices = builder.len();
+    if u32::try_from(vertices).is_err() {
+        return Err(IoError::invalid(path, format!("{vertices} vertices: a mesh holds at most 2^32")));
+    }
 
-    // Never more triangles than a file of this size can describe (three bytes per index).
+    // A capacity hint only: the header's count is not trusted beyond what the file's size allows.
     let mut triangles = Vec::with_capacity(header.elements[face_index].count.min(bytes.len() / 12));
     let mut skipped_faces = 0;
     let visit = |_: usize, items: &[f64]| {

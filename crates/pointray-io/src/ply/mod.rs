@@ -29,7 +29,7 @@ use vertex::VertexLayout;
 
 /// Reads a PLY file whatever its extension.
 pub fn read_ply(path: &Path) -> Result<LoadedCloud, IoError> {
-    let bytes = crate::file::read_file(path)?;
+    let bytes = crate::file::read_file(path, false)?;
     parse(path, &bytes)
 }
 

@@ -148,7 +148,6 @@ pub fn preprocess_with_progress(
     let n = cloud.len();
     let normals_missing = invalid_normals(cloud);
     let radii_missing = invalid_radii(cloud);
-    // Even an empty cloud leaves with (empty) normals and radii.
     let need_normals = cloud.normals.is_none() || normals_missing.contains(&true);
     let need_radii = cloud.radii.is_none() || radii_missing.contains(&true);
     if cloud.normals.is_some() {
