@@ -150,9 +150,23 @@ pub struct RenderArgs {
     /// No shadow rays.
     #[arg(long)]
     pub no_shadows: bool,
-    /// Shadow-ray start offset, in splat radii.
+    /// Shadow- and secondary-ray start offset, in splat radii.
     #[arg(long, default_value_t = 1.0)]
     pub shadow_offset: f32,
+    /// What the points are made of: phong (lit by the light, with shadows), mirror, or glass
+    /// (Fresnel reflection and refraction, --ior).
+    #[arg(long, value_enum, default_value_t = MaterialArg::Phong)]
+    pub material: MaterialArg,
+    /// Index of refraction of --material glass.
+    #[arg(long, default_value_t = 1.5)]
+    pub ior: f32,
+    /// Bounces off mirrors and glass a path may take.
+    #[arg(long, default_value_t = 5)]
+    pub max_depth: u32,
+    /// A sky-blue gradient above a grey ground around the scene, instead of the dark
+    /// background (what mirrors and glass show).
+    #[arg(long)]
+    pub sky: bool,
 
     /// Level of detail: a subtree narrower than this many pixels (its bounding sphere's
     /// radius against the ray's footprint) is drawn as its representative splat.
@@ -263,6 +277,13 @@ pub enum SurfaceArg {
     Pss,
     /// The nearest oriented disk alone (flat shaded).
     FirstHit,
+}
+
+#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
+pub enum MaterialArg {
+    Phong,
+    Mirror,
+    Glass,
 }
 
 #[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]

@@ -278,6 +278,37 @@ fn surface_schemes_differ_but_cover_the_same_silhouette_roughly() {
     assert!((a - b).abs() <= 0.1 * a.max(b), "silhouettes differ a lot: {a} vs {b} pixels");
 }
 
+/// Mirror and glass spheres in a sky: reflected and refracted rays are traced and counted,
+/// and every accelerator gives the same pixels at full detail.
+#[test]
+fn mirror_and_glass_spheres_trace_secondary_rays_alike_in_every_accelerator() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    for material in ["mirror", "glass"] {
+        let mut images = Vec::new();
+        for accel in ["brute", "bvh", "kdtree"] {
+            let (out, stats) = (format!("{material}.{accel}.png"), format!("{material}.{accel}.json"));
+            let args = ["sphere.ply", "-o", &out, "--material", material, "--sky", "--accel", accel, "--lod", "off"];
+            render_in(dir.path(), &[&args[..], &["--stats", &stats]].concat()).assert_success();
+            let s = read_stats(&dir.path().join(&stats));
+            assert_eq!(s["material"], material);
+            // Each hit on a mirror spawns one reflected ray; on glass a reflected and (but
+            // for total internal reflection) a refracted one, and more inside.
+            let (hits, secondary) =
+                (stat_u64(&s, "primary_rays") as f64 * stat_f64(&s, "hit_fraction"), stat_f64(&s, "secondary_rays"));
+            assert!(hits > 100.0 && secondary >= hits.round(), "{s:#}");
+            if material == "glass" {
+                assert!(secondary > 2.5 * hits, "{s:#}");
+            }
+            images.push(read_png(&dir.path().join(&out)));
+        }
+        assert!(images[0] == images[1] && images[0] == images[2], "{material}: the accelerators differ");
+    }
+    run_in(dir.path(), &["-q", "render", "sphere.ply", "-o", "x.png", "--material", "glass", "--ior", "0"])
+        .assert_failure(2)
+        .assert_stderr_contains("--ior");
+}
+
 // ---------------------------------------------------------------------------------------------
 // 5. Regions and --crop-to-model
 // ---------------------------------------------------------------------------------------------

@@ -16,6 +16,7 @@ pub mod cloud;
 pub mod demo;
 pub mod film;
 pub mod knn;
+pub mod material;
 pub mod math;
 pub mod mesh_sampling;
 pub mod metrics;

@@ -1,5 +1,6 @@
-//! The render loop: tiles over all cores, one ray tree per pixel sample, Whitted-style direct
-//! light with hard shadows.
+//! The render loop: tiles over all cores, one ray tree per pixel sample, Whitted ray tracing:
+//! direct light with hard shadows on Phong surfaces, and recursive reflection and refraction
+//! on mirrors and glass up to `max_depth` bounces.
 //!
 //! Determinism: every pixel's value depends only on its coordinates, the scene and the seed
 //! (a per-pixel RNG), never on which thread rendered it or when; statistics are integer sums.
@@ -12,8 +13,9 @@ use rayon::prelude::*;
 use crate::accel::Accel;
 use crate::camera::{Camera, Region};
 use crate::film::Film;
+use crate::material::{self, Material};
 use crate::math::Ray;
-use crate::shading::{Light, Material};
+use crate::shading::{Environment, Light};
 use crate::splat::DiskShape;
 use crate::splat::scheme::{self, SurfaceScheme};
 use crate::stats::RenderStats;
@@ -24,11 +26,14 @@ pub struct RenderConfig {
     pub light: Light,
     pub material: Material,
     pub shadows: bool,
-    /// Shadow rays start this many splat radii off the surface, along the normal.
+    /// Shadow and secondary rays start this many splat radii off the surface, along the normal.
     pub shadow_offset: f32,
-    /// Linear RGB behind the model.
-    pub background: [f32; 3],
-    /// Pixels to render; the rest of the film keeps the background.
+    /// What rays that leave the scene see.
+    pub environment: Environment,
+    /// Bounces a path may take off mirrors and glass; the camera ray is bounce 0. A path
+    /// that would go deeper contributes nothing (Whitted's cut-off).
+    pub max_depth: u32,
+    /// Pixels to render; the rest of the film keeps the environment's flat colour.
     pub region: Region,
     /// Samples per pixel: 1 traces the pixel centre; more jitter within the pixel.
     pub samples: u32,
@@ -113,7 +118,8 @@ fn render_pixel<A: Accel>(
         // Each of n samples stands for 1/n of the pixel, a beam 1/√n as wide (as pbrt scales
         // its ray differentials): more samples resolve finer detail.
         ray.cone.spread *= footprint_scale;
-        sum += Vec3::from(trace(accel, &ray, config, stats));
+        stats.primary_rays += 1;
+        sum += radiance(accel, &ray, config, 0, false, stats);
     }
     let nodes = (stats.traversal.nodes_visited - nodes_before).min(u32::MAX as u64) as u32;
     ((sum / samples as f32).to_array(), nodes)
@@ -125,19 +131,65 @@ fn pixel_rng(seed: u64, x: u32, y: u32) -> Pcg64Mcg {
     Pcg64Mcg::seed_from_u64(key)
 }
 
-/// Radiance along a primary ray.
-fn trace<A: Accel>(accel: &A, ray: &Ray, config: &RenderConfig, stats: &mut RenderStats) -> [f32; 3] {
+/// Radiance arriving along `ray`, which has bounced `depth` times and travels inside a glass
+/// object when `inside`.
+fn radiance<A: Accel>(
+    accel: &A,
+    ray: &Ray,
+    config: &RenderConfig,
+    depth: u32,
+    inside: bool,
+    stats: &mut RenderStats,
+) -> Vec3 {
     stats.rays += 1;
-    stats.primary_rays += 1;
+    if depth > 0 {
+        stats.secondary_rays += 1;
+    }
     let Some(hit) = scheme::intersect(accel, ray, &config.scheme, &mut stats.traversal) else {
-        return config.background;
+        return config.environment.radiance(ray.dir);
     };
-    stats.primary_hits += 1;
-    stats.blended_splats += u64::from(hit.blended);
-    let (to_light, light_dist, irradiance) = config.light.towards(hit.position);
-    let faces_light = hit.normal.dot(to_light) > 0.0;
-    let lit = faces_light && (!config.shadows || !in_shadow(accel, ray, &hit, to_light, light_dist, config, stats));
-    config.material.shade(&hit, -ray.dir, to_light, irradiance, lit)
+    if depth == 0 {
+        stats.primary_hits += 1;
+        stats.blended_splats += u64::from(hit.blended);
+    }
+    match config.material {
+        Material::Phong(phong) => {
+            let (to_light, light_dist, irradiance) = config.light.towards(hit.position);
+            let faces_light = hit.normal.dot(to_light) > 0.0;
+            let lit =
+                faces_light && (!config.shadows || !in_shadow(accel, ray, &hit, to_light, light_dist, config, stats));
+            phong.shade(&hit, -ray.dir, to_light, irradiance, lit)
+        }
+        _ if depth >= config.max_depth => Vec3::ZERO,
+        Material::Mirror { tint } => {
+            let reflected = secondary(ray, &hit, material::reflect(ray.dir, hit.normal), config);
+            Vec3::from(tint) * radiance(accel, &reflected, config, depth + 1, inside, stats)
+        }
+        Material::Glass { ior, tint } => {
+            // The normal faces the incoming ray; `inside` says which medium it comes from.
+            let eta = if inside { ior } else { ior.recip() };
+            let reflectance = material::fresnel_dielectric(-ray.dir.dot(hit.normal), eta);
+            let reflected = secondary(ray, &hit, material::reflect(ray.dir, hit.normal), config);
+            let mut color = reflectance * radiance(accel, &reflected, config, depth + 1, inside, stats);
+            if let Some(direction) = material::refract(ray.dir, hit.normal, eta).filter(|_| reflectance < 1.0) {
+                let refracted = secondary(ray, &hit, direction, config);
+                let through = radiance(accel, &refracted, config, depth + 1, !inside, stats);
+                color += (1.0 - reflectance) * Vec3::from(tint) * through;
+            }
+            color
+        }
+    }
+}
+
+/// A reflected or refracted ray from `hit`: like a shadow ray, it starts off the surface on
+/// its own side and ignores crossings near its origin, and its beam starts as wide as the
+/// incoming ray's footprint and keeps spreading at its rate (a flat interface's).
+fn secondary(incoming: &Ray, hit: &scheme::SurfaceHit, direction: Vec3, config: &RenderConfig) -> Ray {
+    let reach = config.scheme.self_hit_radii() * hit.radius;
+    let side = if direction.dot(hit.normal) >= 0.0 { 1.0 } else { -1.0 };
+    let origin = hit.position + hit.normal * (side * config.shadow_offset * reach);
+    let cone = crate::math::RayCone { width0: incoming.cone.width_at(hit.t), spread: incoming.cone.spread };
+    Ray::new(origin, direction, cone).with_t_min(reach).with_lod_threshold(config.lod_threshold)
 }
 
 /// Shadow test from a hit. The ray starts `shadow_offset × k·r` off the surface, on the light's

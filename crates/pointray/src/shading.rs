@@ -1,8 +1,6 @@
-//! Lights and the Phong material: what a surface hit looks like.
+//! Lights, and the environment that rays leaving the scene see.
 
 use glam::Vec3;
-
-use crate::splat::scheme::SurfaceHit;
 
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 #[serde(rename_all = "kebab-case", tag = "kind")]
@@ -27,32 +25,38 @@ impl Light {
     }
 }
 
-/// Phong: ambient + Lambert diffuse (albedo = splat colour) + a white specular lobe.
-#[derive(Clone, Copy, Debug, serde::Serialize)]
-pub struct Material {
-    pub ambient: f32,
-    pub specular: f32,
-    pub shininess: f32,
+/// What a ray that leaves the scene sees.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+#[serde(rename_all = "kebab-case", tag = "kind")]
+pub enum Environment {
+    /// The same linear radiance from every direction.
+    Uniform { color: [f32; 3] },
+    /// A sky: `horizon` level with the horizon, blending linearly in the sine of the elevation
+    /// to `zenith` straight up (along unit `up`); `ground` everywhere below the horizon.
+    Gradient { up: Vec3, zenith: [f32; 3], horizon: [f32; 3], ground: [f32; 3] },
 }
 
-impl Material {
-    pub fn standard() -> Self {
-        Self { ambient: 0.12, specular: 0.15, shininess: 40.0 }
-    }
-
-    /// Linear radiance towards `view` (unit, from the surface towards the eye) with light
-    /// arriving along `to_light` at `irradiance`; `lit` is false in shadow.
-    pub fn shade(&self, hit: &SurfaceHit, view: Vec3, to_light: Vec3, irradiance: f32, lit: bool) -> [f32; 3] {
-        let albedo = Vec3::from(hit.color);
-        let mut c = albedo * self.ambient;
-        let n_dot_l = hit.normal.dot(to_light);
-        if lit && n_dot_l > 0.0 {
-            c += albedo * (n_dot_l * irradiance * (1.0 - self.ambient));
-            if self.specular > 0.0 {
-                let h = (to_light + view).normalize_or_zero();
-                c += Vec3::splat(self.specular * irradiance * h.dot(hit.normal).max(0.0).powf(self.shininess));
+impl Environment {
+    /// Linear radiance arriving along unit `dir` (pointing away from the scene).
+    pub fn radiance(&self, dir: Vec3) -> Vec3 {
+        match *self {
+            Environment::Uniform { color } => Vec3::from(color),
+            Environment::Gradient { up, zenith, horizon, ground } => {
+                let elevation = dir.dot(up);
+                if elevation < 0.0 {
+                    Vec3::from(ground)
+                } else {
+                    Vec3::from(horizon).lerp(Vec3::from(zenith), elevation.min(1.0))
+                }
             }
         }
-        c.to_array()
+    }
+
+    /// One colour for the film outside the rendered region: the horizon's for a sky.
+    pub fn flat_color(&self) -> [f32; 3] {
+        match *self {
+            Environment::Uniform { color } => color,
+            Environment::Gradient { horizon, .. } => horizon,
+        }
     }
 }

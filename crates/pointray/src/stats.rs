@@ -4,9 +4,11 @@ use crate::accel::TraversalStats;
 
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct RenderStats {
-    /// All rays traced: primary and shadow.
+    /// All rays traced: primary, secondary and shadow.
     pub rays: u64,
     pub primary_rays: u64,
+    /// Reflected and refracted rays.
+    pub secondary_rays: u64,
     pub shadow_rays: u64,
     /// Primary rays that hit the surface.
     pub primary_hits: u64,
@@ -19,6 +21,7 @@ impl std::ops::AddAssign for RenderStats {
     fn add_assign(&mut self, o: Self) {
         self.rays += o.rays;
         self.primary_rays += o.primary_rays;
+        self.secondary_rays += o.secondary_rays;
         self.shadow_rays += o.shadow_rays;
         self.primary_hits += o.primary_hits;
         self.blended_splats += o.blended_splats;

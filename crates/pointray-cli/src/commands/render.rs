@@ -5,14 +5,15 @@ use std::time::Instant;
 use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, backfacing_fraction};
 use pointray::camera::{Camera, Region};
 use pointray::film::Film;
+use pointray::material::Material;
 use pointray::render::{RenderConfig, render};
-use pointray::shading::{Light, Material};
+use pointray::shading::{Environment, Light};
 use pointray::splat::scheme::{SurfaceKind, SurfaceScheme};
 use pointray::splat::{DiskShape, Splat, splats_from_cloud};
 use pointray::stats::RenderStats;
 use serde::Serialize;
 
-use crate::args::{AccelArg, AovArg, CullArg, RenderArgs, SurfaceArg, Switch};
+use crate::args::{AccelArg, AovArg, CullArg, MaterialArg, RenderArgs, SurfaceArg, Switch};
 
 /// The accelerators the CLI can build; the render loop is monomorphised for each.
 enum AnyAccel {
@@ -106,6 +107,7 @@ struct StatsReport {
     threads: usize,
     accel: &'static str,
     surface: &'static str,
+    material: &'static str,
     samples_per_pixel: u32,
     load_seconds: f64,
     preprocess_seconds: PreprocessSeconds,
@@ -116,6 +118,8 @@ struct StatsReport {
     timed_frames: u32,
     rays: u64,
     primary_rays: u64,
+    /// Reflected and refracted rays (mirrors and glass).
+    secondary_rays: u64,
     shadow_rays: u64,
     mrays_per_second: f64,
     primary_mrays_per_second: f64,
@@ -202,6 +206,8 @@ fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     ensure!(a.sj_min_coverage >= 0.0 && a.sj_min_coverage.is_finite(), "--sj-min-coverage must be non-negative");
     ensure!(a.shadow_offset >= 0.0 && a.shadow_offset.is_finite(), "--shadow-offset must be non-negative");
     ensure!(a.lod_threshold > 0.0 && a.lod_threshold.is_finite(), "--lod-threshold must be a positive number");
+    ensure!(a.ior > 0.0 && a.ior.is_finite(), "--ior must be a positive number");
+    ensure!(a.max_depth <= 64, "--max-depth must be at most 64");
     ensure!(a.up.length_squared() > 0.0, "--up must not be the zero vector");
     ensure!(a.view_dir.is_none_or(|v| v.length_squared() > 0.0), "--view-dir must not be the zero vector");
     ensure!(a.light_dir.is_none_or(|v| v.length_squared() > 0.0), "--light-dir must not be the zero vector");
@@ -321,10 +327,24 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         cull_backfaces,
         scheme,
         light,
-        material: Material::standard(),
+        material: match a.material {
+            MaterialArg::Phong => Material::standard(),
+            MaterialArg::Mirror => Material::Mirror { tint: [0.9; 3] },
+            MaterialArg::Glass => Material::Glass { ior: a.ior, tint: [1.0; 3] },
+        },
         shadows: !a.no_shadows,
         shadow_offset: a.shadow_offset,
-        background: [0.010, 0.011, 0.019],
+        environment: if a.sky {
+            Environment::Gradient {
+                up: camera.up(),
+                zenith: [0.18, 0.32, 0.62],
+                horizon: [0.75, 0.82, 0.90],
+                ground: [0.25, 0.24, 0.22],
+            }
+        } else {
+            Environment::Uniform { color: [0.010, 0.011, 0.019] }
+        },
+        max_depth: a.max_depth,
         region,
         samples: a.spp,
         seed: a.seed,
@@ -352,7 +372,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         &a.output,
         a.width,
         a.height,
-        &film.frame_srgb8(a.width, a.height, config.background),
+        &film.frame_srgb8(a.width, a.height, config.environment.flat_color()),
     )
     .map_err(crate::failure::output)?;
     let nodes_max = film.nodes_visited.iter().copied().max().unwrap_or(0);
@@ -399,6 +419,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
             threads,
             accel: accel.name(),
             surface: scheme.kind.name(),
+            material: config.material.name(),
             samples_per_pixel: a.spp,
             load_seconds,
             preprocess_seconds: PreprocessSeconds { total: pre.seconds.total(), stages: pre.seconds },
@@ -409,6 +430,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
             timed_frames: a.bench_frames,
             rays: stats.rays,
             primary_rays: stats.primary_rays,
+            secondary_rays: stats.secondary_rays,
             shadow_rays: stats.shadow_rays,
             mrays_per_second: mrays,
             primary_mrays_per_second: stats.primary_rays as f64 / render_seconds / 1e6,

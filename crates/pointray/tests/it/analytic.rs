@@ -3,8 +3,9 @@
 use glam::Vec3;
 use pointray::accel::{Bvh, BvhParams, TraversalStats};
 use pointray::camera::{Camera, Region};
+use pointray::material::Material;
 use pointray::render::{RenderConfig, render};
-use pointray::shading::{Light, Material};
+use pointray::shading::{Environment, Light};
 use pointray::splat::scheme::{self, SurfaceHit, SurfaceScheme};
 
 use crate::util::sphere_splats;
@@ -83,7 +84,7 @@ fn analytic_image(cam: &Camera, config: &RenderConfig) -> Vec<[f32; 3]> {
         for x in 0..cam.width {
             let ray = cam.ray(x as f32 + 0.5, y as f32 + 0.5);
             out.push(match sphere_hit(ray.origin, ray.dir) {
-                None => config.background,
+                None => config.environment.flat_color(),
                 Some(t) => {
                     let p = ray.at(t);
                     let hit = SurfaceHit {
@@ -97,7 +98,8 @@ fn analytic_image(cam: &Camera, config: &RenderConfig) -> Vec<[f32; 3]> {
                         blended: 1,
                     };
                     let (l, _, e) = config.light.towards(p);
-                    config.material.shade(&hit, -ray.dir, l, e, hit.normal.dot(l) > 0.0)
+                    let Material::Phong(phong) = config.material else { panic!("a Phong sphere") };
+                    phong.shade(&hit, -ray.dir, l, e, hit.normal.dot(l) > 0.0).to_array()
                 }
             });
         }
@@ -118,7 +120,8 @@ fn sphere_image_matches_the_analytic_image() {
         material: Material::standard(),
         shadows: true,
         shadow_offset: 1.0,
-        background: [0.0, 0.0, 0.0],
+        environment: Environment::Uniform { color: [0.0, 0.0, 0.0] },
+        max_depth: 5,
         region: Region::full(64, 64),
         samples: 1,
         seed: 0,

@@ -3,8 +3,9 @@
 use glam::Vec3;
 use pointray::accel::{Bvh, BvhParams};
 use pointray::camera::Camera;
+use pointray::material::Material;
 use pointray::render::{RenderConfig, render};
-use pointray::shading::Material;
+use pointray::shading::Environment;
 use pointray::splat::scheme::SurfaceScheme;
 
 use crate::util::torus_splats;
@@ -27,7 +28,8 @@ fn image_is_identical_with_one_and_two_threads() {
         material: Material::standard(),
         shadows: true,
         shadow_offset: 1.0,
-        background: [0.1, 0.1, 0.1],
+        environment: Environment::Uniform { color: [0.1, 0.1, 0.1] },
+        max_depth: 5,
         region: pointray::camera::Region::full(48, 40),
         samples: 3,
         seed: 42,

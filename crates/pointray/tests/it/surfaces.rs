@@ -235,8 +235,9 @@ fn ray_facing_disks_leave_no_cracks_at_the_silhouette() {
 #[test]
 fn shadow_rays_do_not_hit_their_own_surface() {
     use pointray::camera::Region;
+    use pointray::material::Material;
     use pointray::render::{RenderConfig, render};
-    use pointray::shading::{Light, Material};
+    use pointray::shading::{Environment, Light};
     let cases = [
         (plane(), Vec3::new(0.0, -0.4, 2.5), Vec3::new(1.0, 0.3, 0.4)),
         (sphere(), Vec3::new(0.0, 0.0, 3.2), Vec3::new(1.0, 0.6, 0.8)),
@@ -251,7 +252,8 @@ fn shadow_rays_do_not_hit_their_own_surface() {
                 material: Material::standard(),
                 shadows,
                 shadow_offset: 1.0,
-                background: [0.0; 3],
+                environment: Environment::Uniform { color: [0.0; 3] },
+                max_depth: 5,
                 region: Region::full(64, 64),
                 samples: 1,
                 seed: 0,
