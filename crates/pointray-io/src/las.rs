@@ -52,9 +52,7 @@ fn check_laz_chunk_table(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
 /// the version at bytes 24 and 25, the point data's at 96, the record length at 105, the
 /// legacy count at 107, and in a LAS 1.4 header the 64-bit count at 247.
 fn check_point_extent(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
-    let u64_at = |at: usize, n: usize| {
-        bytes.get(at..at + n).map(|b| b.iter().rev().fold(0u64, |v, &byte| v << 8 | u64::from(byte)))
-    };
+    let u64_at = |at: usize, n: usize| little_endian(bytes, at, n);
     let (Some(offset), Some(length), Some(legacy)) = (u64_at(96, 4), u64_at(105, 2), u64_at(107, 4)) else {
         return Ok(()); // too short: the crate reports the truncated header
     };
@@ -70,6 +68,36 @@ fn check_point_extent(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
     Ok(())
 }
 
+/// A LAS 1.4 file's first extended VLR: the crate allocates its declared length (a 64-bit
+/// field) before reading it, and a failed allocation aborts the process; found by the `las`
+/// fuzz target. It reads one when the header (start at byte 235, count at 243) names one; the
+/// record's length sits 20 bytes into it, its data 60 bytes in.
+fn check_first_evlr(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
+    let u64_at = |at: usize, n: usize| little_endian(bytes, at, n);
+    if bytes.get(24..26) != Some(&[1, 4]) {
+        return Ok(());
+    }
+    let (Some(start), Some(count)) = (u64_at(235, 8), u64_at(243, 4)) else { return Ok(()) };
+    let Some(length) = usize::try_from(start).ok().filter(|_| count > 0 && start > 0).and_then(|at| u64_at(at + 20, 8))
+    else {
+        return Ok(()); // no record, or one past the end: the crate fails to read it
+    };
+    let room = (bytes.len() as u64).saturating_sub(start.saturating_add(60));
+    if length > room {
+        return Err(IoError::invalid(
+            path,
+            format!("the extended VLR at byte {start} declares {length} bytes; only {room} follow it"),
+        ));
+    }
+    Ok(())
+}
+
+/// The unsigned little-endian integer of `n` ≤ 8 bytes at `at`, if the file holds them.
+fn little_endian(bytes: &[u8], at: usize, n: usize) -> Option<u64> {
+    let field = bytes.get(at..at.checked_add(n)?)?;
+    Some(field.iter().rev().fold(0u64, |v, &byte| v << 8 | u64::from(byte)))
+}
+
 /// Points decoded at a time: the header's count is not trusted for an allocation.
 const BATCH: u64 = 1 << 16;
 
@@ -82,6 +110,7 @@ pub(crate) fn parse(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoErro
 
 fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
     check_point_extent(path, &bytes)?;
+    check_first_evlr(path, &bytes)?;
     check_laz_chunk_table(path, &bytes)?;
     let file_bytes = bytes.len() as u64;
     let mut reader = las::Reader::new(Cursor::new(bytes))

@@ -976,6 +976,8 @@ fn broken_las_files_are_refused_with_their_name() {
     chunks[table_at + 4..table_at + 8].copy_from_slice(&u32::MAX.to_le_bytes());
     write_file(dir.path(), "chunks.laz", &chunks);
     // LAS 1.4's 64-bit count (byte 247) so large that count × record length overflows.
+    let fine = las_bytes_of_version(&survey_points(50, |_| 100), false, (1, 4));
+    assert_eq!(read_cloud(&write_file(dir.path(), "v14.las", &fine)).unwrap().cloud.len(), 50);
     let mut overflow = las_bytes_of_version(&survey_points(50, |_| 100), false, (1, 4));
     overflow[247..255].copy_from_slice(&u64::MAX.to_le_bytes());
     write_file(dir.path(), "overflow.las", &overflow);
@@ -983,6 +985,15 @@ fn broken_las_files_are_refused_with_their_name() {
     // says it is too short to hold it (found by the `cloud` fuzz target).
     overflow[94..96].copy_from_slice(&0u16.to_le_bytes());
     write_file(dir.path(), "overflow-short-header.las", &overflow);
+    // An extended VLR (LAS 1.4) declaring 2^60 bytes: the crate would allocate them first.
+    let mut evlr = las_bytes_of_version(&survey_points(50, |_| 100), false, (1, 4));
+    let start = evlr.len() as u64;
+    evlr[235..243].copy_from_slice(&start.to_le_bytes());
+    evlr[243..247].copy_from_slice(&1u32.to_le_bytes());
+    let mut record = vec![0u8; 60];
+    record[20..28].copy_from_slice(&(1u64 << 60).to_le_bytes());
+    evlr.extend_from_slice(&record);
+    write_file(dir.path(), "evlr.las", &evlr);
     for (name, fragment) in [
         ("cut.las", "more than the file holds"),
         ("head.las", "not a readable LAS file"),
@@ -991,6 +1002,7 @@ fn broken_las_files_are_refused_with_their_name() {
         ("chunks.laz", "chunk table claims 4294967295 chunks"),
         ("overflow.las", "declares 18446744073709551615 points of 34 bytes, more than any file can hold"),
         ("overflow-short-header.las", "declares 18446744073709551615 points of 34 bytes"),
+        ("evlr.las", "declares 1152921504606846976 bytes; only 0 follow it"),
     ] {
         eprintln!("{}", expect_error(&dir.path().join(name), fragment));
     }
