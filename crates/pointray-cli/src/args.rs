@@ -144,6 +144,10 @@ pub struct RenderArgs {
     /// Point light position instead, in the file's coordinates.
     #[arg(long, allow_hyphen_values = true, value_parser = parse_dvec3)]
     pub light_pos: Option<glam::DVec3>,
+    /// With --light-pos: a spherical light of this radius (file units) instead of a point,
+    /// for soft shadows (noisy at low --spp; they converge as it grows).
+    #[arg(long, requires = "light_pos")]
+    pub light_radius: Option<f32>,
     /// Light intensity (a point light's falls off with the squared distance).
     #[arg(long, default_value_t = 1.0)]
     pub light_intensity: f32,

@@ -104,12 +104,9 @@ fn render_pixel<A: Accel>(
     let mut sum = Vec3::ZERO;
     let samples = config.samples.max(1);
     let footprint_scale = (samples as f32).sqrt().recip();
-    let mut rng = (samples > 1).then(|| pixel_rng(config.seed, x, y));
+    let mut rng = pixel_rng(config.seed, x, y);
     for _ in 0..samples {
-        let (dx, dy) = match &mut rng {
-            Some(r) => (r.random::<f32>(), r.random::<f32>()),
-            None => (0.5, 0.5),
-        };
+        let (dx, dy) = if samples > 1 { (rng.random::<f32>(), rng.random::<f32>()) } else { (0.5, 0.5) };
         let mut ray = camera
             .ray(x as f32 + dx, y as f32 + dy)
             .with_lod_threshold(config.lod_threshold)
@@ -119,7 +116,7 @@ fn render_pixel<A: Accel>(
         // its ray differentials): more samples resolve finer detail.
         ray.cone.spread *= footprint_scale;
         stats.primary_rays += 1;
-        sum += radiance(accel, &ray, config, 0, false, stats);
+        sum += radiance(accel, &ray, config, 0, false, &mut rng, stats);
     }
     let nodes = (stats.traversal.nodes_visited - nodes_before).min(u32::MAX as u64) as u32;
     ((sum / samples as f32).to_array(), nodes)
@@ -139,6 +136,7 @@ fn radiance<A: Accel>(
     config: &RenderConfig,
     depth: u32,
     inside: bool,
+    rng: &mut Pcg64Mcg,
     stats: &mut RenderStats,
 ) -> Vec3 {
     stats.rays += 1;
@@ -154,26 +152,30 @@ fn radiance<A: Accel>(
     }
     match config.material {
         Material::Phong(phong) => {
-            let (to_light, light_dist, irradiance) = config.light.towards(hit.position);
+            let (to_light, _, irradiance) = config.light.towards(hit.position);
             let faces_light = hit.normal.dot(to_light) > 0.0;
-            let lit =
-                faces_light && (!config.shadows || !in_shadow(accel, ray, &hit, to_light, light_dist, config, stats));
+            let lit = faces_light
+                && (!config.shadows || {
+                    let u = if config.light.is_area() { [rng.random(), rng.random()] } else { [0.5; 2] };
+                    let (direction, distance) = config.light.shadow_target(hit.position, u);
+                    !in_shadow(accel, ray, &hit, direction, distance, config, stats)
+                });
             phong.shade(&hit, -ray.dir, to_light, irradiance, lit)
         }
         _ if depth >= config.max_depth => Vec3::ZERO,
         Material::Mirror { tint } => {
             let reflected = secondary(ray, &hit, material::reflect(ray.dir, hit.normal), config);
-            Vec3::from(tint) * radiance(accel, &reflected, config, depth + 1, inside, stats)
+            Vec3::from(tint) * radiance(accel, &reflected, config, depth + 1, inside, rng, stats)
         }
         Material::Glass { ior, tint } => {
             // The normal faces the incoming ray; `inside` says which medium it comes from.
             let eta = if inside { ior } else { ior.recip() };
             let reflectance = material::fresnel_dielectric(-ray.dir.dot(hit.normal), eta);
             let reflected = secondary(ray, &hit, material::reflect(ray.dir, hit.normal), config);
-            let mut color = reflectance * radiance(accel, &reflected, config, depth + 1, inside, stats);
+            let mut color = reflectance * radiance(accel, &reflected, config, depth + 1, inside, rng, stats);
             if let Some(direction) = material::refract(ray.dir, hit.normal, eta).filter(|_| reflectance < 1.0) {
                 let refracted = secondary(ray, &hit, direction, config);
-                let through = radiance(accel, &refracted, config, depth + 1, !inside, stats);
+                let through = radiance(accel, &refracted, config, depth + 1, !inside, rng, stats);
                 color += (1.0 - reflectance) * Vec3::from(tint) * through;
             }
             color

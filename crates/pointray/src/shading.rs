@@ -9,6 +9,10 @@ pub enum Light {
     Directional { direction: Vec3, intensity: f32 },
     /// A point light; intensity falls off with the square of the distance.
     Point { position: Vec3, intensity: f32 },
+    /// A spherical area light: it lights like a point light at its centre, but shadow rays
+    /// aim at random points of it, so shadows have penumbrae (soft shadows, converging with
+    /// the samples per pixel).
+    Sphere { center: Vec3, radius: f32, intensity: f32 },
 }
 
 impl Light {
@@ -16,12 +20,40 @@ impl Light {
     pub fn towards(&self, p: Vec3) -> (Vec3, f32, f32) {
         match *self {
             Light::Directional { direction, intensity } => (direction.normalize(), f32::INFINITY, intensity),
-            Light::Point { position, intensity } => {
+            Light::Point { position, intensity } | Light::Sphere { center: position, intensity, .. } => {
                 let d = position - p;
                 let dist2 = d.length_squared().max(f32::MIN_POSITIVE);
                 (d / dist2.sqrt(), dist2.sqrt(), intensity / dist2)
             }
         }
+    }
+
+    /// Whether shadow rays need random numbers (the light has an area).
+    pub fn is_area(&self) -> bool {
+        matches!(self, Light::Sphere { radius, .. } if *radius > 0.0)
+    }
+
+    /// Where the shadow ray from `p` goes, and how far it must be free: towards the light, or
+    /// for a sphere in a direction uniformly distributed over the cone it subtends at `p`
+    /// (chosen by the two uniform numbers `u`), as far as the sphere's surface. From inside
+    /// the sphere, towards its centre.
+    pub fn shadow_target(&self, p: Vec3, u: [f32; 2]) -> (Vec3, f32) {
+        let (towards, distance, _) = self.towards(p);
+        let Light::Sphere { radius, .. } = *self else { return (towards, distance) };
+        let sin2_max = (radius / distance).powi(2);
+        if sin2_max >= 1.0 {
+            return (towards, distance);
+        }
+        let cos_max = (1.0 - sin2_max).sqrt();
+        let cos = 1.0 - u[0] * (1.0 - cos_max);
+        let sin = (1.0 - cos * cos).max(0.0).sqrt();
+        let phi = std::f32::consts::TAU * u[1];
+        let (a, b) = crate::math::orthonormal_basis(towards);
+        let direction = (towards * cos + (a * phi.cos() + b * phi.sin()) * sin).normalize();
+        // The nearer crossing of the sphere along that direction.
+        let along = distance * cos;
+        let to_surface = along - (radius * radius - distance * distance * sin * sin).max(0.0).sqrt();
+        (direction, to_surface)
     }
 }
 

@@ -207,6 +207,7 @@ fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     ensure!(a.shadow_offset >= 0.0 && a.shadow_offset.is_finite(), "--shadow-offset must be non-negative");
     ensure!(a.lod_threshold > 0.0 && a.lod_threshold.is_finite(), "--lod-threshold must be a positive number");
     ensure!(a.ior > 0.0 && a.ior.is_finite(), "--ior must be a positive number");
+    ensure!(a.light_radius.is_none_or(|r| r >= 0.0 && r.is_finite()), "--light-radius must be a non-negative number");
     ensure!(a.max_depth <= 64, "--max-depth must be at most 64");
     ensure!(a.up.length_squared() > 0.0, "--up must not be the zero vector");
     ensure!(a.view_dir.is_none_or(|v| v.length_squared() > 0.0), "--view-dir must not be the zero vector");
@@ -270,7 +271,10 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         _ => Camera::orbit(&bounds, a.view_dir.unwrap_or(default_view), a.up, distance, a.fov, a.width, a.height),
     };
     let light = match (a.light_pos, a.light_dir) {
-        (Some(position), _) => Light::Point { position: local(position), intensity: a.light_intensity },
+        (Some(position), _) => match a.light_radius {
+            Some(radius) => Light::Sphere { center: local(position), radius, intensity: a.light_intensity },
+            None => Light::Point { position: local(position), intensity: a.light_intensity },
+        },
         (None, Some(direction)) => Light::Directional { direction, intensity: a.light_intensity },
         (None, None) if a.input.is_none() => pointray::demo::demo_light(),
         // A headlight raised and shifted right, as in the Embree bench.

@@ -4,6 +4,7 @@
 mod accel_agree;
 mod analytic;
 mod determinism;
+mod lights;
 mod materials;
 mod multires;
 mod surfaces;
