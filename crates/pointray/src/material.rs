@@ -53,15 +53,25 @@ impl Phong {
     /// Linear radiance towards `view` (unit, from the surface towards the eye) with light
     /// arriving along `to_light` at `irradiance`; `lit` is false in shadow.
     pub fn shade(&self, hit: &SurfaceHit, view: Vec3, to_light: Vec3, irradiance: f32, lit: bool) -> Vec3 {
-        let albedo = Vec3::from(hit.color);
-        let mut c = albedo * self.ambient;
+        let direct = if lit { self.direct(hit, view, to_light, irradiance) } else { Vec3::ZERO };
+        self.ambient(hit) + direct
+    }
+
+    /// The part that needs no light: ambient × albedo.
+    pub fn ambient(&self, hit: &SurfaceHit) -> Vec3 {
+        Vec3::from(hit.color) * self.ambient
+    }
+
+    /// What one unshadowed light adds: Lambert diffuse and the specular lobe.
+    pub fn direct(&self, hit: &SurfaceHit, view: Vec3, to_light: Vec3, irradiance: f32) -> Vec3 {
         let n_dot_l = hit.normal.dot(to_light);
-        if lit && n_dot_l > 0.0 {
-            c += albedo * (n_dot_l * irradiance * (1.0 - self.ambient));
-            if self.specular > 0.0 {
-                let h = (to_light + view).normalize_or_zero();
-                c += Vec3::splat(self.specular * irradiance * h.dot(hit.normal).max(0.0).powf(self.shininess));
-            }
+        if n_dot_l <= 0.0 {
+            return Vec3::ZERO;
+        }
+        let mut c = Vec3::from(hit.color) * (n_dot_l * irradiance * (1.0 - self.ambient));
+        if self.specular > 0.0 {
+            let h = (to_light + view).normalize_or_zero();
+            c += Vec3::splat(self.specular * irradiance * h.dot(hit.normal).max(0.0).powf(self.shininess));
         }
         c
     }

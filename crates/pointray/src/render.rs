@@ -23,8 +23,11 @@ use crate::stats::RenderStats;
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct RenderConfig {
     pub scheme: SurfaceScheme,
-    pub light: Light,
-    pub material: Material,
+    /// Every light shines on Phong surfaces, each with its own shadow ray.
+    pub lights: Vec<Light>,
+    /// The materials that splats name by index ([`crate::splat::Splat::material`]); an index
+    /// past the end takes the first.
+    pub materials: Vec<Material>,
     pub shadows: bool,
     /// Shadow and secondary rays start this many splat radii off the surface, along the normal.
     pub shadow_offset: f32,
@@ -150,17 +153,25 @@ fn radiance<A: Accel>(
         stats.primary_hits += 1;
         stats.blended_splats += u64::from(hit.blended);
     }
-    match config.material {
+    let index = usize::from(accel.splat(hit.splat).material());
+    let material = config.materials.get(index).or(config.materials.first()).copied().unwrap_or(Material::standard());
+    match material {
         Material::Phong(phong) => {
-            let (to_light, _, irradiance) = config.light.towards(hit.position);
-            let faces_light = hit.normal.dot(to_light) > 0.0;
-            let lit = faces_light
-                && (!config.shadows || {
-                    let u = if config.light.is_area() { [rng.random(), rng.random()] } else { [0.5; 2] };
-                    let (direction, distance) = config.light.shadow_target(hit.position, u);
-                    !in_shadow(accel, ray, &hit, direction, distance, config, stats)
-                });
-            phong.shade(&hit, -ray.dir, to_light, irradiance, lit)
+            let mut color = phong.ambient(&hit);
+            for light in &config.lights {
+                let (to_light, _, irradiance) = light.towards(hit.position);
+                let faces_light = hit.normal.dot(to_light) > 0.0;
+                let lit = faces_light
+                    && (!config.shadows || {
+                        let u = if light.is_area() { [rng.random(), rng.random()] } else { [0.5; 2] };
+                        let (direction, distance) = light.shadow_target(hit.position, u);
+                        !in_shadow(accel, ray, &hit, direction, distance, config, stats)
+                    });
+                if lit {
+                    color += phong.direct(&hit, -ray.dir, to_light, irradiance);
+                }
+            }
+            color
         }
         _ if depth >= config.max_depth => Vec3::ZERO,
         Material::Mirror { tint } => {

@@ -330,12 +330,12 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         lod_threshold,
         cull_backfaces,
         scheme,
-        light,
-        material: match a.material {
+        lights: vec![light],
+        materials: vec![match a.material {
             MaterialArg::Phong => Material::standard(),
             MaterialArg::Mirror => Material::Mirror { tint: [0.9; 3] },
             MaterialArg::Glass => Material::Glass { ior: a.ior, tint: [1.0; 3] },
-        },
+        }],
         shadows: !a.no_shadows,
         shadow_offset: a.shadow_offset,
         environment: if a.sky {
@@ -423,7 +423,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
             threads,
             accel: accel.name(),
             surface: scheme.kind.name(),
-            material: config.material.name(),
+            material: config.materials[0].name(),
             samples_per_pixel: a.spp,
             load_seconds,
             preprocess_seconds: PreprocessSeconds { total: pre.seconds.total(), stages: pre.seconds },

@@ -21,9 +21,14 @@ pub(crate) struct Representative {
 pub(crate) fn representative<'a>(disks: impl Iterator<Item = &'a Splat> + Clone) -> Representative {
     let first_normal = disks.clone().next().expect("a representative of no disk").normal;
     let (mut area, mut center, mut normal, mut color) = (0.0, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
+    // The material of the largest disk: materials do not blend.
+    let mut material = (0.0, 0u8);
     for s in disks.clone() {
         // Zero-radius disks still count (a little), so that a cloud of them has a centre.
         let w = f64::from(s.radius).powi(2).max(f64::MIN_POSITIVE);
+        if w > material.0 {
+            material = (w, s.material());
+        }
         area += w;
         center += w * s.center.as_dvec3();
         normal += w * s.normal.as_dvec3();
@@ -49,15 +54,10 @@ pub(crate) fn representative<'a>(disks: impl Iterator<Item = &'a Splat> + Clone)
     let moment = (moment / area).sqrt();
     let radius = 0.5 * (cover + moment);
     let color = (color / area).as_vec3().to_array().map(linear_to_srgb);
-    Representative {
-        splat: Splat {
-            center: center.as_vec3(),
-            radius: radius as f32,
-            normal: axis.as_vec3(),
-            color: pack_color(color),
-        },
-        coherent,
-    }
+    let mut splat =
+        Splat { center: center.as_vec3(), radius: radius as f32, normal: axis.as_vec3(), color: pack_color(color) };
+    splat.set_material(material.1);
+    Representative { splat, coherent }
 }
 
 /// The quantile for [`radius_quantile`]. With the floor at the smallest radius, one BVH node

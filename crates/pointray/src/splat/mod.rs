@@ -66,7 +66,8 @@ impl DiskTest for RayFacing {
 }
 
 /// One surface element: a disk of `radius` around `center`, perpendicular to the unit `normal`.
-/// 32 bytes, so two share a cache line; the colour is packed sRGB8 (`0x00BBGGRR`).
+/// 32 bytes, so two share a cache line; the colour is packed sRGB8 with the index of the
+/// splat's material in the top byte (`0xMMBBGGRR`, see [`Splat::material`]).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Splat {
@@ -93,6 +94,16 @@ impl Splat {
             DiskShape::Oriented => self.bounds(),
             DiskShape::RayFacing => Aabb::new(self.center - self.radius, self.center + self.radius),
         }
+    }
+
+    /// The index of the splat's material in the render's list (`RenderConfig::materials`):
+    /// the packed colour's top byte, so that a scene of several clouds costs no memory.
+    pub fn material(&self) -> u8 {
+        (self.color >> 24) as u8
+    }
+
+    pub fn set_material(&mut self, material: u8) {
+        self.color = self.color & 0x00ff_ffff | u32::from(material) << 24;
     }
 
     /// The colour in linear RGB (for shading and blending), through a table: no `powf` per hit.

@@ -97,8 +97,8 @@ fn analytic_image(cam: &Camera, config: &RenderConfig) -> Vec<[f32; 3]> {
                         splat: 0,
                         blended: 1,
                     };
-                    let (l, _, e) = config.light.towards(p);
-                    let Material::Phong(phong) = config.material else { panic!("a Phong sphere") };
+                    let (l, _, e) = config.lights[0].towards(p);
+                    let Material::Phong(phong) = config.materials[0] else { panic!("a Phong sphere") };
                     phong.shade(&hit, -ray.dir, l, e, hit.normal.dot(l) > 0.0).to_array()
                 }
             });
@@ -116,8 +116,8 @@ fn sphere_image_matches_the_analytic_image() {
     let cam = Camera::look_at(Vec3::new(0.0, 0.0, 3.2), Vec3::ZERO, Vec3::Y, 45.0, 64, 64);
     let config = RenderConfig {
         scheme: SurfaceScheme::sj(),
-        light: Light::Point { position: Vec3::new(2.0, 3.0, 4.0), intensity: 25.0 },
-        material: Material::standard(),
+        lights: vec![Light::Point { position: Vec3::new(2.0, 3.0, 4.0), intensity: 25.0 }],
+        materials: vec![Material::standard()],
         shadows: true,
         shadow_offset: 1.0,
         environment: Environment::Uniform { color: [0.0, 0.0, 0.0] },

@@ -24,8 +24,8 @@ fn image_is_identical_with_one_and_two_threads() {
     );
     let config = RenderConfig {
         scheme: SurfaceScheme::sj(),
-        light: pointray::demo::demo_light(),
-        material: Material::standard(),
+        lights: vec![pointray::demo::demo_light()],
+        materials: vec![Material::standard()],
         shadows: true,
         shadow_offset: 1.0,
         environment: Environment::Uniform { color: [0.1, 0.1, 0.1] },

@@ -75,8 +75,8 @@ fn psnr_against_exact(material: Material) -> f64 {
     let cam = Camera::look_at(Vec3::new(0.4, 0.9, 3.0), Vec3::ZERO, Vec3::Y, 45.0, SIZE, SIZE);
     let config = RenderConfig {
         scheme: SurfaceScheme::sj(),
-        light: Light::Directional { direction: Vec3::Y, intensity: 1.0 },
-        material,
+        lights: vec![Light::Directional { direction: Vec3::Y, intensity: 1.0 }],
+        materials: vec![material],
         shadows: true,
         shadow_offset: 1.0,
         environment: sky(),

@@ -248,8 +248,8 @@ fn shadow_rays_do_not_hit_their_own_surface() {
         for (name, scheme) in schemes() {
             let config = |shadows| RenderConfig {
                 scheme,
-                light: Light::Directional { direction: light, intensity: 3.0 },
-                material: Material::standard(),
+                lights: vec![Light::Directional { direction: light, intensity: 3.0 }],
+                materials: vec![Material::standard()],
                 shadows,
                 shadow_offset: 1.0,
                 environment: Environment::Uniform { color: [0.0; 3] },
