@@ -78,8 +78,8 @@ fn check_first_evlr(path: &Path, bytes: &[u8]) -> Result<(), IoError> {
         return Ok(());
     }
     let (Some(start), Some(count)) = (u64_at(235, 8), u64_at(243, 4)) else { return Ok(()) };
-    let Some(length) = usize::try_from(start).ok().filter(|_| count > 0 && start > 0).and_then(|at| u64_at(at + 20, 8))
-    else {
+    let record = usize::try_from(start).ok().filter(|_| count > 0 && start > 0);
+    let Some(length) = record.and_then(|at| u64_at(at.checked_add(20)?, 8)) else {
         return Ok(()); // no record, or one past the end: the crate fails to read it
     };
     let room = (bytes.len() as u64).saturating_sub(start.saturating_add(60));
