@@ -55,7 +55,7 @@ pub enum Command {
     Compare(CompareArgs),
 }
 
-#[derive(Args, Debug)]
+#[derive(Args, Clone, Debug)]
 pub struct PreprocessArgs {
     /// Neighbours for PCA normals.
     #[arg(long, default_value_t = pointray::preprocess::PreprocessConfig::standard().k_normals)]
@@ -71,10 +71,11 @@ pub struct PreprocessArgs {
     pub recompute: bool,
 }
 
-#[derive(Args, Debug)]
+#[derive(Args, Clone, Debug)]
 pub struct RenderArgs {
     /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, or a Stanford scan set .conf; recognised by
-    /// content); none renders the built-in demo scene.
+    /// content), or a scene file (.toml: several clouds, materials, lights; see
+    /// scenes/README.md); none renders the built-in demo scene.
     pub input: Option<PathBuf>,
     /// Output PNG (written atomically).
     #[arg(short, long)]
@@ -271,7 +272,8 @@ pub enum AccelArg {
     Brute,
 }
 
-#[derive(Copy, Clone, Debug, ValueEnum)]
+#[derive(Copy, Clone, Debug, ValueEnum, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum SurfaceArg {
     /// Schaufler–Jensen: oriented disks, blended over a short window.
     Sj,

@@ -5,6 +5,7 @@ mod args;
 mod commands;
 mod failure;
 mod progress;
+mod scene;
 
 use std::io::{self, Write};
 use std::process::ExitCode;

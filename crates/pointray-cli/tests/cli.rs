@@ -291,7 +291,7 @@ fn mirror_and_glass_spheres_trace_secondary_rays_alike_in_every_accelerator() {
             let args = ["sphere.ply", "-o", &out, "--material", material, "--sky", "--accel", accel, "--lod", "off"];
             render_in(dir.path(), &[&args[..], &["--stats", &stats]].concat()).assert_success();
             let s = read_stats(&dir.path().join(&stats));
-            assert_eq!(s["material"], material);
+            assert_eq!(s["materials"], serde_json::json!([material]));
             // Each hit on a mirror spawns one reflected ray; on glass a reflected and (but
             // for total internal reflection) a refracted one, and more inside.
             let (hits, secondary) =
@@ -307,6 +307,98 @@ fn mirror_and_glass_spheres_trace_secondary_rays_alike_in_every_accelerator() {
     run_in(dir.path(), &["-q", "render", "sphere.ply", "-o", "x.png", "--material", "glass", "--ior", "0"])
         .assert_failure(2)
         .assert_stderr_contains("--ior");
+}
+
+/// Two spheres, a mirror and a diffuse one, on a ground, under a sphere light and a sun.
+fn two_sphere_scene(spp: u32) -> String {
+    format!(
+        r#"
+[camera]
+eye = [0.0, 1.5, 6.0]
+look_at = [0.0, 0.5, 0.0]
+
+[render]
+width = 64
+height = 48
+spp = {spp}
+
+[[light]]
+kind = "sphere"
+position = [-3.0, 5.0, 4.0]
+radius = 0.5
+intensity = 50.0
+
+[[light]]
+kind = "directional"
+direction = [1.0, 1.0, 0.0]
+intensity = 0.3
+
+[[cloud]]
+file = "sphere.ply"
+translate = [-1.2, 1.0, 0.0]
+material = {{ kind = "mirror" }}
+
+[[cloud]]
+file = "sphere.ply"
+scale = 0.5
+translate = [1.2, 0.5, 0.0]
+color = [0.9, 0.2, 0.1]
+
+[[cloud]]
+ground = {{ size = 6.0, spacing = 0.05, checker = [[0.2, 0.2, 0.2], [0.8, 0.8, 0.8], 1.0] }}
+"#
+    )
+}
+
+#[test]
+fn scene_files_place_clouds_with_their_materials_and_lights() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    std::fs::create_dir(dir.path().join("scenes")).unwrap();
+    // Cloud paths are relative to the scene file.
+    std::fs::rename(dir.path().join("sphere.ply"), dir.path().join("scenes/sphere.ply")).unwrap();
+    write_file(&dir.path().join("scenes"), "two.toml", two_sphere_scene(4));
+    let run = run_in(dir.path(), &["-q", "render", "scenes/two.toml", "-o", "a.png", "--stats", "a.json"]);
+    run.assert_success();
+    let s = read_stats(&dir.path().join("a.json"));
+    assert_eq!(s["materials"], serde_json::json!(["mirror", "phong", "phong"]), "{s:#}");
+    let sphere_points = 2 * 3000;
+    assert_eq!(stat_u64(&s, "points_read"), sphere_points + 121 * 121, "{s:#}");
+    assert!(stat_u64(&s, "secondary_rays") > 0 && stat_u64(&s, "shadow_rays") > 0, "{s:#}");
+    assert_eq!((stat_u64(&s, "width"), stat_u64(&s, "height"), stat_u64(&s, "samples_per_pixel")), (64, 48, 4));
+    let image = read_png(&dir.path().join("a.png"));
+    assert_eq!((image.width, image.height), (64, 48));
+    // The red sphere is red, the mirror shows the sky and the ground.
+    assert!(image.pixels().any(|(_, _, [r, g, b])| r > 120 && g < 60 && b < 60), "no red sphere");
+    // The same scene, the same pixels, whatever the thread count.
+    run_in(dir.path(), &["-q", "render", "scenes/two.toml", "-o", "b.png", "--threads", "1"]).assert_success();
+    assert!(image == read_png(&dir.path().join("b.png")), "the thread count changed the image");
+}
+
+#[test]
+fn bad_scene_files_are_refused_with_their_name_and_line() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let cases = [
+        ("typo.toml", two_sphere_scene(1).replace("look_at", "look_to"), "typo.toml"),
+        ("line.toml", two_sphere_scene(1).replace("spp = 1", "spp = \"many\""), "line 9"),
+        ("missing.toml", two_sphere_scene(1).replace("sphere.ply", "nothing.ply"), "nothing.ply"),
+        (
+            "both.toml",
+            two_sphere_scene(1).replace("[[cloud]]\nfile", "[[cloud]]\nground = { size = 1.0, spacing = 0.1 }\nfile"),
+            "either `file` or `ground`",
+        ),
+        ("none.toml", "cloud = []\n[camera]\neye = [0, 0, 1]\nlook_at = [0, 0, 0]\n".to_string(), "no [[cloud]]"),
+        ("scale.toml", two_sphere_scene(1).replace("scale = 0.5", "scale = -1.0"), "scale must be positive"),
+    ];
+    for (name, text, fragment) in &cases {
+        write_file(dir.path(), name, text);
+        let run = run_in(dir.path(), &["-q", "render", name, "-o", "out.png"]);
+        run.assert_failure(1).assert_stderr_contains(name).assert_stderr_contains(fragment);
+    }
+    let run = run_in(dir.path(), &["-q", "render", "line.toml", "-o", "out.png"]);
+    run.assert_stderr_contains("line.toml");
+    assert!(!dir.path().join("out.png").exists());
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -107,7 +107,8 @@ struct StatsReport {
     threads: usize,
     accel: &'static str,
     surface: &'static str,
-    material: &'static str,
+    /// The materials, by index (one per cloud of a scene).
+    materials: Vec<&'static str>,
     samples_per_pixel: u32,
     load_seconds: f64,
     preprocess_seconds: PreprocessSeconds,
@@ -189,7 +190,7 @@ pub fn run(a: &RenderArgs, quiet: bool) -> anyhow::Result<()> {
     pool.install(|| run_in_pool(a, quiet, pool.current_num_threads()))
 }
 
-fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
+pub fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     use anyhow::ensure;
     ensure!(a.width > 0 && a.height > 0, "--width and --height must be positive");
     ensure!(
@@ -219,13 +220,40 @@ fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
 }
 
 fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()> {
-    // 1. The cloud.
-    let (mut cloud, input_name, load_seconds) = match &a.input {
+    // 1. The cloud, or a scene's clouds, placed and preprocessed.
+    if let Some(path) = a.input.as_ref().filter(|p| crate::scene::is_scene(p)) {
+        let scene = crate::scene::load(path, a, quiet)?;
+        return render_cloud(
+            &scene.args.clone(),
+            quiet,
+            threads,
+            Input::Scene(Box::new(scene)),
+            path.display().to_string(),
+        );
+    }
+    let (cloud, input_name, load_seconds) = match &a.input {
         Some(path) => {
             let (loaded, secs) = super::load(path, quiet)?;
             (loaded.cloud, path.display().to_string(), secs)
         }
         None => (pointray::demo::demo_cloud(a.demo_points, a.seed), "demo".to_string(), 0.0),
+    };
+    render_cloud(a, quiet, threads, Input::Cloud { cloud, load_seconds }, input_name)
+}
+
+/// What `render` draws: one cloud, to be preprocessed, or a scene's, already placed.
+enum Input {
+    Cloud { cloud: pointray::PointCloud, load_seconds: f64 },
+    Scene(Box<crate::scene::Scene>),
+}
+
+fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input_name: String) -> anyhow::Result<()> {
+    let (mut cloud, load_seconds, scene) = match input {
+        Input::Cloud { cloud, load_seconds } => (cloud, load_seconds, None),
+        Input::Scene(mut scene) => {
+            let cloud = std::mem::take(&mut scene.cloud);
+            (cloud, scene.load_seconds, Some(scene))
+        }
     };
     // Preprocessing only removes points: refuse an oversized cloud before spending on it.
     anyhow::ensure!(
@@ -234,12 +262,18 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         cloud.len(),
         pointray::accel::bvh::MAX_SPLATS
     );
-    let points_read = cloud.len();
-    let pre = super::prepare_cloud(&mut cloud, &a.preprocess, &input_name, quiet)?;
+    let (points_read, pre) = match &scene {
+        // Each of a scene's clouds was preprocessed on its own; its points keep their order.
+        Some(scene) => (scene.points_read, scene.preprocess.clone()),
+        None => (cloud.len(), super::prepare_cloud(&mut cloud, &a.preprocess, &input_name, quiet)?),
+    };
     let bounds = cloud.bounds();
 
     // 2. The accelerator.
-    let splats = splats_from_cloud(&cloud);
+    let mut splats = splats_from_cloud(&cloud);
+    if let Some(scene) = &scene {
+        splats.iter_mut().zip(&scene.point_materials).for_each(|(s, &m)| s.set_material(m));
+    }
     let mean_radius = splats.iter().map(|s| f64::from(s.radius)).sum::<f64>() / splats.len() as f64;
     let t = Instant::now();
     let spinner = crate::progress::spinner("build", quiet);
@@ -330,23 +364,29 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         lod_threshold,
         cull_backfaces,
         scheme,
-        lights: vec![light],
-        materials: vec![match a.material {
-            MaterialArg::Phong => Material::standard(),
-            MaterialArg::Mirror => Material::Mirror { tint: [0.9; 3] },
-            MaterialArg::Glass => Material::Glass { ior: a.ior, tint: [1.0; 3] },
-        }],
+        lights: match &scene {
+            Some(scene) => scene.lights.clone(),
+            None => vec![light],
+        },
+        materials: match &scene {
+            Some(scene) => scene.materials.clone(),
+            None => vec![match a.material {
+                MaterialArg::Phong => Material::standard(),
+                MaterialArg::Mirror => Material::Mirror { tint: [0.9; 3] },
+                MaterialArg::Glass => Material::Glass { ior: a.ior, tint: [1.0; 3] },
+            }],
+        },
         shadows: !a.no_shadows,
         shadow_offset: a.shadow_offset,
-        environment: if a.sky {
-            Environment::Gradient {
+        environment: match &scene {
+            Some(scene) => scene.environment,
+            None if a.sky => Environment::Gradient {
                 up: camera.up(),
                 zenith: [0.18, 0.32, 0.62],
                 horizon: [0.75, 0.82, 0.90],
                 ground: [0.25, 0.24, 0.22],
-            }
-        } else {
-            Environment::Uniform { color: [0.010, 0.011, 0.019] }
+            },
+            None => Environment::Uniform { color: [0.010, 0.011, 0.019] },
         },
         max_depth: a.max_depth,
         region,
@@ -423,7 +463,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
             threads,
             accel: accel.name(),
             surface: scheme.kind.name(),
-            material: config.materials[0].name(),
+            materials: config.materials.iter().map(|m| m.name()).collect(),
             samples_per_pixel: a.spp,
             load_seconds,
             preprocess_seconds: PreprocessSeconds { total: pre.seconds.total(), stages: pre.seconds },

@@ -98,6 +98,30 @@ pub struct PreprocessStats {
     pub orientation_components: usize,
 }
 
+impl PreprocessStats {
+    /// Adds the work of another cloud's preprocessing (a scene's clouds, summed).
+    pub fn add(&mut self, o: &PreprocessStats) {
+        self.dropped_non_finite += o.dropped_non_finite;
+        self.dropped_duplicates += o.dropped_duplicates;
+        self.invalid_normals += o.invalid_normals;
+        self.invalid_radii += o.invalid_radii;
+        self.computed_normals |= o.computed_normals;
+        self.computed_radii |= o.computed_radii;
+        self.flipped_normals += o.flipped_normals;
+        self.degenerate_normals += o.degenerate_normals;
+        self.orientation_components += o.orientation_components;
+        let (s, t) = (&mut self.seconds, &o.seconds);
+        (s.clean, s.sort, s.knn, s.normals, s.orient, s.radii) = (
+            s.clean + t.clean,
+            s.sort + t.sort,
+            s.knn + t.knn,
+            s.normals + t.normals,
+            s.orient + t.orient,
+            s.radii + t.radii,
+        );
+    }
+}
+
 /// Why a cloud cannot be made into splats.
 #[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum PreprocessError {

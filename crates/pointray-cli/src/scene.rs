@@ -1,0 +1,380 @@
+//! Scene files: several clouds, each placed in the world and made of its own material,
+//! with lights, an environment, a camera and render settings, in TOML. `pointray render
+//! scene.toml` reads one; `scenes/` has examples.
+//!
+//! World coordinates are f64 in the file and f32 once placed: put the models near the origin
+//! (a survey-coordinate scan is moved there by its `translate`).
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::Context;
+use glam::{DMat3, DVec3, Vec3};
+use pointray::PointCloud;
+use pointray::material::{Material, Phong};
+use pointray::preprocess::PreprocessStats;
+use pointray::shading::{Environment, Light};
+use serde::Deserialize;
+
+use crate::args::{RenderArgs, SurfaceArg};
+use crate::failure;
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SceneFile {
+    camera: CameraSpec,
+    #[serde(default)]
+    render: RenderSpec,
+    #[serde(default)]
+    environment: EnvironmentSpec,
+    #[serde(default, rename = "light")]
+    lights: Vec<LightSpec>,
+    #[serde(rename = "cloud")]
+    clouds: Vec<CloudSpec>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CameraSpec {
+    eye: [f64; 3],
+    look_at: [f64; 3],
+    #[serde(default = "y_up")]
+    up: [f32; 3],
+    /// Vertical field of view, degrees.
+    #[serde(default = "default_fov")]
+    fov: f32,
+}
+
+fn y_up() -> [f32; 3] {
+    [0.0, 1.0, 0.0]
+}
+
+fn default_fov() -> f32 {
+    40.0
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+struct RenderSpec {
+    width: u32,
+    height: u32,
+    spp: u32,
+    max_depth: u32,
+    seed: u64,
+    surface: SurfaceArg,
+    lod_threshold: f32,
+    shadows: bool,
+}
+
+impl Default for RenderSpec {
+    fn default() -> Self {
+        Self {
+            width: 800,
+            height: 600,
+            spp: 4,
+            max_depth: 5,
+            seed: 1,
+            surface: SurfaceArg::Sj,
+            lod_threshold: 0.5,
+            shadows: true,
+        }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, tag = "kind", rename_all = "kebab-case")]
+enum EnvironmentSpec {
+    Uniform { color: [f32; 3] },
+    Sky { zenith: [f32; 3], horizon: [f32; 3], ground: [f32; 3] },
+}
+
+impl Default for EnvironmentSpec {
+    fn default() -> Self {
+        EnvironmentSpec::Sky { zenith: [0.18, 0.32, 0.62], horizon: [0.75, 0.82, 0.90], ground: [0.25, 0.24, 0.22] }
+    }
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields, tag = "kind", rename_all = "kebab-case")]
+enum LightSpec {
+    /// `direction` points towards the light.
+    Directional {
+        direction: [f32; 3],
+        intensity: f32,
+    },
+    Point {
+        position: [f64; 3],
+        intensity: f32,
+    },
+    Sphere {
+        position: [f64; 3],
+        radius: f32,
+        intensity: f32,
+    },
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct CloudSpec {
+    /// A point-cloud file, relative to the scene file; or, instead, `ground`.
+    file: Option<PathBuf>,
+    ground: Option<GroundSpec>,
+    /// Applied in this order: scale, rotations about x, y and z (degrees), translation.
+    #[serde(default = "one")]
+    scale: f64,
+    #[serde(default)]
+    rotate: [f64; 3],
+    #[serde(default)]
+    translate: [f64; 3],
+    #[serde(default)]
+    material: MaterialSpec,
+    /// One colour (sRGB, 0–1) for every point, instead of the file's.
+    color: Option<[f32; 3]>,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+/// A square floor of points, normals up (+y), sampled on a grid.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct GroundSpec {
+    size: f64,
+    spacing: f64,
+    /// Two colours alternating in squares of `tile`.
+    #[serde(default)]
+    checker: Option<([f32; 3], [f32; 3], f64)>,
+}
+
+#[derive(Debug, Default, Deserialize)]
+#[serde(deny_unknown_fields, tag = "kind", rename_all = "kebab-case")]
+enum MaterialSpec {
+    #[default]
+    Phong,
+    Mirror {
+        #[serde(default = "white")]
+        tint: [f32; 3],
+    },
+    Glass {
+        #[serde(default = "glass_ior")]
+        ior: f32,
+        #[serde(default = "white")]
+        tint: [f32; 3],
+    },
+}
+
+fn white() -> [f32; 3] {
+    [1.0; 3]
+}
+
+fn glass_ior() -> f32 {
+    1.5
+}
+
+/// A scene, loaded: one cloud of every placed point (world coordinates, origin zero), the
+/// material index of each point, and the settings that replace the command line's.
+pub struct Scene {
+    pub cloud: PointCloud,
+    pub point_materials: Vec<u8>,
+    pub materials: Vec<Material>,
+    pub lights: Vec<Light>,
+    pub environment: Environment,
+    /// The command line with the scene's camera and render settings put in.
+    pub args: RenderArgs,
+    pub points_read: usize,
+    pub preprocess: PreprocessStats,
+    pub load_seconds: f64,
+}
+
+/// Whether `path` names a scene file (by its `.toml` extension).
+pub fn is_scene(path: &Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"))
+}
+
+/// Reads the scene at `path` and every cloud it names, preprocessed and placed.
+pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
+    let start = Instant::now();
+    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
+    let spec: SceneFile = toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    anyhow::ensure!(!spec.clouds.is_empty(), "{}: the scene has no [[cloud]]", path.display());
+    anyhow::ensure!(spec.clouds.len() <= 256, "{}: at most 256 clouds", path.display());
+    let folder = path.parent().unwrap_or(Path::new("."));
+
+    let mut placed = Vec::new();
+    let (mut point_materials, mut materials) = (Vec::new(), Vec::new());
+    let (mut points_read, mut preprocess) = (0, PreprocessStats::default());
+    for (index, cloud) in spec.clouds.iter().enumerate() {
+        let name = format!("{}: cloud {}", path.display(), index + 1);
+        let (mut points, label) = match (&cloud.file, &cloud.ground) {
+            (Some(file), None) => {
+                let file = folder.join(file);
+                let (loaded, _) = crate::commands::load(&file, quiet).with_context(|| name.clone())?;
+                (loaded.cloud, file.display().to_string())
+            }
+            (None, Some(ground)) => (ground_cloud(ground).with_context(|| name.clone())?, format!("{name} (ground)")),
+            _ => anyhow::bail!("{name}: give either `file` or `ground`"),
+        };
+        if let Some(color) = cloud.color {
+            points.colors = Some(vec![color; points.len()]);
+        }
+        points_read += points.len();
+        let stats =
+            crate::commands::prepare_cloud(&mut points, &a.preprocess, &label, quiet).with_context(|| name.clone())?;
+        preprocess.add(&stats);
+        anyhow::ensure!(cloud.scale > 0.0 && cloud.scale.is_finite(), "{name}: scale must be positive");
+        place(&mut points, cloud);
+        point_materials.extend(std::iter::repeat_n(index as u8, points.len()));
+        materials.push(material(&cloud.material));
+        placed.push(points);
+    }
+    let cloud = merge(placed);
+    anyhow::ensure!(
+        cloud.len() <= pointray::accel::bvh::MAX_SPLATS,
+        "{}: {} points is more than pointray can index",
+        path.display(),
+        cloud.len()
+    );
+
+    let mut args = a.clone();
+    let (c, r) = (&spec.camera, &spec.render);
+    args.eye = Some(DVec3::from(c.eye));
+    args.look_at = Some(DVec3::from(c.look_at));
+    args.up = Vec3::from(c.up);
+    args.fov = c.fov;
+    args.width = r.width;
+    args.height = r.height;
+    args.spp = r.spp;
+    args.max_depth = r.max_depth;
+    args.seed = r.seed;
+    args.surface = r.surface;
+    args.lod_threshold = r.lod_threshold;
+    args.no_shadows = !r.shadows;
+    args.crop_to_model = false;
+    args.region = None;
+    super::commands::render::check_args(&args).map_err(|e| failure::usage(e.context(path.display().to_string())))?;
+    let lights = spec.lights.iter().map(light).collect();
+    let environment = match spec.environment {
+        EnvironmentSpec::Uniform { color } => Environment::Uniform { color },
+        EnvironmentSpec::Sky { zenith, horizon, ground } => {
+            Environment::Gradient { up: args.up.normalize(), zenith, horizon, ground }
+        }
+    };
+    Ok(Scene {
+        cloud,
+        point_materials,
+        materials,
+        lights,
+        environment,
+        args,
+        points_read,
+        preprocess,
+        load_seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+fn ground_cloud(g: &GroundSpec) -> anyhow::Result<PointCloud> {
+    anyhow::ensure!(g.size > 0.0 && g.spacing > 0.0, "ground: size and spacing must be positive");
+    let n = (g.size / g.spacing).ceil() as usize + 1;
+    anyhow::ensure!(n * n <= pointray::accel::bvh::MAX_SPLATS, "ground: {n} x {n} points is too many");
+    let half = 0.5 * g.size;
+    let mut world = Vec::with_capacity(n * n);
+    let mut colors = Vec::with_capacity(n * n);
+    for i in 0..n {
+        for j in 0..n {
+            let (x, z) = (-half + i as f64 * g.spacing, -half + j as f64 * g.spacing);
+            world.push(DVec3::new(x, 0.0, z));
+            if let Some((a, b, tile)) = g.checker {
+                let dark = ((x / tile).floor() as i64 + (z / tile).floor() as i64).rem_euclid(2) == 0;
+                colors.push(if dark { a } else { b });
+            }
+        }
+    }
+    let mut cloud = PointCloud::from_world_positions(&world);
+    cloud.normals = Some(vec![Vec3::Y; world.len()]);
+    cloud.colors = g.checker.is_some().then_some(colors);
+    Ok(cloud)
+}
+
+/// Moves a preprocessed cloud to its place in the world: positions, normals and radii.
+fn place(points: &mut PointCloud, spec: &CloudSpec) {
+    let [rx, ry, rz] = spec.rotate.map(f64::to_radians);
+    let rotation = DMat3::from_rotation_z(rz) * DMat3::from_rotation_y(ry) * DMat3::from_rotation_x(rx);
+    let (scale, translate, origin) = (spec.scale, DVec3::from(spec.translate), points.origin);
+    for p in &mut points.positions {
+        *p = (rotation * ((origin + p.as_dvec3()) * scale) + translate).as_vec3();
+    }
+    if let Some(normals) = &mut points.normals {
+        normals.iter_mut().for_each(|n| *n = (rotation * n.as_dvec3()).normalize().as_vec3());
+    }
+    if let Some(radii) = &mut points.radii {
+        radii.iter_mut().for_each(|r| *r *= scale as f32);
+    }
+    points.origin = DVec3::ZERO;
+}
+
+/// One cloud of all the placed ones; colours kept where every cloud has them, else the
+/// default colour for those without.
+fn merge(clouds: Vec<PointCloud>) -> PointCloud {
+    let any_colors = clouds.iter().any(|c| c.colors.is_some());
+    let mut all = PointCloud::default();
+    let (mut normals, mut radii, mut colors) = (Vec::new(), Vec::new(), Vec::new());
+    for c in clouds {
+        let n = c.len();
+        all.positions.extend(c.positions);
+        normals.extend(c.normals.expect("preprocessed"));
+        radii.extend(c.radii.expect("preprocessed"));
+        if any_colors {
+            let default = pointray::splat::DEFAULT_COLOR;
+            colors.extend(c.colors.unwrap_or_else(|| vec![default; n]));
+        }
+    }
+    all.normals = Some(normals);
+    all.radii = Some(radii);
+    all.colors = any_colors.then_some(colors);
+    all
+}
+
+fn material(spec: &MaterialSpec) -> Material {
+    match *spec {
+        MaterialSpec::Phong => Material::Phong(Phong::standard()),
+        MaterialSpec::Mirror { tint } => Material::Mirror { tint },
+        MaterialSpec::Glass { ior, tint } => Material::Glass { ior, tint },
+    }
+}
+
+fn light(spec: &LightSpec) -> Light {
+    match *spec {
+        LightSpec::Directional { direction, intensity } => {
+            Light::Directional { direction: Vec3::from(direction), intensity }
+        }
+        LightSpec::Point { position, intensity } => {
+            Light::Point { position: DVec3::from(position).as_vec3(), intensity }
+        }
+        LightSpec::Sphere { position, radius, intensity } => {
+            Light::Sphere { center: DVec3::from(position).as_vec3(), radius, intensity }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The example scenes follow the schema (rendering them needs the shared data).
+    #[test]
+    fn example_scenes_parse() {
+        let folder = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../scenes");
+        let mut parsed = 0;
+        for entry in std::fs::read_dir(&folder).unwrap() {
+            let path = entry.unwrap().path();
+            if is_scene(&path) {
+                let text = std::fs::read_to_string(&path).unwrap();
+                let scene: SceneFile = toml::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                assert!(!scene.clouds.is_empty());
+                parsed += 1;
+            }
+        }
+        assert!(parsed >= 1, "no scene in {}", folder.display());
+    }
+}
