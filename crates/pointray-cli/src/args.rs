@@ -272,8 +272,7 @@ pub enum AccelArg {
     Brute,
 }
 
-#[derive(Copy, Clone, Debug, ValueEnum, serde::Deserialize)]
-#[serde(rename_all = "kebab-case")]
+#[derive(Copy, Clone, Debug, ValueEnum)]
 pub enum SurfaceArg {
     /// Schaufler–Jensen: oriented disks, blended over a short window.
     Sj,

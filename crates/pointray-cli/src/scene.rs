@@ -2,10 +2,10 @@
 //! with lights, an environment, a camera and render settings, in TOML. `pointray render
 //! scene.toml` reads one; `scenes/` has examples.
 //!
-//! World coordinates are f64 in the file and f32 once placed: put the models near the origin
+//! The schema is `pointray_io::scene`. World coordinates are f64 in the file and f32 once placed: put the models near the origin
 //! (a survey-coordinate scan is moved there by its `translate`).
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use anyhow::Context;
@@ -14,163 +14,10 @@ use pointray::PointCloud;
 use pointray::material::{Material, Phong};
 use pointray::preprocess::PreprocessStats;
 use pointray::shading::{Environment, Light};
-use serde::Deserialize;
+use pointray_io::scene::{CloudSpec, EnvironmentSpec, GroundSpec, LightSpec, MaterialSpec, parse_scene};
 
 use crate::args::{RenderArgs, SurfaceArg};
 use crate::failure;
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct SceneFile {
-    camera: CameraSpec,
-    #[serde(default)]
-    render: RenderSpec,
-    #[serde(default)]
-    environment: EnvironmentSpec,
-    #[serde(default, rename = "light")]
-    lights: Vec<LightSpec>,
-    #[serde(rename = "cloud")]
-    clouds: Vec<CloudSpec>,
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct CameraSpec {
-    eye: [f64; 3],
-    look_at: [f64; 3],
-    #[serde(default = "y_up")]
-    up: [f32; 3],
-    /// Vertical field of view, degrees.
-    #[serde(default = "default_fov")]
-    fov: f32,
-}
-
-fn y_up() -> [f32; 3] {
-    [0.0, 1.0, 0.0]
-}
-
-fn default_fov() -> f32 {
-    40.0
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, default)]
-struct RenderSpec {
-    width: u32,
-    height: u32,
-    spp: u32,
-    max_depth: u32,
-    seed: u64,
-    surface: SurfaceArg,
-    lod_threshold: f32,
-    shadows: bool,
-}
-
-impl Default for RenderSpec {
-    fn default() -> Self {
-        Self {
-            width: 800,
-            height: 600,
-            spp: 4,
-            max_depth: 5,
-            seed: 1,
-            surface: SurfaceArg::Sj,
-            lod_threshold: 0.5,
-            shadows: true,
-        }
-    }
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, tag = "kind", rename_all = "kebab-case")]
-enum EnvironmentSpec {
-    Uniform { color: [f32; 3] },
-    Sky { zenith: [f32; 3], horizon: [f32; 3], ground: [f32; 3] },
-}
-
-impl Default for EnvironmentSpec {
-    fn default() -> Self {
-        EnvironmentSpec::Sky { zenith: [0.18, 0.32, 0.62], horizon: [0.75, 0.82, 0.90], ground: [0.25, 0.24, 0.22] }
-    }
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields, tag = "kind", rename_all = "kebab-case")]
-enum LightSpec {
-    /// `direction` points towards the light.
-    Directional {
-        direction: [f32; 3],
-        intensity: f32,
-    },
-    Point {
-        position: [f64; 3],
-        intensity: f32,
-    },
-    Sphere {
-        position: [f64; 3],
-        radius: f32,
-        intensity: f32,
-    },
-}
-
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct CloudSpec {
-    /// A point-cloud file, relative to the scene file; or, instead, `ground`.
-    file: Option<PathBuf>,
-    ground: Option<GroundSpec>,
-    /// Applied in this order: scale, rotations about x, y and z (degrees), translation.
-    #[serde(default = "one")]
-    scale: f64,
-    #[serde(default)]
-    rotate: [f64; 3],
-    #[serde(default)]
-    translate: [f64; 3],
-    #[serde(default)]
-    material: MaterialSpec,
-    /// One colour (sRGB, 0–1) for every point, instead of the file's.
-    color: Option<[f32; 3]>,
-}
-
-fn one() -> f64 {
-    1.0
-}
-
-/// A square floor of points, normals up (+y), sampled on a grid.
-#[derive(Debug, Deserialize)]
-#[serde(deny_unknown_fields)]
-struct GroundSpec {
-    size: f64,
-    spacing: f64,
-    /// Two colours alternating in squares of `tile`.
-    #[serde(default)]
-    checker: Option<([f32; 3], [f32; 3], f64)>,
-}
-
-#[derive(Debug, Default, Deserialize)]
-#[serde(deny_unknown_fields, tag = "kind", rename_all = "kebab-case")]
-enum MaterialSpec {
-    #[default]
-    Phong,
-    Mirror {
-        #[serde(default = "white")]
-        tint: [f32; 3],
-    },
-    Glass {
-        #[serde(default = "glass_ior")]
-        ior: f32,
-        #[serde(default = "white")]
-        tint: [f32; 3],
-    },
-}
-
-fn white() -> [f32; 3] {
-    [1.0; 3]
-}
-
-fn glass_ior() -> f32 {
-    1.5
-}
 
 /// A scene, loaded: one cloud of every placed point (world coordinates, origin zero), the
 /// material index of each point, and the settings that replace the command line's.
@@ -196,9 +43,7 @@ pub fn is_scene(path: &Path) -> bool {
 pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
     let start = Instant::now();
     let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
-    let spec: SceneFile = toml::from_str(&text).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
-    anyhow::ensure!(!spec.clouds.is_empty(), "{}: the scene has no [[cloud]]", path.display());
-    anyhow::ensure!(spec.clouds.len() <= 256, "{}: at most 256 clouds", path.display());
+    let spec = parse_scene(path, &text)?;
     let folder = path.parent().unwrap_or(Path::new("."));
 
     let mut placed = Vec::new();
@@ -247,7 +92,12 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
     args.spp = r.spp;
     args.max_depth = r.max_depth;
     args.seed = r.seed;
-    args.surface = r.surface;
+    args.surface = match r.surface {
+        pointray::splat::scheme::SurfaceKind::Sj => SurfaceArg::Sj,
+        pointray::splat::scheme::SurfaceKind::Rfd => SurfaceArg::Rfd,
+        pointray::splat::scheme::SurfaceKind::Pss => SurfaceArg::Pss,
+        pointray::splat::scheme::SurfaceKind::FirstHit => SurfaceArg::FirstHit,
+    };
     args.lod_threshold = r.lod_threshold;
     args.no_shadows = !r.shadows;
     args.crop_to_model = false;
@@ -370,7 +220,7 @@ mod tests {
             let path = entry.unwrap().path();
             if is_scene(&path) {
                 let text = std::fs::read_to_string(&path).unwrap();
-                let scene: SceneFile = toml::from_str(&text).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+                let scene = parse_scene(&path, &text).unwrap_or_else(|e| panic!("{e}"));
                 assert!(!scene.clouds.is_empty());
                 parsed += 1;
             }

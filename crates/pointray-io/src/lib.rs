@@ -11,6 +11,7 @@ mod las;
 mod pcd;
 pub mod ply;
 mod scanset;
+pub mod scene;
 pub mod xyz;
 
 mod builder;
