@@ -190,9 +190,8 @@ pub struct RenderArgs {
     /// down; "never" for boxes only, "auto" to choose per node by surface area.
     #[arg(long, value_parser = parse_sphere_level, default_value = "never")]
     pub sphere_from_level: pointray::accel::NodeBounds,
-    /// Extra images beside the output: "nodes" writes OUTPUT.nodes.png, a heat map of the
-    /// nodes visited per pixel.
-    #[arg(long, value_enum)]
+    /// Extra images beside the output, OUTPUT.KIND.png (comma-separated or repeated).
+    #[arg(long, value_enum, value_delimiter = ',')]
     pub aov: Vec<AovArg>,
 
     /// Write statistics (timings, rays, traversal work, memory) as JSON.
@@ -307,7 +306,25 @@ pub enum CullArg {
 
 #[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
 pub enum AovArg {
+    /// A heat map of the accelerator nodes visited per pixel.
     Nodes,
+    /// The camera rays' shading normals, as RGB = (n + 1) / 2.
+    Normal,
+    /// The distance to the first hit, nearest white, farthest dark, misses black.
+    Depth,
+    /// The surface colour, unlit.
+    Albedo,
+}
+
+impl AovArg {
+    pub fn name(self) -> &'static str {
+        match self {
+            AovArg::Nodes => "nodes",
+            AovArg::Normal => "normal",
+            AovArg::Depth => "depth",
+            AovArg::Albedo => "albedo",
+        }
+    }
 }
 
 /// `--lod-threshold`'s default, in pixels: subtrees up to one pixel across are drawn as their

@@ -1227,6 +1227,36 @@ fn culling_and_bounding_volumes_are_reported_and_change_no_full_detail_pixel() {
     assert!(stat_f64(&on, "culled_per_ray") > 0.0, "{on:#}");
 }
 
+/// Normal, depth and albedo images: misses are grey, black and black; hits face the camera,
+/// and depths spread from white (nearest) to a fifth (farthest).
+#[test]
+fn aov_normal_depth_and_albedo_describe_the_first_hits() {
+    let dir = temp_dir();
+    render_demo_small(dir.path(), "out.png", &["--aov", "normal,depth", "--aov", "albedo"]);
+    let names = ["out.png", "out.normal.png", "out.depth.png", "out.albedo.png", "out.png.json"];
+    assert_dir_contains_exactly(dir.path(), &names);
+    let [normal, depth, albedo] =
+        ["normal", "depth", "albedo"].map(|k| read_png(&dir.path().join(format!("out.{k}.png"))));
+    // The demo's camera looks back along its view direction (0.35, 0.5, 1).
+    let towards_camera = [0.35f32, 0.5, 1.0];
+    let (mut hits, mut facing) = (0, 0);
+    for ((x, y, n), (_, _, d)) in normal.pixels().zip(depth.pixels()) {
+        if d == [0; 3] {
+            assert_eq!(n, [128; 3], "a miss at ({x}, {y}) has no normal");
+            assert_eq!(albedo.pixel(x, y), [0; 3], "a miss at ({x}, {y}) has no albedo");
+            continue;
+        }
+        hits += 1;
+        let decoded = n.map(|c| c as f32 / 255.0 * 2.0 - 1.0);
+        facing += usize::from((0..3).map(|i| decoded[i] * towards_camera[i]).sum::<f32>() > 0.0);
+    }
+    assert!(hits > 50 && facing == hits, "{facing} of {hits} hit normals face the camera");
+    // Depth: the nearest hit white, the farthest at a fifth, grey levels between.
+    let levels: std::collections::BTreeSet<u8> = depth.pixels().map(|p| p.2[0]).filter(|&v| v > 0).collect();
+    assert_eq!((levels.first(), levels.last()), (Some(&51), Some(&255)), "{levels:?}");
+    assert!(levels.len() > 10, "{levels:?}");
+}
+
 #[test]
 fn aov_nodes_writes_a_heat_map_beside_the_image() {
     let dir = temp_dir();

@@ -11,12 +11,26 @@ pub struct Film {
     pub rgb: Vec<[f32; 3]>,
     /// Accelerator nodes visited per pixel, all rays of the pixel together.
     pub nodes_visited: Vec<u32>,
+    /// The camera rays' first hits, averaged over the pixel's samples (a miss counts as zero):
+    /// the unit shading normal facing the camera,
+    pub normal: Vec<[f32; 3]>,
+    /// the albedo (linear surface colour),
+    pub albedo: Vec<[f32; 3]>,
+    /// and the distance along the ray, averaged over the samples that hit (∞ if none did).
+    pub depth: Vec<f32>,
 }
 
 impl Film {
     pub fn new(region: Region) -> Self {
         let n = region.pixel_count() as usize;
-        Self { region, rgb: vec![[0.0; 3]; n], nodes_visited: vec![0; n] }
+        Self {
+            region,
+            rgb: vec![[0.0; 3]; n],
+            nodes_visited: vec![0; n],
+            normal: vec![[0.0; 3]; n],
+            albedo: vec![[0.0; 3]; n],
+            depth: vec![f32::INFINITY; n],
+        }
     }
 
     /// Index of frame pixel (`x`, `y`), which must lie in the region.

@@ -72,8 +72,11 @@ pub fn render<A: Accel>(
         .rgb
         .par_chunks_mut(band)
         .zip(film.nodes_visited.par_chunks_mut(band))
+        .zip(film.normal.par_chunks_mut(band))
+        .zip(film.albedo.par_chunks_mut(band))
+        .zip(film.depth.par_chunks_mut(band))
         .enumerate()
-        .map(|(b, (rgb, nodes))| {
+        .map(|(b, ((((rgb, nodes), normal), albedo), depth))| {
             let mut stats = RenderStats::default();
             let y0 = region.y0 + b as u32 * TILE;
             let rows = (rgb.len() / width) as u32;
@@ -81,7 +84,9 @@ pub fn render<A: Accel>(
                 for y in y0..y0 + rows {
                     for x in tx..(tx + TILE).min(region.x1) {
                         let i = (y - y0) as usize * width + (x - region.x0) as usize;
-                        (rgb[i], nodes[i]) = render_pixel(accel, camera, config, x, y, &mut stats);
+                        let pixel = render_pixel(accel, camera, config, x, y, &mut stats);
+                        (rgb[i], nodes[i], normal[i], albedo[i], depth[i]) =
+                            (pixel.rgb, pixel.nodes, pixel.normal, pixel.albedo, pixel.depth);
                     }
                 }
             }
@@ -95,6 +100,24 @@ pub fn render<A: Accel>(
     (film, total)
 }
 
+/// One pixel's values (see [`Film`]).
+struct Pixel {
+    rgb: [f32; 3],
+    nodes: u32,
+    normal: [f32; 3],
+    albedo: [f32; 3],
+    depth: f32,
+}
+
+/// What a camera ray's first hit was, for the film's AOVs.
+#[derive(Default)]
+struct FirstHits {
+    normal: Vec3,
+    albedo: Vec3,
+    depth: f32,
+    hits: u32,
+}
+
 fn render_pixel<A: Accel>(
     accel: &A,
     camera: &Camera,
@@ -102,9 +125,10 @@ fn render_pixel<A: Accel>(
     x: u32,
     y: u32,
     stats: &mut RenderStats,
-) -> ([f32; 3], u32) {
+) -> Pixel {
     let nodes_before = stats.traversal.nodes_visited;
     let mut sum = Vec3::ZERO;
+    let mut first = FirstHits::default();
     let samples = config.samples.max(1);
     let footprint_scale = (samples as f32).sqrt().recip();
     let mut rng = pixel_rng(config.seed, x, y);
@@ -119,10 +143,17 @@ fn render_pixel<A: Accel>(
         // its ray differentials): more samples resolve finer detail.
         ray.cone.spread *= footprint_scale;
         stats.primary_rays += 1;
-        sum += radiance(accel, &ray, config, 0, false, &mut rng, stats);
+        sum += radiance(accel, &ray, config, (0, false), &mut rng, &mut first, stats);
     }
     let nodes = (stats.traversal.nodes_visited - nodes_before).min(u32::MAX as u64) as u32;
-    ((sum / samples as f32).to_array(), nodes)
+    let n = samples as f32;
+    Pixel {
+        rgb: (sum / n).to_array(),
+        nodes,
+        normal: (first.normal / n).to_array(),
+        albedo: (first.albedo / n).to_array(),
+        depth: if first.hits == 0 { f32::INFINITY } else { first.depth / first.hits as f32 },
+    }
 }
 
 /// A generator that depends only on the seed and the pixel.
@@ -132,14 +163,14 @@ fn pixel_rng(seed: u64, x: u32, y: u32) -> Pcg64Mcg {
 }
 
 /// Radiance arriving along `ray`, which has bounced `depth` times and travels inside a glass
-/// object when `inside`.
+/// object when `inside`; a camera ray's hit is added to `first`.
 fn radiance<A: Accel>(
     accel: &A,
     ray: &Ray,
     config: &RenderConfig,
-    depth: u32,
-    inside: bool,
+    (depth, inside): (u32, bool),
     rng: &mut Pcg64Mcg,
+    first: &mut FirstHits,
     stats: &mut RenderStats,
 ) -> Vec3 {
     stats.rays += 1;
@@ -152,6 +183,10 @@ fn radiance<A: Accel>(
     if depth == 0 {
         stats.primary_hits += 1;
         stats.blended_splats += u64::from(hit.blended);
+        first.normal += hit.normal;
+        first.albedo += Vec3::from(hit.color);
+        first.depth += hit.t;
+        first.hits += 1;
     }
     let index = usize::from(accel.splat(hit.splat).material());
     let material = config.materials.get(index).or(config.materials.first()).copied().unwrap_or(Material::standard());
@@ -176,17 +211,17 @@ fn radiance<A: Accel>(
         _ if depth >= config.max_depth => Vec3::ZERO,
         Material::Mirror { tint } => {
             let reflected = secondary(ray, &hit, material::reflect(ray.dir, hit.normal), config);
-            Vec3::from(tint) * radiance(accel, &reflected, config, depth + 1, inside, rng, stats)
+            Vec3::from(tint) * radiance(accel, &reflected, config, (depth + 1, inside), rng, first, stats)
         }
         Material::Glass { ior, tint } => {
             // The normal faces the incoming ray; `inside` says which medium it comes from.
             let eta = if inside { ior } else { ior.recip() };
             let reflectance = material::fresnel_dielectric(-ray.dir.dot(hit.normal), eta);
             let reflected = secondary(ray, &hit, material::reflect(ray.dir, hit.normal), config);
-            let mut color = reflectance * radiance(accel, &reflected, config, depth + 1, inside, rng, stats);
+            let mut color = reflectance * radiance(accel, &reflected, config, (depth + 1, inside), rng, first, stats);
             if let Some(direction) = material::refract(ray.dir, hit.normal, eta).filter(|_| reflectance < 1.0) {
                 let refracted = secondary(ray, &hit, direction, config);
-                let through = radiance(accel, &refracted, config, depth + 1, !inside, rng, stats);
+                let through = radiance(accel, &refracted, config, (depth + 1, !inside), rng, first, stats);
                 color += (1.0 - reflectance) * Vec3::from(tint) * through;
             }
             color

@@ -183,8 +183,8 @@ pub fn run(a: &RenderArgs, quiet: bool) -> anyhow::Result<()> {
     if let Some(stats) = &a.stats {
         super::check_output_path(stats)?;
     }
-    if !a.aov.is_empty() {
-        super::check_output_path(&aov_path(&a.output, "nodes"))?;
+    for aov in &a.aov {
+        super::check_output_path(&aov_path(&a.output, aov.name()))?;
     }
     let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads.unwrap_or(0)).build()?;
     pool.install(|| run_in_pool(a, quiet, pool.current_num_threads()))
@@ -420,17 +420,16 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
     )
     .map_err(crate::failure::output)?;
     let nodes_max = film.nodes_visited.iter().copied().max().unwrap_or(0);
-    if a.aov.contains(&AovArg::Nodes) {
-        let mut heat = vec![0u8; a.width as usize * a.height as usize * 3];
-        let colours = pointray::metrics::heat_map_rgb8(&film.nodes_visited, nodes_max);
-        let r = film.region;
-        for (row, y) in (r.y0..r.y1).enumerate() {
-            let src = row * r.width() as usize * 3;
-            let dst = (y as usize * a.width as usize + r.x0 as usize) * 3;
-            heat[dst..dst + r.width() as usize * 3].copy_from_slice(&colours[src..src + r.width() as usize * 3]);
+    let mut written = Vec::new();
+    for &aov in &a.aov {
+        if written.contains(&aov) {
+            continue;
         }
-        pointray_io::image::write_png(&aov_path(&a.output, "nodes"), a.width, a.height, &heat)
+        let region = aov_rgb8(&film, aov, nodes_max);
+        let frame = frame_from_region(&region, film.region, a.width, a.height);
+        pointray_io::image::write_png(&aov_path(&a.output, aov.name()), a.width, a.height, &frame)
             .map_err(crate::failure::output)?;
+        written.push(aov);
     }
     let mrays = stats.rays as f64 / render_seconds / 1e6;
     if !quiet {
@@ -509,6 +508,34 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         pointray_io::atomic_write(path, |w| w.write_all(json.as_bytes())).map_err(crate::failure::output)?;
     }
     Ok(())
+}
+
+/// An AOV of the rendered region as 8-bit RGB.
+fn aov_rgb8(film: &Film, aov: AovArg, nodes_max: u32) -> Vec<u8> {
+    let byte = |v: f32| (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
+    match aov {
+        AovArg::Nodes => pointray::metrics::heat_map_rgb8(&film.nodes_visited, nodes_max),
+        AovArg::Normal => film.normal.iter().flat_map(|n| n.map(|c| byte(0.5 * c + 0.5))).collect(),
+        AovArg::Albedo => film.albedo.iter().flat_map(|c| c.map(|v| byte(pointray::film::linear_to_srgb(v)))).collect(),
+        AovArg::Depth => {
+            let finite = film.depth.iter().copied().filter(|d| d.is_finite());
+            let (near, far) = finite.fold((f32::INFINITY, 0.0f32), |(lo, hi), d| (lo.min(d), hi.max(d)));
+            let range = (far - near).max(f32::MIN_POSITIVE);
+            let shade = |d: f32| if d.is_finite() { byte(1.0 - 0.8 * (d - near) / range) } else { 0 };
+            film.depth.iter().flat_map(|&d| [shade(d); 3]).collect()
+        }
+    }
+}
+
+/// The full frame, black outside `region`, from the region's RGB8 pixels.
+fn frame_from_region(rgb8: &[u8], region: Region, width: u32, height: u32) -> Vec<u8> {
+    let mut frame = vec![0u8; width as usize * height as usize * 3];
+    let row_bytes = region.width() as usize * 3;
+    for (row, y) in (region.y0..region.y1).enumerate() {
+        let dst = (y as usize * width as usize + region.x0 as usize) * 3;
+        frame[dst..dst + row_bytes].copy_from_slice(&rgb8[row * row_bytes..(row + 1) * row_bytes]);
+    }
+    frame
 }
 
 /// Where an extra image goes: beside the output, `NAME.png` → `NAME.KIND.png`.
