@@ -165,7 +165,11 @@ pub struct RenderArgs {
     /// Index of refraction of --material glass.
     #[arg(long, default_value_t = 1.5)]
     pub ior: f32,
-    /// Bounces off mirrors and glass a path may take.
+    /// whitted: direct light, shadows, reflection and refraction; path: a path tracer (global
+    /// illumination: light bouncing between diffuse surfaces and from the sky; needs many --spp).
+    #[arg(long, value_enum, default_value_t = IntegratorArg::Whitted)]
+    pub integrator: IntegratorArg,
+    /// Bounces a path may take (off mirrors and glass; with --integrator path, any).
     #[arg(long, default_value_t = 5)]
     pub max_depth: u32,
     /// A sky-blue gradient above a grey ground around the scene, instead of the dark
@@ -281,6 +285,12 @@ pub enum SurfaceArg {
     Pss,
     /// The nearest oriented disk alone (flat shaded).
     FirstHit,
+}
+
+#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
+pub enum IntegratorArg {
+    Whitted,
+    Path,
 }
 
 #[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]

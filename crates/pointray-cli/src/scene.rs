@@ -99,6 +99,10 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
         pointray::splat::scheme::SurfaceKind::FirstHit => SurfaceArg::FirstHit,
     };
     args.lod_threshold = r.lod_threshold;
+    args.integrator = match r.integrator {
+        pointray::render::Integrator::Whitted => crate::args::IntegratorArg::Whitted,
+        pointray::render::Integrator::Path => crate::args::IntegratorArg::Path,
+    };
     args.no_shadows = !r.shadows;
     args.crop_to_model = false;
     args.region = None;

@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use pointray::render::Integrator;
 use pointray::splat::scheme::SurfaceKind;
 use serde::Deserialize;
 
@@ -64,6 +65,7 @@ pub struct RenderSpec {
     pub max_depth: u32,
     pub seed: u64,
     pub surface: SurfaceKind,
+    pub integrator: Integrator,
     pub lod_threshold: f32,
     pub shadows: bool,
 }
@@ -77,6 +79,7 @@ impl Default for RenderSpec {
             max_depth: 5,
             seed: 1,
             surface: SurfaceKind::Sj,
+            integrator: Integrator::Whitted,
             lod_threshold: 0.5,
             shadows: true,
         }

@@ -20,8 +20,23 @@ use crate::splat::DiskShape;
 use crate::splat::scheme::{self, SurfaceScheme};
 use crate::stats::RenderStats;
 
+/// How light is carried from the lights to the eye.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Integrator {
+    /// Whitted: Phong direct light with shadows, ambient for the rest; mirrors and glass
+    /// followed by recursion, both branches of glass at every interface.
+    Whitted,
+    /// A path tracer (global illumination): diffuse surfaces (albedo/π) take each light's
+    /// direct light by a shadow ray (next-event estimation) and the rest by one
+    /// cosine-distributed bounce; glass picks reflection or refraction by its Fresnel
+    /// reflectance. Russian roulette from the fourth bounce; unbiased but for `max_depth`.
+    Path,
+}
+
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct RenderConfig {
+    pub integrator: Integrator,
     pub scheme: SurfaceScheme,
     /// Every light shines on Phong surfaces, each with its own shadow ray.
     pub lights: Vec<Light>,
@@ -191,6 +206,9 @@ fn radiance<A: Accel>(
     let index = usize::from(accel.splat(hit.splat).material());
     let material = config.materials.get(index).or(config.materials.first()).copied().unwrap_or(Material::standard());
     match material {
+        Material::Phong(_) if config.integrator == Integrator::Path => {
+            diffuse_path(accel, ray, &hit, config, (depth, inside), rng, first, stats)
+        }
         Material::Phong(phong) => {
             let mut color = phong.ambient(&hit);
             for light in &config.lights {
@@ -213,6 +231,23 @@ fn radiance<A: Accel>(
             let reflected = secondary(ray, &hit, material::reflect(ray.dir, hit.normal), config);
             Vec3::from(tint) * radiance(accel, &reflected, config, (depth + 1, inside), rng, first, stats)
         }
+        Material::Glass { ior, tint } if config.integrator == Integrator::Path => {
+            // One branch, chosen with the probability of its Fresnel weight: that weight and
+            // the probability cancel.
+            let eta = if inside { ior } else { ior.recip() };
+            let reflectance = material::fresnel_dielectric(-ray.dir.dot(hit.normal), eta);
+            let refracted = material::refract(ray.dir, hit.normal, eta).filter(|_| rng.random::<f32>() >= reflectance);
+            match refracted {
+                Some(direction) => {
+                    let next = secondary(ray, &hit, direction, config);
+                    Vec3::from(tint) * radiance(accel, &next, config, (depth + 1, !inside), rng, first, stats)
+                }
+                None => {
+                    let next = secondary(ray, &hit, material::reflect(ray.dir, hit.normal), config);
+                    radiance(accel, &next, config, (depth + 1, inside), rng, first, stats)
+                }
+            }
+        }
         Material::Glass { ior, tint } => {
             // The normal faces the incoming ray; `inside` says which medium it comes from.
             let eta = if inside { ior } else { ior.recip() };
@@ -227,6 +262,47 @@ fn radiance<A: Accel>(
             color
         }
     }
+}
+
+/// The path tracer at a diffuse hit: each light's direct light (albedo/π × irradiance ×
+/// cos θ, if the shadow ray is free), plus the light one cosine-distributed bounce brings,
+/// which for that distribution weighs exactly the albedo.
+#[allow(clippy::too_many_arguments)]
+fn diffuse_path<A: Accel>(
+    accel: &A,
+    ray: &Ray,
+    hit: &scheme::SurfaceHit,
+    config: &RenderConfig,
+    (depth, inside): (u32, bool),
+    rng: &mut Pcg64Mcg,
+    first: &mut FirstHits,
+    stats: &mut RenderStats,
+) -> Vec3 {
+    let albedo = Vec3::from(hit.color);
+    let mut color = Vec3::ZERO;
+    for light in &config.lights {
+        let u = if light.is_area() { [rng.random(), rng.random()] } else { [0.5; 2] };
+        let (direction, distance) = light.shadow_target(hit.position, u);
+        let (to_light, _, irradiance) = light.towards(hit.position);
+        let cos = hit.normal.dot(to_light);
+        if cos > 0.0 && (!config.shadows || !in_shadow(accel, ray, hit, direction, distance, config, stats)) {
+            color += albedo * (irradiance * cos * std::f32::consts::FRAC_1_PI);
+        }
+    }
+    if depth >= config.max_depth {
+        return color;
+    }
+    // Russian roulette after three bounces: stop dim paths early, weigh the survivors up.
+    let survive = if depth < 3 { 1.0 } else { albedo.max_element().clamp(0.05, 0.95) };
+    if rng.random::<f32>() >= survive {
+        return color;
+    }
+    let (a, b) = crate::math::orthonormal_basis(hit.normal);
+    let (u1, u2): (f32, f32) = (rng.random(), rng.random());
+    let (r, phi) = (u1.sqrt(), std::f32::consts::TAU * u2);
+    let direction = (a * (r * phi.cos()) + b * (r * phi.sin()) + hit.normal * (1.0 - u1).max(0.0).sqrt()).normalize();
+    let next = secondary(ray, hit, direction, config);
+    color + albedo * radiance(accel, &next, config, (depth + 1, inside), rng, first, stats) / survive
 }
 
 /// A reflected or refracted ray from `hit`: like a shadow ray, it starts off the surface on

@@ -6,14 +6,14 @@ use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, N
 use pointray::camera::{Camera, Region};
 use pointray::film::Film;
 use pointray::material::Material;
-use pointray::render::{RenderConfig, render};
+use pointray::render::{Integrator, RenderConfig, render};
 use pointray::shading::{Environment, Light};
 use pointray::splat::scheme::{SurfaceKind, SurfaceScheme};
 use pointray::splat::{DiskShape, Splat, splats_from_cloud};
 use pointray::stats::RenderStats;
 use serde::Serialize;
 
-use crate::args::{AccelArg, AovArg, CullArg, MaterialArg, RenderArgs, SurfaceArg, Switch};
+use crate::args::{AccelArg, AovArg, CullArg, IntegratorArg, MaterialArg, RenderArgs, SurfaceArg, Switch};
 
 /// The accelerators the CLI can build; the render loop is monomorphised for each.
 enum AnyAccel {
@@ -107,6 +107,7 @@ struct StatsReport {
     threads: usize,
     accel: &'static str,
     surface: &'static str,
+    integrator: Integrator,
     /// The materials, by index (one per cloud of a scene).
     materials: Vec<&'static str>,
     samples_per_pixel: u32,
@@ -361,6 +362,10 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
     tracing::info!("backface culling {cull_backfaces} (back faces first: {backfacing:?})");
     let lod_threshold = if multires && a.lod == Switch::On { a.lod_threshold } else { 0.0 };
     let config = RenderConfig {
+        integrator: match a.integrator {
+            IntegratorArg::Whitted => Integrator::Whitted,
+            IntegratorArg::Path => Integrator::Path,
+        },
         lod_threshold,
         cull_backfaces,
         scheme,
@@ -462,6 +467,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
             threads,
             accel: accel.name(),
             surface: scheme.kind.name(),
+            integrator: config.integrator,
             materials: config.materials.iter().map(|m| m.name()).collect(),
             samples_per_pixel: a.spp,
             load_seconds,

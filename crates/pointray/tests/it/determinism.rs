@@ -23,6 +23,7 @@ fn image_is_identical_with_one_and_two_threads() {
         40,
     );
     let config = RenderConfig {
+        integrator: pointray::render::Integrator::Whitted,
         scheme: SurfaceScheme::sj(),
         lights: vec![pointray::demo::demo_light()],
         materials: vec![Material::standard()],

@@ -7,5 +7,6 @@ mod determinism;
 mod lights;
 mod materials;
 mod multires;
+mod path;
 mod surfaces;
 mod util;
