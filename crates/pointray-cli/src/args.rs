@@ -169,6 +169,10 @@ pub struct RenderArgs {
     /// illumination: light bouncing between diffuse surfaces and from the sky; needs many --spp).
     #[arg(long, value_enum, default_value_t = IntegratorArg::Whitted)]
     pub integrator: IntegratorArg,
+    /// --integrator path: the least spread of a diffusely bounced ray's cone (beam width per
+    /// unit length), from which its level of detail follows; 0 keeps the camera ray's.
+    #[arg(long, default_value_t = 0.0)]
+    pub diffuse_spread: f32,
     /// Bounces a path may take (off mirrors and glass; with --integrator path, any).
     #[arg(long, default_value_t = 5)]
     pub max_depth: u32,

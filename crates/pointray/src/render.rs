@@ -58,6 +58,10 @@ pub struct RenderConfig {
     pub seed: u64,
     /// Level-of-detail threshold τ in pixels for every ray (see `Ray::lod_threshold`); 0 = off.
     pub lod_threshold: f32,
+    /// Path tracer: the least spread (beam width per unit length) of a diffusely bounced ray's
+    /// cone. Such rays go every which way, so their level of detail may be coarse (Christensen
+    /// et al. 2003); 0 keeps the incoming ray's spread.
+    pub diffuse_spread: f32,
     /// Cull back-facing subtrees for camera rays (only right for closed, consistently
     /// oriented surfaces; see `accel::backfacing_fraction`).
     pub cull_backfaces: bool,
@@ -301,7 +305,8 @@ fn diffuse_path<A: Accel>(
     let (u1, u2): (f32, f32) = (rng.random(), rng.random());
     let (r, phi) = (u1.sqrt(), std::f32::consts::TAU * u2);
     let direction = (a * (r * phi.cos()) + b * (r * phi.sin()) + hit.normal * (1.0 - u1).max(0.0).sqrt()).normalize();
-    let next = secondary(ray, hit, direction, config);
+    let mut next = secondary(ray, hit, direction, config);
+    next.cone.spread = next.cone.spread.max(config.diffuse_spread);
     color + albedo * radiance(accel, &next, config, (depth + 1, inside), rng, first, stats) / survive
 }
 

@@ -209,6 +209,7 @@ pub fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     ensure!(a.shadow_offset >= 0.0 && a.shadow_offset.is_finite(), "--shadow-offset must be non-negative");
     ensure!(a.lod_threshold > 0.0 && a.lod_threshold.is_finite(), "--lod-threshold must be a positive number");
     ensure!(a.ior > 0.0 && a.ior.is_finite(), "--ior must be a positive number");
+    ensure!(a.diffuse_spread >= 0.0 && a.diffuse_spread.is_finite(), "--diffuse-spread must be non-negative");
     ensure!(a.light_radius.is_none_or(|r| r >= 0.0 && r.is_finite()), "--light-radius must be a non-negative number");
     ensure!(a.max_depth <= 64, "--max-depth must be at most 64");
     ensure!(a.up.length_squared() > 0.0, "--up must not be the zero vector");
@@ -397,6 +398,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         region,
         samples: a.spp,
         seed: a.seed,
+        diffuse_spread: a.diffuse_spread,
     };
 
     // 4. Render: one frame for the image, then any timed benchmark frames.

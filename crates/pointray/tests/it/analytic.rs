@@ -128,6 +128,7 @@ fn sphere_image_matches_the_analytic_image() {
         seed: 0,
         lod_threshold: 0.0,
         cull_backfaces: false,
+        diffuse_spread: 0.0,
     };
     let (film, stats) = render(&bvh, &cam, &config, &|_| {});
     let exact = analytic_image(&cam, &config);

@@ -37,6 +37,7 @@ fn image_is_identical_with_one_and_two_threads() {
         // Level of detail and culling on: their work must not depend on the threads either.
         lod_threshold: 1.0,
         cull_backfaces: true,
+        diffuse_spread: 0.0,
     };
     let run = |threads| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();

@@ -37,6 +37,7 @@ fn visibility(xs: &[f32], light_radius: f32, samples: u32) -> Vec<f32> {
         seed: 7,
         lod_threshold: 0.0,
         cull_backfaces: false,
+        diffuse_spread: 0.0,
     };
     xs.iter()
         .map(|&x| {

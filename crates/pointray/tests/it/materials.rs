@@ -87,6 +87,7 @@ fn psnr_against_exact(material: Material) -> f64 {
         seed: 0,
         lod_threshold: 0.0,
         cull_backfaces: false,
+        diffuse_spread: 0.0,
     };
     let (film, stats) = render(&bvh, &cam, &config, &|_| {});
     assert!(stats.secondary_rays >= stats.primary_hits, "every hit spawns a secondary ray: {stats:?}");

@@ -33,6 +33,7 @@ fn furnace(mut splats: Vec<Splat>, srgb: f32, expected: f32, max_depth: u32) -> 
         seed: 3,
         lod_threshold: 0.0,
         cull_backfaces: false,
+        diffuse_spread: 0.0,
     };
     let (film, _) = render(&bvh, &cam, &config, &|_| {});
     // Pixels whose every sample hit: their mean normal is (nearly) unit; a miss counts zero.

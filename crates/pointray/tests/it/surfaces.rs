@@ -260,6 +260,7 @@ fn shadow_rays_do_not_hit_their_own_surface() {
                 seed: 0,
                 lod_threshold: 0.0,
                 cull_backfaces: false,
+                diffuse_spread: 0.0,
             };
             let (lit, stats) = render(&bvh, &cam, &config(true), &|_| {});
             let (free, _) = render(&bvh, &cam, &config(false), &|_| {});
