@@ -129,8 +129,11 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
 
 fn ground_cloud(g: &GroundSpec) -> anyhow::Result<PointCloud> {
     anyhow::ensure!(g.size > 0.0 && g.spacing > 0.0, "ground: size and spacing must be positive");
-    let n = (g.size / g.spacing).ceil() as usize + 1;
-    anyhow::ensure!(n * n <= pointray::accel::bvh::MAX_SPLATS, "ground: {n} x {n} points is too many");
+    // In f64 first: a huge size over a tiny spacing must not overflow the count.
+    let side = (g.size / g.spacing).ceil() + 1.0;
+    let most = (pointray::accel::bvh::MAX_SPLATS as f64).sqrt();
+    anyhow::ensure!(side <= most, "ground: {side} x {side} points is too many (at most {most:.0} a side)");
+    let n = side as usize;
     let half = 0.5 * g.size;
     let mut world = Vec::with_capacity(n * n);
     let mut colors = Vec::with_capacity(n * n);
@@ -214,6 +217,27 @@ fn light(spec: &LightSpec) -> Light {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn placing_scales_then_rotates_then_translates() {
+        let mut cloud = PointCloud::from_world_positions(&[DVec3::new(101.0, 0.0, 0.0)]);
+        cloud.normals = Some(vec![Vec3::X]);
+        cloud.radii = Some(vec![0.5]);
+        let spec: CloudSpec =
+            toml::from_str("file = \"x.ply\"\nscale = 2.0\nrotate = [0.0, 90.0, 0.0]\ntranslate = [0.0, 1.0, 0.0]")
+                .unwrap();
+        place(&mut cloud, &spec);
+        // (101, 0, 0) × 2 = (202, 0, 0); 90° about y takes +x to −z; then up by 1.
+        assert!((cloud.positions[0] - Vec3::new(0.0, 1.0, -202.0)).length() < 1e-3, "{:?}", cloud.positions[0]);
+        assert!((cloud.normals.unwrap()[0] - Vec3::NEG_Z).length() < 1e-6);
+        assert_eq!((cloud.radii.unwrap()[0], cloud.origin), (1.0, DVec3::ZERO));
+    }
+
+    #[test]
+    fn a_ground_too_fine_to_count_is_refused() {
+        let spec: GroundSpec = toml::from_str("size = 1e30\nspacing = 1e-30").unwrap();
+        assert!(ground_cloud(&spec).unwrap_err().to_string().contains("too many"));
+    }
 
     /// The example scenes follow the schema (rendering them needs the shared data).
     #[test]

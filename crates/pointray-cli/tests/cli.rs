@@ -863,7 +863,7 @@ fn bad_flags_are_rejected_with_clear_messages() {
         (&["--width", "48", "--height", "40", "--lod", "maybe"], 2, &["--lod", "on", "off"]),
         (&["--width", "48", "--height", "40", "--cull", "always"], 2, &["--cull", "auto"]),
         (&["--width", "48", "--height", "40", "--sphere-from-level", "deep"], 2, &["--sphere-from-level", "never"]),
-        (&["--width", "48", "--height", "40", "--aov", "depth"], 2, &["--aov", "nodes"]),
+        (&["--width", "48", "--height", "40", "--aov", "colour"], 2, &["--aov", "nodes", "albedo"]),
     ];
     for (extra, code, words) in cases {
         let mut args = vec!["-q", "render", "sphere.ply", "-o", "out.png"];

@@ -50,19 +50,13 @@ impl Phong {
         Self { ambient: 0.12, specular: 0.15, shininess: 40.0 }
     }
 
-    /// Linear radiance towards `view` (unit, from the surface towards the eye) with light
-    /// arriving along `to_light` at `irradiance`; `lit` is false in shadow.
-    pub fn shade(&self, hit: &SurfaceHit, view: Vec3, to_light: Vec3, irradiance: f32, lit: bool) -> Vec3 {
-        let direct = if lit { self.direct(hit, view, to_light, irradiance) } else { Vec3::ZERO };
-        self.ambient(hit) + direct
-    }
-
     /// The part that needs no light: ambient × albedo.
     pub fn ambient(&self, hit: &SurfaceHit) -> Vec3 {
         Vec3::from(hit.color) * self.ambient
     }
 
-    /// What one unshadowed light adds: Lambert diffuse and the specular lobe.
+    /// What one unshadowed light adds towards `view` (unit, from the surface towards the eye),
+    /// arriving along `to_light` at `irradiance`: Lambert diffuse and the specular lobe.
     pub fn direct(&self, hit: &SurfaceHit, view: Vec3, to_light: Vec3, irradiance: f32) -> Vec3 {
         let n_dot_l = hit.normal.dot(to_light);
         if n_dot_l <= 0.0 {

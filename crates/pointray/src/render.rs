@@ -48,8 +48,8 @@ pub struct RenderConfig {
     pub shadow_offset: f32,
     /// What rays that leave the scene see.
     pub environment: Environment,
-    /// Bounces a path may take off mirrors and glass; the camera ray is bounce 0. A path
-    /// that would go deeper contributes nothing (Whitted's cut-off).
+    /// Bounces a path may take (Whitted: off mirrors and glass; the path tracer: any); the
+    /// camera ray is bounce 0. A path that would go deeper contributes nothing more.
     pub max_depth: u32,
     /// Pixels to render; the rest of the film keeps the environment's flat colour.
     pub region: Region,
@@ -150,8 +150,10 @@ fn render_pixel<A: Accel>(
     let mut first = FirstHits::default();
     let samples = config.samples.max(1);
     let footprint_scale = (samples as f32).sqrt().recip();
-    let mut rng = pixel_rng(config.seed, x, y);
-    for _ in 0..samples {
+    for sample in 0..samples {
+        // Each sample its own stream: how many numbers a path draws (roulette, total internal
+        // reflection, which disks it meets) never shifts another sample's.
+        let mut rng = sample_rng(config.seed, x, y, sample);
         let (dx, dy) = if samples > 1 { (rng.random::<f32>(), rng.random::<f32>()) } else { (0.5, 0.5) };
         let mut ray = camera
             .ray(x as f32 + dx, y as f32 + dy)
@@ -175,9 +177,10 @@ fn render_pixel<A: Accel>(
     }
 }
 
-/// A generator that depends only on the seed and the pixel.
-fn pixel_rng(seed: u64, x: u32, y: u32) -> Pcg64Mcg {
-    let key = seed ^ (u64::from(y) << 32 | u64::from(x)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+/// A generator that depends only on the seed, the pixel and the sample.
+fn sample_rng(seed: u64, x: u32, y: u32, sample: u32) -> Pcg64Mcg {
+    let pixel = (u64::from(y) << 32 | u64::from(x)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    let key = seed ^ pixel ^ u64::from(sample).wrapping_mul(0xd1b5_4a32_d192_ed03);
     Pcg64Mcg::seed_from_u64(key)
 }
 
@@ -215,19 +218,9 @@ fn radiance<A: Accel>(
         }
         Material::Phong(phong) => {
             let mut color = phong.ambient(&hit);
-            for light in &config.lights {
-                let (to_light, _, irradiance) = light.towards(hit.position);
-                let faces_light = hit.normal.dot(to_light) > 0.0;
-                let lit = faces_light
-                    && (!config.shadows || {
-                        let u = if light.is_area() { [rng.random(), rng.random()] } else { [0.5; 2] };
-                        let (direction, distance) = light.shadow_target(hit.position, u);
-                        !in_shadow(accel, ray, &hit, direction, distance, config, stats)
-                    });
-                if lit {
-                    color += phong.direct(&hit, -ray.dir, to_light, irradiance);
-                }
-            }
+            for_each_visible_light(accel, ray, &hit, config, rng, stats, |to_light, irradiance| {
+                color += phong.direct(&hit, -ray.dir, to_light, irradiance);
+            });
             color
         }
         _ if depth >= config.max_depth => Vec3::ZERO,
@@ -268,6 +261,33 @@ fn radiance<A: Accel>(
     }
 }
 
+/// Calls `lit` with the direction towards each light that `hit` faces and sees (one shadow
+/// ray each, aimed at a random point of an area light), and its irradiance there.
+fn for_each_visible_light<A: Accel>(
+    accel: &A,
+    ray: &Ray,
+    hit: &scheme::SurfaceHit,
+    config: &RenderConfig,
+    rng: &mut Pcg64Mcg,
+    stats: &mut RenderStats,
+    mut lit: impl FnMut(Vec3, f32),
+) {
+    for light in &config.lights {
+        let (to_light, _, irradiance) = light.towards(hit.position);
+        if hit.normal.dot(to_light) <= 0.0 {
+            continue;
+        }
+        let visible = !config.shadows || {
+            let u = if light.is_area() { [rng.random(), rng.random()] } else { [0.5; 2] };
+            let (direction, distance) = light.shadow_target(hit.position, u);
+            !in_shadow(accel, ray, hit, direction, distance, config, stats)
+        };
+        if visible {
+            lit(to_light, irradiance);
+        }
+    }
+}
+
 /// The path tracer at a diffuse hit: each light's direct light (albedo/π × irradiance ×
 /// cos θ, if the shadow ray is free), plus the light one cosine-distributed bounce brings,
 /// which for that distribution weighs exactly the albedo.
@@ -284,15 +304,9 @@ fn diffuse_path<A: Accel>(
 ) -> Vec3 {
     let albedo = Vec3::from(hit.color);
     let mut color = Vec3::ZERO;
-    for light in &config.lights {
-        let u = if light.is_area() { [rng.random(), rng.random()] } else { [0.5; 2] };
-        let (direction, distance) = light.shadow_target(hit.position, u);
-        let (to_light, _, irradiance) = light.towards(hit.position);
-        let cos = hit.normal.dot(to_light);
-        if cos > 0.0 && (!config.shadows || !in_shadow(accel, ray, hit, direction, distance, config, stats)) {
-            color += albedo * (irradiance * cos * std::f32::consts::FRAC_1_PI);
-        }
-    }
+    for_each_visible_light(accel, ray, hit, config, rng, stats, |to_light, irradiance| {
+        color += albedo * (irradiance * hit.normal.dot(to_light) * std::f32::consts::FRAC_1_PI);
+    });
     if depth >= config.max_depth {
         return color;
     }

@@ -386,8 +386,9 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         shadow_offset: a.shadow_offset,
         environment: match &scene {
             Some(scene) => scene.environment,
+            // The world's up (the camera's would tilt the horizon with the view).
             None if a.sky => Environment::Gradient {
-                up: camera.up(),
+                up: a.up.normalize(),
                 zenith: [0.18, 0.32, 0.62],
                 horizon: [0.75, 0.82, 0.90],
                 ground: [0.25, 0.24, 0.22],

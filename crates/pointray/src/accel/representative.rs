@@ -21,13 +21,14 @@ pub(crate) struct Representative {
 pub(crate) fn representative<'a>(disks: impl Iterator<Item = &'a Splat> + Clone) -> Representative {
     let first_normal = disks.clone().next().expect("a representative of no disk").normal;
     let (mut area, mut center, mut normal, mut color) = (0.0, DVec3::ZERO, DVec3::ZERO, DVec3::ZERO);
-    // The material of the largest disk: materials do not blend.
-    let mut material = (0.0, 0u8);
+    // Materials do not blend: the one covering the most area (by the disks' areas) wins.
+    let mut areas: Vec<(u8, f64)> = Vec::new();
     for s in disks.clone() {
         // Zero-radius disks still count (a little), so that a cloud of them has a centre.
         let w = f64::from(s.radius).powi(2).max(f64::MIN_POSITIVE);
-        if w > material.0 {
-            material = (w, s.material());
+        match areas.iter_mut().find(|(m, _)| *m == s.material()) {
+            Some((_, a)) => *a += w,
+            None => areas.push((s.material(), w)),
         }
         area += w;
         center += w * s.center.as_dvec3();
@@ -56,7 +57,8 @@ pub(crate) fn representative<'a>(disks: impl Iterator<Item = &'a Splat> + Clone)
     let color = (color / area).as_vec3().to_array().map(linear_to_srgb);
     let mut splat =
         Splat { center: center.as_vec3(), radius: radius as f32, normal: axis.as_vec3(), color: pack_color(color) };
-    splat.set_material(material.1);
+    let material = areas.iter().max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0))).map_or(0, |&(m, _)| m);
+    splat.set_material(material);
     Representative { splat, coherent }
 }
 

@@ -85,15 +85,16 @@ impl<D: DiskTest> Window<D> {
         });
         let first = *list.first()?;
         let first_splat = accel.splat(first.index);
-        // Blend the disks facing the same way as the first: the back of a thin part may lie
-        // within the window.
+        // Blend the disks facing the same way as the first, and of its material: the back of a
+        // thin part may lie within the window, and so may another cloud where two touch.
         let side = first_splat.normal.dot(ray.dir) > 0.0;
+        let material = first_splat.material();
         let (mut wsum, mut t, mut n, mut c) = (0.0f32, 0.0f32, Vec3::ZERO, Vec3::ZERO);
         let mut blended = 0;
         let mut coverage = 0.0;
         for x in list.iter() {
             let s = accel.splat(x.index);
-            if (s.normal.dot(ray.dir) > 0.0) != side {
+            if (s.normal.dot(ray.dir) > 0.0) != side || s.material() != material {
                 continue;
             }
             // SJ Eq. 1: wᵢ = rᵢ − dᵢ. Positive for every accepted crossing (dᵢ < rᵢ).

@@ -99,7 +99,8 @@ fn analytic_image(cam: &Camera, config: &RenderConfig) -> Vec<[f32; 3]> {
                     };
                     let (l, _, e) = config.lights[0].towards(p);
                     let Material::Phong(phong) = config.materials[0] else { panic!("a Phong sphere") };
-                    phong.shade(&hit, -ray.dir, l, e, hit.normal.dot(l) > 0.0).to_array()
+                    let lit = if hit.normal.dot(l) > 0.0 { phong.direct(&hit, -ray.dir, l, e) } else { Vec3::ZERO };
+                    (phong.ambient(&hit) + lit).to_array()
                 }
             });
         }
