@@ -164,7 +164,8 @@ fn render_pixel<A: Accel>(
         // its ray differentials): more samples resolve finer detail.
         ray.cone.spread *= footprint_scale;
         stats.primary_rays += 1;
-        sum += radiance(accel, &ray, config, (0, false), &mut rng, &mut first, stats);
+        let mut tracer = Tracer { accel, config, rng, first: &mut first, stats: &mut *stats };
+        sum += tracer.radiance(&ray, 0, false);
     }
     let nodes = (stats.traversal.nodes_visited - nodes_before).min(u32::MAX as u64) as u32;
     let n = samples as f32;
@@ -184,180 +185,151 @@ fn sample_rng(seed: u64, x: u32, y: u32, sample: u32) -> Pcg64Mcg {
     Pcg64Mcg::seed_from_u64(key)
 }
 
-/// Radiance arriving along `ray`, which has bounced `depth` times and travels inside a glass
-/// object when `inside`; a camera ray's hit is added to `first`.
-fn radiance<A: Accel>(
-    accel: &A,
-    ray: &Ray,
-    config: &RenderConfig,
-    (depth, inside): (u32, bool),
-    rng: &mut Pcg64Mcg,
-    first: &mut FirstHits,
-    stats: &mut RenderStats,
-) -> Vec3 {
-    stats.rays += 1;
-    if depth > 0 {
-        stats.secondary_rays += 1;
-    }
-    let Some(hit) = scheme::intersect(accel, ray, &config.scheme, &mut stats.traversal) else {
-        return config.environment.radiance(ray.dir);
-    };
-    if depth == 0 {
-        stats.primary_hits += 1;
-        stats.blended_splats += u64::from(hit.blended);
-        first.normal += hit.normal;
-        first.albedo += Vec3::from(hit.color);
-        first.depth += hit.t;
-        first.hits += 1;
-    }
-    let index = usize::from(accel.splat(hit.splat).material());
-    let material = config.materials.get(index).or(config.materials.first()).copied().unwrap_or(Material::standard());
-    match material {
-        Material::Phong(_) if config.integrator == Integrator::Path => {
-            diffuse_path(accel, ray, &hit, config, (depth, inside), rng, first, stats)
-        }
-        Material::Phong(phong) => {
-            let mut color = phong.ambient(&hit);
-            for_each_visible_light(accel, ray, &hit, config, rng, stats, |to_light, irradiance| {
-                color += phong.direct(&hit, -ray.dir, to_light, irradiance);
-            });
-            color
-        }
-        _ if depth >= config.max_depth => Vec3::ZERO,
-        Material::Mirror { tint } => {
-            let reflected = secondary(ray, &hit, material::reflect(ray.dir, hit.normal), config);
-            Vec3::from(tint) * radiance(accel, &reflected, config, (depth + 1, inside), rng, first, stats)
-        }
-        Material::Glass { ior, tint } if config.integrator == Integrator::Path => {
-            // One branch, chosen with the probability of its Fresnel weight: that weight and
-            // the probability cancel.
-            let eta = if inside { ior } else { ior.recip() };
-            let reflectance = material::fresnel_dielectric(-ray.dir.dot(hit.normal), eta);
-            let refracted = material::refract(ray.dir, hit.normal, eta).filter(|_| rng.random::<f32>() >= reflectance);
-            match refracted {
-                Some(direction) => {
-                    let next = secondary(ray, &hit, direction, config);
-                    Vec3::from(tint) * radiance(accel, &next, config, (depth + 1, !inside), rng, first, stats)
-                }
-                None => {
-                    let next = secondary(ray, &hit, material::reflect(ray.dir, hit.normal), config);
-                    radiance(accel, &next, config, (depth + 1, inside), rng, first, stats)
-                }
-            }
-        }
-        Material::Glass { ior, tint } => {
-            // The normal faces the incoming ray; `inside` says which medium it comes from.
-            let eta = if inside { ior } else { ior.recip() };
-            let reflectance = material::fresnel_dielectric(-ray.dir.dot(hit.normal), eta);
-            let reflected = secondary(ray, &hit, material::reflect(ray.dir, hit.normal), config);
-            let mut color = reflectance * radiance(accel, &reflected, config, (depth + 1, inside), rng, first, stats);
-            if let Some(direction) = material::refract(ray.dir, hit.normal, eta).filter(|_| reflectance < 1.0) {
-                let refracted = secondary(ray, &hit, direction, config);
-                let through = radiance(accel, &refracted, config, (depth + 1, !inside), rng, first, stats);
-                color += (1.0 - reflectance) * Vec3::from(tint) * through;
-            }
-            color
-        }
-    }
+/// One sample's tracing: the scene, the sample's random stream, and what it adds up.
+struct Tracer<'a, A> {
+    accel: &'a A,
+    config: &'a RenderConfig,
+    rng: Pcg64Mcg,
+    /// The camera ray's hit, for the film's AOVs.
+    first: &'a mut FirstHits,
+    stats: &'a mut RenderStats,
 }
 
-/// Calls `lit` with the direction towards each light that `hit` faces and sees (one shadow
-/// ray each, aimed at a random point of an area light), and its irradiance there.
-fn for_each_visible_light<A: Accel>(
-    accel: &A,
-    ray: &Ray,
-    hit: &scheme::SurfaceHit,
-    config: &RenderConfig,
-    rng: &mut Pcg64Mcg,
-    stats: &mut RenderStats,
-    mut lit: impl FnMut(Vec3, f32),
-) {
-    for light in &config.lights {
-        let (to_light, _, irradiance) = light.towards(hit.position);
-        if hit.normal.dot(to_light) <= 0.0 {
-            continue;
+impl<A: Accel> Tracer<'_, A> {
+    /// Radiance arriving along `ray`, which has bounced `depth` times and travels inside a
+    /// glass object when `inside`.
+    fn radiance(&mut self, ray: &Ray, depth: u32, inside: bool) -> Vec3 {
+        let config = self.config;
+        self.stats.rays += 1;
+        if depth > 0 {
+            self.stats.secondary_rays += 1;
         }
-        let visible = !config.shadows || {
-            let u = if light.is_area() { [rng.random(), rng.random()] } else { [0.5; 2] };
-            let (direction, distance) = light.shadow_target(hit.position, u);
-            !in_shadow(accel, ray, hit, direction, distance, config, stats)
+        let Some(hit) = scheme::intersect(self.accel, ray, &config.scheme, &mut self.stats.traversal) else {
+            return config.environment.radiance(ray.dir);
         };
-        if visible {
-            lit(to_light, irradiance);
+        if depth == 0 {
+            self.stats.primary_hits += 1;
+            self.stats.blended_splats += u64::from(hit.blended);
+            self.first.normal += hit.normal;
+            self.first.albedo += Vec3::from(hit.color);
+            self.first.depth += hit.t;
+            self.first.hits += 1;
+        }
+        let index = usize::from(self.accel.splat(hit.splat).material());
+        let material = config.materials.get(index).or(config.materials.first()).copied();
+        let bounce = |direction: Vec3| secondary(ray, &hit, direction, config);
+        match material.unwrap_or(Material::standard()) {
+            Material::Phong(_) if config.integrator == Integrator::Path => self.diffuse(ray, &hit, depth, inside),
+            Material::Phong(phong) => {
+                let mut color = phong.ambient(&hit);
+                self.visible_lights(ray, &hit, |to_light, irradiance| {
+                    color += phong.direct(&hit, -ray.dir, to_light, irradiance);
+                });
+                color
+            }
+            _ if depth >= config.max_depth => Vec3::ZERO,
+            Material::Mirror { tint } => {
+                Vec3::from(tint) * self.radiance(&bounce(material::reflect(ray.dir, hit.normal)), depth + 1, inside)
+            }
+            Material::Glass { ior, tint } => {
+                // The normal faces the incoming ray; `inside` says which medium it comes from.
+                let eta = if inside { ior } else { ior.recip() };
+                let reflectance = material::fresnel_dielectric(-ray.dir.dot(hit.normal), eta);
+                let reflected = bounce(material::reflect(ray.dir, hit.normal));
+                let refracted = material::refract(ray.dir, hit.normal, eta).filter(|_| reflectance < 1.0).map(bounce);
+                let tint = Vec3::from(tint);
+                match (config.integrator, refracted) {
+                    (_, None) => self.radiance(&reflected, depth + 1, inside),
+                    // One branch, chosen with the probability of its Fresnel weight, which it
+                    // then cancels.
+                    (Integrator::Path, Some(refracted)) => {
+                        if self.rng.random::<f32>() < reflectance {
+                            self.radiance(&reflected, depth + 1, inside)
+                        } else {
+                            tint * self.radiance(&refracted, depth + 1, !inside)
+                        }
+                    }
+                    // Whitted: both, weighted.
+                    (Integrator::Whitted, Some(refracted)) => {
+                        reflectance * self.radiance(&reflected, depth + 1, inside)
+                            + (1.0 - reflectance) * tint * self.radiance(&refracted, depth + 1, !inside)
+                    }
+                }
+            }
         }
     }
+
+    /// Calls `lit` with the direction towards each light that `hit` faces and sees (one
+    /// shadow ray each, aimed at a random point of an area light), and its irradiance there.
+    fn visible_lights(&mut self, ray: &Ray, hit: &scheme::SurfaceHit, mut lit: impl FnMut(Vec3, f32)) {
+        let config = self.config;
+        for light in &config.lights {
+            let (to_light, _, irradiance) = light.towards(hit.position);
+            if hit.normal.dot(to_light) <= 0.0 {
+                continue;
+            }
+            let visible = !config.shadows || {
+                let u = if light.is_area() { [self.rng.random(), self.rng.random()] } else { [0.5; 2] };
+                let (direction, distance) = light.shadow_target(hit.position, u);
+                !self.in_shadow(ray, hit, direction, distance)
+            };
+            if visible {
+                lit(to_light, irradiance);
+            }
+        }
+    }
+
+    /// The path tracer at a diffuse hit: each light's direct light (albedo/π × irradiance ×
+    /// cos θ, if the shadow ray is free), plus the light one cosine-distributed bounce
+    /// brings, which for that distribution weighs exactly the albedo.
+    fn diffuse(&mut self, ray: &Ray, hit: &scheme::SurfaceHit, depth: u32, inside: bool) -> Vec3 {
+        let albedo = Vec3::from(hit.color);
+        let mut color = Vec3::ZERO;
+        self.visible_lights(ray, hit, |to_light, irradiance| {
+            color += albedo * (irradiance * hit.normal.dot(to_light) * std::f32::consts::FRAC_1_PI);
+        });
+        if depth >= self.config.max_depth {
+            return color;
+        }
+        // Russian roulette after three bounces: stop dim paths early, weigh the survivors up.
+        let survive = if depth < 3 { 1.0 } else { albedo.max_element().clamp(0.05, 0.95) };
+        if self.rng.random::<f32>() >= survive {
+            return color;
+        }
+        let (a, b) = crate::math::orthonormal_basis(hit.normal);
+        let (u1, u2): (f32, f32) = (self.rng.random(), self.rng.random());
+        let (r, phi) = (u1.sqrt(), std::f32::consts::TAU * u2);
+        let direction =
+            (a * (r * phi.cos()) + b * (r * phi.sin()) + hit.normal * (1.0 - u1).max(0.0).sqrt()).normalize();
+        let mut next = secondary(ray, hit, direction, self.config);
+        next.cone.spread = next.cone.spread.max(self.config.diffuse_spread);
+        color + albedo * self.radiance(&next, depth + 1, inside) / survive
+    }
+
+    /// Shadow test from a hit. The ray starts `shadow_offset × k·r` off the surface, on the
+    /// light's side, and ignores crossings within k·r of its origin, k the scheme's
+    /// `self_hit_radii`: the neighbouring disks of a curved surface stand up to about r off
+    /// each other's planes, and a neighbour's ray-facing disk is met wherever the ray passes
+    /// near its centre (SJ advise 1–3 r).
+    fn in_shadow(&mut self, incoming: &Ray, hit: &scheme::SurfaceHit, to_light: Vec3, light_dist: f32) -> bool {
+        self.stats.rays += 1;
+        self.stats.shadow_rays += 1;
+        // The shadow ray's beam starts as wide as the footprint at the hit (a directional
+        // light keeps it that wide), and takes its level of detail from it.
+        let mut ray = secondary(incoming, hit, to_light, self.config);
+        ray.cone.spread = 0.0;
+        scheme::occluded(self.accel, &ray, light_dist, &self.config.scheme, &mut self.stats.traversal)
+    }
 }
 
-/// The path tracer at a diffuse hit: each light's direct light (albedo/π × irradiance ×
-/// cos θ, if the shadow ray is free), plus the light one cosine-distributed bounce brings,
-/// which for that distribution weighs exactly the albedo.
-#[allow(clippy::too_many_arguments)]
-fn diffuse_path<A: Accel>(
-    accel: &A,
-    ray: &Ray,
-    hit: &scheme::SurfaceHit,
-    config: &RenderConfig,
-    (depth, inside): (u32, bool),
-    rng: &mut Pcg64Mcg,
-    first: &mut FirstHits,
-    stats: &mut RenderStats,
-) -> Vec3 {
-    let albedo = Vec3::from(hit.color);
-    let mut color = Vec3::ZERO;
-    for_each_visible_light(accel, ray, hit, config, rng, stats, |to_light, irradiance| {
-        color += albedo * (irradiance * hit.normal.dot(to_light) * std::f32::consts::FRAC_1_PI);
-    });
-    if depth >= config.max_depth {
-        return color;
-    }
-    // Russian roulette after three bounces: stop dim paths early, weigh the survivors up.
-    let survive = if depth < 3 { 1.0 } else { albedo.max_element().clamp(0.05, 0.95) };
-    if rng.random::<f32>() >= survive {
-        return color;
-    }
-    let (a, b) = crate::math::orthonormal_basis(hit.normal);
-    let (u1, u2): (f32, f32) = (rng.random(), rng.random());
-    let (r, phi) = (u1.sqrt(), std::f32::consts::TAU * u2);
-    let direction = (a * (r * phi.cos()) + b * (r * phi.sin()) + hit.normal * (1.0 - u1).max(0.0).sqrt()).normalize();
-    let mut next = secondary(ray, hit, direction, config);
-    next.cone.spread = next.cone.spread.max(config.diffuse_spread);
-    color + albedo * radiance(accel, &next, config, (depth + 1, inside), rng, first, stats) / survive
-}
-
-/// A reflected or refracted ray from `hit`: like a shadow ray, it starts off the surface on
-/// its own side and ignores crossings near its origin, and its beam starts as wide as the
-/// incoming ray's footprint and keeps spreading at its rate (a flat interface's).
+/// A reflected, refracted or shadow ray from `hit`: it starts `shadow_offset × k·r` off the
+/// surface on its own side and ignores crossings within k·r of its origin (k the scheme's
+/// `self_hit_radii`), and its beam starts as wide as the incoming ray's footprint and keeps
+/// spreading at its rate (a flat interface's).
 fn secondary(incoming: &Ray, hit: &scheme::SurfaceHit, direction: Vec3, config: &RenderConfig) -> Ray {
     let reach = config.scheme.self_hit_radii() * hit.radius;
     let side = if direction.dot(hit.normal) >= 0.0 { 1.0 } else { -1.0 };
     let origin = hit.position + hit.normal * (side * config.shadow_offset * reach);
     let cone = crate::math::RayCone { width0: incoming.cone.width_at(hit.t), spread: incoming.cone.spread };
     Ray::new(origin, direction, cone).with_t_min(reach).with_lod_threshold(config.lod_threshold)
-}
-
-/// Shadow test from a hit. The ray starts `shadow_offset × k·r` off the surface, on the light's
-/// side, and ignores crossings within k·r of its origin, k the scheme's `self_hit_radii`: the
-/// neighbouring disks of a curved surface stand up to about r off each other's planes, and a
-/// neighbour's ray-facing disk is met wherever the ray passes near its centre (SJ advise
-/// 1–3 r).
-fn in_shadow<A: Accel>(
-    accel: &A,
-    primary: &Ray,
-    hit: &scheme::SurfaceHit,
-    to_light: Vec3,
-    light_dist: f32,
-    config: &RenderConfig,
-    stats: &mut RenderStats,
-) -> bool {
-    stats.rays += 1;
-    stats.shadow_rays += 1;
-    let offset = config.shadow_offset * hit.radius * config.scheme.self_hit_radii();
-    let origin = hit.position + hit.normal * offset;
-    let footprint = primary.cone.width_at(hit.t);
-    // The shadow ray's beam starts as wide as the pixel's footprint at the hit (a directional
-    // light keeps it that wide), and takes its level of detail from it.
-    let ray = Ray::new(origin, to_light, crate::math::RayCone { width0: footprint, spread: 0.0 })
-        .with_t_min(config.scheme.self_hit_radii() * hit.radius)
-        .with_lod_threshold(config.lod_threshold);
-    scheme::occluded(accel, &ray, light_dist, &config.scheme, &mut stats.traversal)
 }
