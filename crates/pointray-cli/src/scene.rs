@@ -211,6 +211,13 @@ fn light(spec: &LightSpec) -> Light {
         LightSpec::Sphere { position, radius, intensity } => {
             Light::Sphere { center: DVec3::from(position).as_vec3(), radius, intensity }
         }
+        LightSpec::Spot { position, direction, inner, outer, intensity } => Light::Spot {
+            position: DVec3::from(position).as_vec3(),
+            direction: Vec3::from(direction).normalize_or(Vec3::NEG_Y),
+            inner: inner.to_radians(),
+            outer: outer.to_radians(),
+            intensity,
+        },
     }
 }
 

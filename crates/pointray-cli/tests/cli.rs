@@ -333,6 +333,14 @@ kind = "directional"
 direction = [1.0, 1.0, 0.0]
 intensity = 0.3
 
+[[light]]
+kind = "spot"
+position = [1.2, 3.0, 0.0]
+direction = [0.0, -1.0, 0.0]
+inner = 10.0
+outer = 20.0
+intensity = 6.0
+
 [[cloud]]
 file = "sphere.ply"
 translate = [-1.2, 1.0, 0.0]

@@ -116,6 +116,15 @@ pub enum LightSpec {
         radius: f32,
         intensity: f32,
     },
+    /// A cone of light around `direction` (from the light): full within `inner` degrees of
+    /// the axis, none beyond `outer`.
+    Spot {
+        position: [f64; 3],
+        direction: [f32; 3],
+        inner: f32,
+        outer: f32,
+        intensity: f32,
+    },
 }
 
 #[derive(Debug, Deserialize)]

@@ -13,6 +13,9 @@ pub enum Light {
     /// aim at random points of it, so shadows have penumbrae (soft shadows, converging with
     /// the samples per pixel).
     Sphere { center: Vec3, radius: f32, intensity: f32 },
+    /// A point light shining into a cone around `direction` (unit, from the light): full
+    /// within `inner` radians of the axis, none beyond `outer`, smoothly between.
+    Spot { position: Vec3, direction: Vec3, inner: f32, outer: f32, intensity: f32 },
 }
 
 impl Light {
@@ -24,6 +27,16 @@ impl Light {
                 let d = position - p;
                 let dist2 = d.length_squared().max(f32::MIN_POSITIVE);
                 (d / dist2.sqrt(), dist2.sqrt(), intensity / dist2)
+            }
+            Light::Spot { position, direction, inner, outer, intensity } => {
+                let d = position - p;
+                let dist2 = d.length_squared().max(f32::MIN_POSITIVE);
+                let towards = d / dist2.sqrt();
+                let cos = (-towards).dot(direction.normalize());
+                // Smoothstep in the cosine, from the outer edge (0) to the inner cone (1).
+                let (lo, hi) = (outer.cos(), inner.min(outer).cos());
+                let x = if hi > lo { ((cos - lo) / (hi - lo)).clamp(0.0, 1.0) } else { f32::from(cos >= lo) };
+                (towards, dist2.sqrt(), intensity * x * x * (3.0 - 2.0 * x) / dist2)
             }
         }
     }
@@ -90,5 +103,31 @@ impl Environment {
             Environment::Uniform { color } => color,
             Environment::Gradient { horizon, .. } => horizon,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_spot_light_is_full_inside_dark_outside_and_smooth_between() {
+        let spot = Light::Spot {
+            position: Vec3::new(0.0, 2.0, 0.0),
+            direction: Vec3::NEG_Y,
+            inner: 20f32.to_radians(),
+            outer: 30f32.to_radians(),
+            intensity: 4.0,
+        };
+        let at = |degrees: f32| {
+            let x = 2.0 * degrees.to_radians().tan();
+            let (towards, distance, irradiance) = spot.towards(Vec3::new(x, 0.0, 0.0));
+            assert!((towards.length() - 1.0).abs() < 1e-6 && (distance * distance - (4.0 + x * x)).abs() < 1e-4);
+            irradiance * distance * distance / 4.0
+        };
+        assert!((at(0.0) - 1.0).abs() < 1e-6 && (at(19.0) - 1.0).abs() < 1e-6);
+        assert_eq!(at(31.0), 0.0);
+        let between: Vec<f32> = [21.0, 23.0, 25.0, 27.0, 29.0].iter().map(|&d| at(d)).collect();
+        assert!(between.windows(2).all(|w| w[0] > w[1]) && between[0] < 1.0 && between[4] > 0.0, "{between:?}");
     }
 }
