@@ -124,6 +124,12 @@ pub struct RenderArgs {
     /// Vertical field of view, degrees.
     #[arg(long, default_value_t = 60.0)]
     pub fov: f32,
+    /// Depth of field: the lens radius, in the model's units (0: everything sharp).
+    #[arg(long, default_value_t = 0.0)]
+    pub lens_radius: f32,
+    /// Depth of field: the distance in focus (default: to the point looked at).
+    #[arg(long)]
+    pub focus_distance: Option<f32>,
     /// Direction from the model's centre to the camera, when no --eye [default: 0.4,0.3,1;
     /// the demo has its own].
     #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, conflicts_with = "eye")]

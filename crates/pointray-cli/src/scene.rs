@@ -87,6 +87,8 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
     args.look_at = Some(DVec3::from(c.look_at));
     args.up = Vec3::from(c.up);
     args.fov = c.fov;
+    args.lens_radius = c.lens_radius;
+    args.focus_distance = c.focus_distance;
     args.width = r.width;
     args.height = r.height;
     args.spp = r.spp;

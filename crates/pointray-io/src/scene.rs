@@ -46,6 +46,11 @@ pub struct CameraSpec {
     /// Vertical field of view, degrees.
     #[serde(default = "default_fov")]
     pub fov: f32,
+    /// Depth of field: the lens radius (0: everything sharp)
+    #[serde(default)]
+    pub lens_radius: f32,
+    /// and the distance in focus (default: to `look_at`).
+    pub focus_distance: Option<f32>,
 }
 
 fn y_up() -> [f32; 3] {

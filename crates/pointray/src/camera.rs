@@ -49,6 +49,10 @@ pub struct Camera {
     aspect: f32,
     pub width: u32,
     pub height: u32,
+    /// Depth of field: the radius of the thin lens (0: a pinhole, everything sharp)
+    pub lens_radius: f32,
+    /// and the distance along the view at which it focuses.
+    pub focus_distance: f32,
 }
 
 impl Camera {
@@ -71,7 +75,31 @@ impl Camera {
             aspect: width as f32 / height as f32,
             width,
             height,
+            lens_radius: 0.0,
+            focus_distance: (target - eye).length(),
         }
+    }
+
+    /// The camera with a thin lens of `radius` focused `focus_distance` away (depth of field).
+    pub fn with_lens(mut self, radius: f32, focus_distance: f32) -> Self {
+        self.lens_radius = radius.max(0.0);
+        self.focus_distance = focus_distance;
+        self
+    }
+
+    /// The ray through film position (`x`, `y`) from lens position `lens` (two uniform
+    /// numbers): with a lens, it leaves a point of the lens disk towards where the pinhole ray
+    /// meets the plane of focus, so that plane stays sharp and the rest blurs.
+    pub fn lens_ray(&self, x: f32, y: f32, lens: [f32; 2]) -> Ray {
+        let pinhole = self.ray(x, y);
+        if self.lens_radius <= 0.0 {
+            return pinhole;
+        }
+        let focus = pinhole.at(self.focus_distance / pinhole.dir.dot(self.forward));
+        // Uniform on the disk (polar: r = R·√u).
+        let (r, phi) = (self.lens_radius * lens[0].sqrt(), std::f32::consts::TAU * lens[1]);
+        let origin = self.eye + self.right * (r * phi.cos()) + self.up * (r * phi.sin());
+        Ray::new(origin, focus - origin, pinhole.cone)
     }
 
     /// The convention of `shared/bench/embree`: the camera sits `distance × diagonal` from the
@@ -153,6 +181,29 @@ impl Camera {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_lens_keeps_the_plane_of_focus_sharp() {
+        let cam = Camera::look_at(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 40.0, 64, 48).with_lens(0.2, 5.0);
+        for (x, y) in [(3.5, 7.5), (32.0, 24.0), (60.5, 40.5)] {
+            let pinhole = cam.ray(x, y);
+            let sharp = pinhole.at(5.0 / pinhole.dir.dot(Vec3::NEG_Z));
+            let mut spread = 0.0f32;
+            for lens in [[0.0, 0.0], [1.0, 0.25], [0.5, 0.7], [0.9, 0.1]] {
+                let ray = cam.lens_ray(x, y, lens);
+                assert!((ray.origin - cam.eye).length() <= 0.2 + 1e-6 && ray.origin.z == 5.0);
+                // Every lens ray passes through the pinhole ray's point on the plane z = 0...
+                let at_focus = ray.at(5.0 / ray.dir.dot(Vec3::NEG_Z));
+                assert!((at_focus - sharp).length() < 1e-4, "{at_focus} against {sharp}");
+                // ...and they spread apart elsewhere.
+                let behind = ray.at(8.0 / ray.dir.dot(Vec3::NEG_Z));
+                spread = spread.max((behind - pinhole.at(8.0 / pinhole.dir.dot(Vec3::NEG_Z))).length());
+            }
+            assert!(spread > 0.05, "{spread}");
+        }
+        let pinhole = Camera::look_at(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 40.0, 64, 48);
+        assert_eq!(pinhole.lens_ray(10.0, 10.0, [0.3, 0.3]).dir, pinhole.ray(10.0, 10.0).dir);
+    }
 
     #[test]
     fn centre_pixel_looks_at_target_and_projection_inverts_rays() {

@@ -155,8 +155,9 @@ fn render_pixel<A: Accel>(
         // reflection, which disks it meets) never shifts another sample's.
         let mut rng = sample_rng(config.seed, x, y, sample);
         let (dx, dy) = if samples > 1 { (rng.random::<f32>(), rng.random::<f32>()) } else { (0.5, 0.5) };
+        let lens = if camera.lens_radius > 0.0 { [rng.random(), rng.random()] } else { [0.5; 2] };
         let mut ray = camera
-            .ray(x as f32 + dx, y as f32 + dy)
+            .lens_ray(x as f32 + dx, y as f32 + dy, lens)
             .with_lod_threshold(config.lod_threshold)
             // A ray-facing disk faces every ray: nothing is a back face.
             .with_backface_culling(config.cull_backfaces && config.scheme.kind.shape() == DiskShape::Oriented);

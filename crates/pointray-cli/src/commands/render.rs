@@ -209,6 +209,8 @@ pub fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     ensure!(a.shadow_offset >= 0.0 && a.shadow_offset.is_finite(), "--shadow-offset must be non-negative");
     ensure!(a.lod_threshold > 0.0 && a.lod_threshold.is_finite(), "--lod-threshold must be a positive number");
     ensure!(a.ior > 0.0 && a.ior.is_finite(), "--ior must be a positive number");
+    ensure!(a.lens_radius >= 0.0 && a.lens_radius.is_finite(), "--lens-radius must be non-negative");
+    ensure!(a.focus_distance.is_none_or(|d| d > 0.0 && d.is_finite()), "--focus-distance must be positive");
     ensure!(a.diffuse_spread >= 0.0 && a.diffuse_spread.is_finite(), "--diffuse-spread must be non-negative");
     ensure!(a.light_radius.is_none_or(|r| r >= 0.0 && r.is_finite()), "--light-radius must be a non-negative number");
     ensure!(a.max_depth <= 64, "--max-depth must be at most 64");
@@ -306,6 +308,8 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         (Some(eye), Some(target)) => Camera::look_at(eye, target, a.up, a.fov, a.width, a.height),
         _ => Camera::orbit(&bounds, a.view_dir.unwrap_or(default_view), a.up, distance, a.fov, a.width, a.height),
     };
+    let focus = a.focus_distance.unwrap_or(camera.focus_distance);
+    let camera = camera.with_lens(a.lens_radius, focus);
     let light = match (a.light_pos, a.light_dir) {
         (Some(position), _) => match a.light_radius {
             Some(radius) => Light::Sphere { center: local(position), radius, intensity: a.light_intensity },
