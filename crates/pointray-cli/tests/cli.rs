@@ -872,7 +872,7 @@ fn bad_flags_are_rejected_with_clear_messages() {
         (&["--width", "48", "--height", "40", "--cull", "always"], 2, &["--cull", "auto"]),
         (&["--width", "48", "--height", "40", "--sphere-from-level", "deep"], 2, &["--sphere-from-level", "never"]),
         (&["--width", "48", "--height", "40", "--aov", "colour"], 2, &["--aov", "nodes", "albedo"]),
-        (&["--width", "48", "--height", "40", "--lens-radius", "-1"], 2, &["--lens-radius"]),
+        (&["--width", "48", "--height", "40", "--lens-radius=-1"], 2, &["--lens-radius must be non-negative"]),
         (&["--width", "48", "--height", "40", "--focus-distance", "0"], 2, &["--focus-distance"]),
     ];
     for (extra, code, words) in cases {
