@@ -175,6 +175,10 @@ pub struct RenderArgs {
     /// illumination: light bouncing between diffuse surfaces and from the sky; needs many --spp).
     #[arg(long, value_enum, default_value_t = IntegratorArg::Whitted)]
     pub integrator: IntegratorArg,
+    /// --integrator ao: how far a surface looks for what occludes it (default: a tenth of the
+    /// model's bounding-box diagonal).
+    #[arg(long)]
+    pub ao_distance: Option<f32>,
     /// --integrator path: the least spread of a diffusely bounced ray's cone (beam width per
     /// unit length), from which its level of detail follows; 0 keeps the camera ray's.
     #[arg(long, default_value_t = 0.0)]
@@ -301,6 +305,8 @@ pub enum SurfaceArg {
 pub enum IntegratorArg {
     Whitted,
     Path,
+    /// Ambient occlusion.
+    Ao,
 }
 
 #[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]

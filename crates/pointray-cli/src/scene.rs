@@ -14,7 +14,9 @@ use pointray::PointCloud;
 use pointray::material::{Material, Phong};
 use pointray::preprocess::PreprocessStats;
 use pointray::shading::{Environment, Light};
-use pointray_io::scene::{CloudSpec, EnvironmentSpec, GroundSpec, LightSpec, MaterialSpec, parse_scene};
+use pointray_io::scene::{
+    CloudSpec, EnvironmentSpec, GroundSpec, IntegratorSpec, LightSpec, MaterialSpec, parse_scene,
+};
 
 use crate::args::{RenderArgs, SurfaceArg};
 use crate::failure;
@@ -102,9 +104,11 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
     };
     args.lod_threshold = r.lod_threshold;
     args.integrator = match r.integrator {
-        pointray::render::Integrator::Whitted => crate::args::IntegratorArg::Whitted,
-        pointray::render::Integrator::Path => crate::args::IntegratorArg::Path,
+        IntegratorSpec::Whitted => crate::args::IntegratorArg::Whitted,
+        IntegratorSpec::Path => crate::args::IntegratorArg::Path,
+        IntegratorSpec::Ao => crate::args::IntegratorArg::Ao,
     };
+    args.ao_distance = r.ao_distance;
     args.no_shadows = !r.shadows;
     args.crop_to_model = false;
     args.region = None;

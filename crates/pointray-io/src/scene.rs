@@ -4,7 +4,6 @@
 
 use std::path::{Path, PathBuf};
 
-use pointray::render::Integrator;
 use pointray::splat::scheme::SurfaceKind;
 use serde::Deserialize;
 
@@ -70,7 +69,10 @@ pub struct RenderSpec {
     pub max_depth: u32,
     pub seed: u64,
     pub surface: SurfaceKind,
-    pub integrator: Integrator,
+    pub integrator: IntegratorSpec,
+    /// `integrator = "ao"`: how far a surface looks for what occludes it (default: a tenth of
+    /// the scene's bounding-box diagonal).
+    pub ao_distance: Option<f32>,
     pub lod_threshold: f32,
     pub shadows: bool,
 }
@@ -84,11 +86,20 @@ impl Default for RenderSpec {
             max_depth: 5,
             seed: 1,
             surface: SurfaceKind::Sj,
-            integrator: Integrator::Whitted,
+            integrator: IntegratorSpec::Whitted,
+            ao_distance: None,
             lod_threshold: 0.5,
             shadows: true,
         }
     }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum IntegratorSpec {
+    Whitted,
+    Path,
+    Ao,
 }
 
 #[derive(Debug, Deserialize)]

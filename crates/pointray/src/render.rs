@@ -21,7 +21,7 @@ use crate::splat::scheme::{self, SurfaceScheme};
 use crate::stats::RenderStats;
 
 /// How light is carried from the lights to the eye.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Integrator {
     /// Whitted: Phong direct light with shadows, ambient for the rest; mirrors and glass
@@ -32,6 +32,9 @@ pub enum Integrator {
     /// cosine-distributed bounce; glass picks reflection or refraction by its Fresnel
     /// reflectance. Russian roulette from the fourth bounce; unbiased but for `max_depth`.
     Path,
+    /// Ambient occlusion: a diffuse surface shows its albedo times the fraction of
+    /// cosine-distributed rays (one per sample) that meet nothing within `distance`.
+    AmbientOcclusion { distance: f32 },
 }
 
 #[derive(Clone, Debug, serde::Serialize)]
@@ -221,6 +224,14 @@ impl<A: Accel> Tracer<'_, A> {
         let bounce = |direction: Vec3| secondary(ray, &hit, direction, config);
         match material.unwrap_or(Material::standard()) {
             Material::Phong(_) if config.integrator == Integrator::Path => self.diffuse(ray, &hit, depth, inside),
+            Material::Phong(_) if let Integrator::AmbientOcclusion { distance } = config.integrator => {
+                let direction = cosine_direction(hit.normal, [self.rng.random(), self.rng.random()]);
+                let probe = secondary(ray, &hit, direction, config);
+                self.stats.secondary_rays += 1;
+                self.stats.rays += 1;
+                let open = !scheme::occluded(self.accel, &probe, distance, &config.scheme, &mut self.stats.traversal);
+                Vec3::from(hit.color) * f32::from(u8::from(open))
+            }
             Material::Phong(phong) => {
                 let mut color = phong.ambient(&hit);
                 self.visible_lights(ray, &hit, |to_light, irradiance| {
@@ -243,7 +254,7 @@ impl<A: Accel> Tracer<'_, A> {
                     (_, None) => self.radiance(&reflected, depth + 1, inside),
                     // One branch, chosen with the probability of its Fresnel weight, which it
                     // then cancels.
-                    (Integrator::Path, Some(refracted)) => {
+                    (Integrator::Path | Integrator::AmbientOcclusion { .. }, Some(refracted)) => {
                         if self.rng.random::<f32>() < reflectance {
                             self.radiance(&reflected, depth + 1, inside)
                         } else {
@@ -297,11 +308,7 @@ impl<A: Accel> Tracer<'_, A> {
         if self.rng.random::<f32>() >= survive {
             return color;
         }
-        let (a, b) = crate::math::orthonormal_basis(hit.normal);
-        let (u1, u2): (f32, f32) = (self.rng.random(), self.rng.random());
-        let (r, phi) = (u1.sqrt(), std::f32::consts::TAU * u2);
-        let direction =
-            (a * (r * phi.cos()) + b * (r * phi.sin()) + hit.normal * (1.0 - u1).max(0.0).sqrt()).normalize();
+        let direction = cosine_direction(hit.normal, [self.rng.random(), self.rng.random()]);
         let mut next = secondary(ray, hit, direction, self.config);
         next.cone.spread = next.cone.spread.max(self.config.diffuse_spread);
         color + albedo * self.radiance(&next, depth + 1, inside) / survive
@@ -321,6 +328,14 @@ impl<A: Accel> Tracer<'_, A> {
         ray.cone.spread = 0.0;
         scheme::occluded(self.accel, &ray, light_dist, &self.config.scheme, &mut self.stats.traversal)
     }
+}
+
+/// A direction about unit `normal` distributed as cos θ / π (Malley: uniform on the disk,
+/// lifted to the hemisphere), from two uniform numbers.
+fn cosine_direction(normal: Vec3, u: [f32; 2]) -> Vec3 {
+    let (a, b) = crate::math::orthonormal_basis(normal);
+    let (r, phi) = (u[0].sqrt(), std::f32::consts::TAU * u[1]);
+    (a * (r * phi.cos()) + b * (r * phi.sin()) + normal * (1.0 - u[0]).max(0.0).sqrt()).normalize()
 }
 
 /// A reflected, refracted or shadow ray from `hit`: it starts `shadow_offset × k·r` off the

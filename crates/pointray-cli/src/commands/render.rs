@@ -210,6 +210,7 @@ pub fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     ensure!(a.lod_threshold > 0.0 && a.lod_threshold.is_finite(), "--lod-threshold must be a positive number");
     ensure!(a.ior > 0.0 && a.ior.is_finite(), "--ior must be a positive number");
     ensure!(a.lens_radius >= 0.0 && a.lens_radius.is_finite(), "--lens-radius must be non-negative");
+    ensure!(a.ao_distance.is_none_or(|d| d > 0.0 && d.is_finite()), "--ao-distance must be positive");
     ensure!(a.focus_distance.is_none_or(|d| d > 0.0 && d.is_finite()), "--focus-distance must be positive");
     ensure!(a.diffuse_spread >= 0.0 && a.diffuse_spread.is_finite(), "--diffuse-spread must be non-negative");
     ensure!(a.light_radius.is_none_or(|r| r >= 0.0 && r.is_finite()), "--light-radius must be a non-negative number");
@@ -370,6 +371,9 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         integrator: match a.integrator {
             IntegratorArg::Whitted => Integrator::Whitted,
             IntegratorArg::Path => Integrator::Path,
+            IntegratorArg::Ao => {
+                Integrator::AmbientOcclusion { distance: a.ao_distance.unwrap_or(0.1 * bounds.diagonal()) }
+            }
         },
         lod_threshold,
         cull_backfaces,
