@@ -124,6 +124,12 @@ pub struct RenderArgs {
     /// Vertical field of view, degrees.
     #[arg(long, default_value_t = 60.0)]
     pub fov: f32,
+    /// Where a pixel's samples go: r2 (a low-discrepancy sequence) or random.
+    #[arg(long, value_enum, default_value_t = SamplerArg::R2)]
+    pub sampler: SamplerArg,
+    /// Reconstruction filter: box (the pixel) or tent (two pixels wide, smoother edges).
+    #[arg(long, value_enum, default_value_t = FilterArg::Box)]
+    pub filter: FilterArg,
     /// Depth of field: the lens radius, in the model's units (0: everything sharp).
     #[arg(long, default_value_t = 0.0)]
     pub lens_radius: f32,
@@ -299,6 +305,18 @@ pub enum SurfaceArg {
     Pss,
     /// The nearest oriented disk alone (flat shaded).
     FirstHit,
+}
+
+#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
+pub enum SamplerArg {
+    Random,
+    R2,
+}
+
+#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
+pub enum FilterArg {
+    Box,
+    Tent,
 }
 
 #[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]

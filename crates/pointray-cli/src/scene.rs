@@ -109,6 +109,14 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
         IntegratorSpec::Ao => crate::args::IntegratorArg::Ao,
     };
     args.ao_distance = r.ao_distance;
+    args.sampler = match r.sampler {
+        pointray::render::Sampler::Random => crate::args::SamplerArg::Random,
+        pointray::render::Sampler::R2 => crate::args::SamplerArg::R2,
+    };
+    args.filter = match r.filter {
+        pointray::render::Filter::Box => crate::args::FilterArg::Box,
+        pointray::render::Filter::Tent => crate::args::FilterArg::Tent,
+    };
     args.no_shadows = !r.shadows;
     args.crop_to_model = false;
     args.region = None;

@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use pointray::render::{Filter, Sampler};
 use pointray::splat::scheme::SurfaceKind;
 use serde::Deserialize;
 
@@ -70,6 +71,8 @@ pub struct RenderSpec {
     pub seed: u64,
     pub surface: SurfaceKind,
     pub integrator: IntegratorSpec,
+    pub sampler: Sampler,
+    pub filter: Filter,
     /// `integrator = "ao"`: how far a surface looks for what occludes it (default: a tenth of
     /// the scene's bounding-box diagonal).
     pub ao_distance: Option<f32>,
@@ -87,6 +90,8 @@ impl Default for RenderSpec {
             seed: 1,
             surface: SurfaceKind::Sj,
             integrator: IntegratorSpec::Whitted,
+            sampler: Sampler::R2,
+            filter: Filter::Box,
             ao_distance: None,
             lod_threshold: 0.5,
             shadows: true,

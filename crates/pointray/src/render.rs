@@ -37,8 +37,32 @@ pub enum Integrator {
     AmbientOcclusion { distance: f32 },
 }
 
+/// Where in and around its pixel each sample's camera ray goes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Sampler {
+    /// Independent uniform positions.
+    Random,
+    /// The R2 low-discrepancy sequence (Roberts 2018), shifted per pixel: any number of
+    /// samples spread evenly, so edges converge faster than with independent positions.
+    R2,
+}
+
+/// The pixel's reconstruction filter, applied by importance sampling (as pbrt-v4 does):
+/// sample positions are drawn with the filter's density and averaged with equal weights.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Filter {
+    /// The pixel's square.
+    Box,
+    /// A tent two pixels wide: smoother edges, a little softer.
+    Tent,
+}
+
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct RenderConfig {
+    pub sampler: Sampler,
+    pub filter: Filter,
     pub integrator: Integrator,
     pub scheme: SurfaceScheme,
     /// Every light shines on Phong surfaces, each with its own shadow ray.
@@ -153,11 +177,27 @@ fn render_pixel<A: Accel>(
     let mut first = FirstHits::default();
     let samples = config.samples.max(1);
     let footprint_scale = (samples as f32).sqrt().recip();
+    // The pixel's own shift of the R2 sequence (Cranley–Patterson rotation).
+    let pixel_shift = {
+        let mut rng = sample_rng(config.seed, x, y, u32::MAX);
+        [rng.random::<f32>(), rng.random::<f32>()]
+    };
     for sample in 0..samples {
         // Each sample its own stream: how many numbers a path draws (roulette, total internal
         // reflection, which disks it meets) never shifts another sample's.
         let mut rng = sample_rng(config.seed, x, y, sample);
-        let (dx, dy) = if samples > 1 { (rng.random::<f32>(), rng.random::<f32>()) } else { (0.5, 0.5) };
+        let (dx, dy) = if samples > 1 {
+            let u = match config.sampler {
+                Sampler::Random => [rng.random(), rng.random()],
+                Sampler::R2 => r2(sample, pixel_shift),
+            };
+            match config.filter {
+                Filter::Box => (u[0], u[1]),
+                Filter::Tent => (0.5 + tent(u[0]), 0.5 + tent(u[1])),
+            }
+        } else {
+            (0.5, 0.5)
+        };
         let lens = if camera.lens_radius > 0.0 { [rng.random(), rng.random()] } else { [0.5; 2] };
         let mut ray = camera
             .lens_ray(x as f32 + dx, y as f32 + dy, lens)
@@ -180,6 +220,20 @@ fn render_pixel<A: Accel>(
         albedo: (first.albedo / n).to_array(),
         depth: if first.hits == 0 { f32::INFINITY } else { first.depth / first.hits as f32 },
     }
+}
+
+/// Point `i` of the R2 sequence, shifted by `shift` (modulo 1): α = (1/g, 1/g²), g the
+/// plastic number, the root of x³ = x + 1.
+fn r2(i: u32, shift: [f32; 2]) -> [f32; 2] {
+    const G: f64 = 1.324_717_957_244_746;
+    let t = f64::from(i);
+    [(f64::from(shift[0]) + t / G).fract() as f32, (f64::from(shift[1]) + t / (G * G)).fract() as f32]
+}
+
+/// The offset from the pixel's centre, in pixels, that a uniform `u` in [0, 1) maps to under
+/// a tent filter of radius 1 (inverse of its distribution function).
+fn tent(u: f32) -> f32 {
+    if u < 0.5 { (2.0 * u).sqrt() - 1.0 } else { 1.0 - (2.0 - 2.0 * u).sqrt() }
 }
 
 /// A generator that depends only on the seed, the pixel and the sample.
@@ -348,4 +402,35 @@ fn secondary(incoming: &Ray, hit: &scheme::SurfaceHit, direction: Vec3, config: 
     let origin = hit.position + hit.normal * (side * config.shadow_offset * reach);
     let cone = crate::math::RayCone { width0: incoming.cone.width_at(hit.t), spread: incoming.cone.spread };
     Ray::new(origin, direction, cone).with_t_min(reach).with_lod_threshold(config.lod_threshold)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_tent_filter_maps_uniform_numbers_to_its_density() {
+        // Symmetric, within one pixel, and |offset| averages 1/3 under a tent of radius 1.
+        let n = 100_000;
+        let offsets: Vec<f32> = (0..n).map(|i| tent((i as f32 + 0.5) / n as f32)).collect();
+        assert!(offsets.iter().all(|o| o.abs() <= 1.0));
+        assert!(offsets.iter().sum::<f32>().abs() < 1e-2);
+        assert!((offsets.iter().map(|o| o.abs()).sum::<f32>() / n as f32 - 1.0 / 3.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn r2_points_fill_the_square_evenly() {
+        // 64 points in an 8 × 8 grid: R2 puts at most 2 in a cell and leaves 10 empty
+        // (measured); independent points leave about 23 empty (64 × (63/64)^64).
+        let count = |points: &mut dyn Iterator<Item = [f32; 2]>| {
+            let mut cells = [0u32; 64];
+            points.for_each(|[u, v]| cells[(u * 8.0) as usize * 8 + (v * 8.0) as usize] += 1);
+            (cells.iter().filter(|&&c| c == 0).count(), *cells.iter().max().unwrap())
+        };
+        let (empty, most) = count(&mut (0..64).map(|i| r2(i, [0.3, 0.7])));
+        let mut rng = sample_rng(1, 2, 3, 4);
+        let (random_empty, random_most) = count(&mut (0..64).map(|_| [rng.random(), rng.random()]));
+        assert!(most <= 2 && empty <= 12, "R2: {empty} empty cells, at most {most} in one");
+        assert!(random_empty > empty && random_most > most, "independent: {random_empty} empty, {random_most} in one");
+    }
 }

@@ -6,14 +6,16 @@ use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, N
 use pointray::camera::{Camera, Region};
 use pointray::film::Film;
 use pointray::material::Material;
-use pointray::render::{Integrator, RenderConfig, render};
+use pointray::render::{Filter, Integrator, RenderConfig, Sampler, render};
 use pointray::shading::{Environment, Light};
 use pointray::splat::scheme::{SurfaceKind, SurfaceScheme};
 use pointray::splat::{DiskShape, Splat, splats_from_cloud};
 use pointray::stats::RenderStats;
 use serde::Serialize;
 
-use crate::args::{AccelArg, AovArg, CullArg, IntegratorArg, MaterialArg, RenderArgs, SurfaceArg, Switch};
+use crate::args::{
+    AccelArg, AovArg, CullArg, FilterArg, IntegratorArg, MaterialArg, RenderArgs, SamplerArg, SurfaceArg, Switch,
+};
 
 /// The accelerators the CLI can build; the render loop is monomorphised for each.
 enum AnyAccel {
@@ -368,6 +370,14 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
     tracing::info!("backface culling {cull_backfaces} (back faces first: {backfacing:?})");
     let lod_threshold = if multires && a.lod == Switch::On { a.lod_threshold } else { 0.0 };
     let config = RenderConfig {
+        sampler: match a.sampler {
+            SamplerArg::Random => Sampler::Random,
+            SamplerArg::R2 => Sampler::R2,
+        },
+        filter: match a.filter {
+            FilterArg::Box => Filter::Box,
+            FilterArg::Tent => Filter::Tent,
+        },
         integrator: match a.integrator {
             IntegratorArg::Whitted => Integrator::Whitted,
             IntegratorArg::Path => Integrator::Path,

@@ -116,6 +116,8 @@ fn sphere_image_matches_the_analytic_image() {
     let bvh = Bvh::build(splats, &BvhParams::standard());
     let cam = Camera::look_at(Vec3::new(0.0, 0.0, 3.2), Vec3::ZERO, Vec3::Y, 45.0, 64, 64);
     let config = RenderConfig {
+        sampler: pointray::render::Sampler::Random,
+        filter: pointray::render::Filter::Box,
         integrator: pointray::render::Integrator::Whitted,
         scheme: SurfaceScheme::sj(),
         lights: vec![Light::Point { position: Vec3::new(2.0, 3.0, 4.0), intensity: 25.0 }],

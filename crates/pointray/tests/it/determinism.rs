@@ -23,6 +23,8 @@ fn image_is_identical_with_one_and_two_threads() {
         40,
     );
     let config = RenderConfig {
+        sampler: pointray::render::Sampler::Random,
+        filter: pointray::render::Filter::Box,
         integrator: pointray::render::Integrator::Whitted,
         scheme: SurfaceScheme::sj(),
         lights: vec![pointray::demo::demo_light()],

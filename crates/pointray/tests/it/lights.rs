@@ -24,6 +24,8 @@ fn visibility(xs: &[f32], light_radius: f32, samples: u32) -> Vec<f32> {
     // Low and to the side, under the sheet's level: it sees the receiver, not the sheet.
     let cam = Camera::look_at(Vec3::new(0.0, -3.0, 0.15), Vec3::ZERO, Vec3::Z, 30.0, 256, 256);
     let config = |x: u32, y: u32| RenderConfig {
+        sampler: pointray::render::Sampler::Random,
+        filter: pointray::render::Filter::Box,
         integrator: pointray::render::Integrator::Whitted,
         scheme: SurfaceScheme::sj(),
         lights: vec![Light::Sphere { center: Vec3::new(0.0, 0.0, 1.5), radius: light_radius, intensity: 1.0 }],

@@ -74,6 +74,8 @@ fn psnr_against_exact(material: Material) -> f64 {
     let bvh = Bvh::build(sphere_splats(200_000, 1.0, 31), &BvhParams::standard());
     let cam = Camera::look_at(Vec3::new(0.4, 0.9, 3.0), Vec3::ZERO, Vec3::Y, 45.0, SIZE, SIZE);
     let config = RenderConfig {
+        sampler: pointray::render::Sampler::Random,
+        filter: pointray::render::Filter::Box,
         integrator: pointray::render::Integrator::Whitted,
         scheme: SurfaceScheme::sj(),
         lights: vec![Light::Directional { direction: Vec3::Y, intensity: 1.0 }],

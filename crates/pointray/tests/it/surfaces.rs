@@ -247,6 +247,8 @@ fn shadow_rays_do_not_hit_their_own_surface() {
         let cam = Camera::look_at(eye, Vec3::ZERO, Vec3::Y, 40.0, 64, 64);
         for (name, scheme) in schemes() {
             let config = |shadows| RenderConfig {
+                sampler: pointray::render::Sampler::Random,
+                filter: pointray::render::Filter::Box,
                 integrator: pointray::render::Integrator::Whitted,
                 scheme,
                 lights: vec![Light::Directional { direction: light, intensity: 3.0 }],
