@@ -1267,6 +1267,41 @@ fn aov_normal_depth_and_albedo_describe_the_first_hits() {
     assert!(levels.len() > 10, "{levels:?}");
 }
 
+/// `-o NAME.exr`: linear radiance as R, G, B (the same pixels the PNG encodes) and the AOVs
+/// as layers, in one file.
+#[test]
+fn exr_output_holds_linear_radiance_and_the_aovs() {
+    let dir = temp_dir();
+    render_demo_small(dir.path(), "out.png", &[]);
+    render_demo_small(dir.path(), "out.exr", &["--aov", "depth,normal,albedo,nodes"]);
+    assert_dir_contains_exactly(dir.path(), &["out.png", "out.png.json", "out.exr", "out.exr.json"]);
+    let image = exr::prelude::read_all_flat_layers_from_file(dir.path().join("out.exr")).unwrap();
+    let layer = &image.layer_data[0];
+    assert_eq!((layer.size.0, layer.size.1), (W as usize, H as usize));
+    let channel = |name: &str| -> Vec<f32> {
+        let c =
+            layer.channel_data.list.iter().find(|c| c.name.to_string() == name).unwrap_or_else(|| panic!("no {name}"));
+        c.sample_data.values_as_f32().collect()
+    };
+    let names: Vec<String> = layer.channel_data.list.iter().map(|c| c.name.to_string()).collect();
+    assert_eq!(names.len(), 11, "{names:?}");
+    // The PNG is the EXR's radiance, encoded to 8-bit sRGB.
+    let png = read_png(&dir.path().join("out.png"));
+    let (r, g, b) = (channel("R"), channel("G"), channel("B"));
+    let encode = |v: f32| (pointray::film::linear_to_srgb(v) * 255.0 + 0.5) as u8;
+    for (i, (x, y, p)) in png.pixels().enumerate() {
+        assert_eq!(p, [encode(r[i]), encode(g[i]), encode(b[i])], "pixel ({x}, {y})");
+    }
+    // Depth is finite exactly where the normal is not zero.
+    let (depth, nx) = (channel("depth.Z"), channel("normal.X"));
+    let (ny, nz) = (channel("normal.Y"), channel("normal.Z"));
+    for i in 0..depth.len() {
+        let n = (nx[i] * nx[i] + ny[i] * ny[i] + nz[i] * nz[i]).sqrt();
+        assert_eq!(depth[i].is_finite(), n > 0.0, "pixel {i}: depth {}, |n| {n}", depth[i]);
+    }
+    assert!(channel("nodes.Y").iter().any(|&v| v > 0.0));
+}
+
 #[test]
 fn aov_nodes_writes_a_heat_map_beside_the_image() {
     let dir = temp_dir();

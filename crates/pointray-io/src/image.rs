@@ -1,4 +1,5 @@
-//! PNG output for rendered images, and PNG input for comparing them.
+//! Rendered images out (PNG, 8-bit sRGB; OpenEXR, linear 32-bit float with any named channels)
+//! and PNG back in for comparing them.
 
 use std::path::Path;
 
@@ -77,4 +78,22 @@ pub fn decode_png(path: &Path, bytes: &[u8]) -> Result<(u32, u32, Vec<u8>), IoEr
     };
     debug_assert_eq!(rgb8.len() as u64, u64::from(width) * u64::from(height) * 3);
     Ok((width, height, rgb8))
+}
+
+/// Writes an OpenEXR image of `width × height` 32-bit float channels, each named (`"R"`,
+/// `"G"`, `"B"`, and e.g. `"depth.Z"` or `"normal.X"` for extra layers) with one value per
+/// pixel, rows top to bottom. The file appears only when complete.
+pub fn write_exr(path: &Path, width: u32, height: u32, channels: Vec<(String, Vec<f32>)>) -> Result<(), IoError> {
+    use exr::prelude::*;
+    let pixels = width as usize * height as usize;
+    if pixels == 0 || channels.is_empty() || channels.iter().any(|(_, c)| c.len() != pixels) {
+        return Err(IoError::invalid(path, format!("cannot write a {width}x{height} EXR from these channels")));
+    }
+    let list: SmallVec<[AnyChannel<FlatSamples>; 4]> =
+        channels.into_iter().map(|(name, values)| AnyChannel::new(name.as_str(), FlatSamples::F32(values))).collect();
+    let image = Image::from_channels((width as usize, height as usize), AnyChannels::sort(list));
+    // The encoder seeks, so it writes to memory; the file is then written atomically.
+    let mut encoded = std::io::Cursor::new(Vec::new());
+    image.write().to_buffered(&mut encoded).map_err(|e| IoError::invalid(path, format!("EXR encoding: {e}")))?;
+    atomic_write(path, |out| out.write_all(encoded.get_ref()))
 }

@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 
 pub use error::IoError;
 use file::{FileBytes, read_file};
-pub use image::{decode_png, read_png, write_png};
+pub use image::{decode_png, read_png, write_exr, write_png};
 pub use ply::{Mesh, parse_mesh, read_mesh, read_ply, write_ply};
 pub use xyz::read_xyz;
 

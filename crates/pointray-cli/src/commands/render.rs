@@ -186,7 +186,8 @@ pub fn run(a: &RenderArgs, quiet: bool) -> anyhow::Result<()> {
     if let Some(stats) = &a.stats {
         super::check_output_path(stats)?;
     }
-    for aov in &a.aov {
+    // An EXR holds the AOVs as layers; beside a PNG each is a PNG of its own.
+    for aov in a.aov.iter().filter(|_| !is_exr(&a.output)) {
         super::check_output_path(&aov_path(&a.output, aov.name()))?;
     }
     let pool = rayon::ThreadPoolBuilder::new().num_threads(a.threads.unwrap_or(0)).build()?;
@@ -438,24 +439,24 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         n => (times[n / 2], times[0]),
     };
 
-    pointray_io::image::write_png(
-        &a.output,
-        a.width,
-        a.height,
-        &film.frame_srgb8(a.width, a.height, config.environment.flat_color()),
-    )
-    .map_err(crate::failure::output)?;
     let nodes_max = film.nodes_visited.iter().copied().max().unwrap_or(0);
-    let mut written = Vec::new();
-    for &aov in &a.aov {
-        if written.contains(&aov) {
-            continue;
+    if is_exr(&a.output) {
+        let channels = exr_channels(&film, &a.aov, a.width, a.height, config.environment.flat_color());
+        pointray_io::write_exr(&a.output, a.width, a.height, channels).map_err(crate::failure::output)?;
+    } else {
+        let frame = film.frame_srgb8(a.width, a.height, config.environment.flat_color());
+        pointray_io::image::write_png(&a.output, a.width, a.height, &frame).map_err(crate::failure::output)?;
+        let mut written = Vec::new();
+        for &aov in &a.aov {
+            if written.contains(&aov) {
+                continue;
+            }
+            let region = aov_rgb8(&film, aov, nodes_max);
+            let frame = frame_from_region(&region, film.region, a.width, a.height);
+            pointray_io::image::write_png(&aov_path(&a.output, aov.name()), a.width, a.height, &frame)
+                .map_err(crate::failure::output)?;
+            written.push(aov);
         }
-        let region = aov_rgb8(&film, aov, nodes_max);
-        let frame = frame_from_region(&region, film.region, a.width, a.height);
-        pointray_io::image::write_png(&aov_path(&a.output, aov.name()), a.width, a.height, &frame)
-            .map_err(crate::failure::output)?;
-        written.push(aov);
     }
     let mrays = stats.rays as f64 / render_seconds / 1e6;
     if !quiet {
@@ -535,6 +536,52 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         pointray_io::atomic_write(path, |w| w.write_all(json.as_bytes())).map_err(crate::failure::output)?;
     }
     Ok(())
+}
+
+fn is_exr(path: &std::path::Path) -> bool {
+    path.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"))
+}
+
+/// The linear radiance as `R`, `G`, `B` (the environment's flat colour outside the rendered
+/// region) and each AOV asked for as a layer, in full-frame channels.
+fn exr_channels(film: &Film, aovs: &[AovArg], width: u32, height: u32, outside: [f32; 3]) -> Vec<(String, Vec<f32>)> {
+    let frame = |value: &dyn Fn(usize) -> f32, fill: f32| {
+        let mut out = vec![fill; width as usize * height as usize];
+        let r = film.region;
+        for (row, y) in (r.y0..r.y1).enumerate() {
+            for (col, x) in (r.x0..r.x1).enumerate() {
+                out[y as usize * width as usize + x as usize] = value(row * r.width() as usize + col);
+            }
+        }
+        out
+    };
+    let mut channels: Vec<(String, Vec<f32>)> = ["R", "G", "B"]
+        .iter()
+        .enumerate()
+        .map(|(c, name)| (name.to_string(), frame(&|i| film.rgb[i][c], outside[c])))
+        .collect();
+    let mut add = |name: &str, value: &dyn Fn(usize) -> f32, fill: f32| {
+        if !channels.iter().any(|(n, _)| n == name) {
+            channels.push((name.to_string(), frame(value, fill)));
+        }
+    };
+    for aov in aovs {
+        match aov {
+            AovArg::Nodes => add("nodes.Y", &|i| film.nodes_visited[i] as f32, 0.0),
+            AovArg::Depth => add("depth.Z", &|i| film.depth[i], f32::INFINITY),
+            AovArg::Normal => {
+                for (c, axis) in ["X", "Y", "Z"].iter().enumerate() {
+                    add(&format!("normal.{axis}"), &|i| film.normal[i][c], 0.0);
+                }
+            }
+            AovArg::Albedo => {
+                for (c, name) in ["R", "G", "B"].iter().enumerate() {
+                    add(&format!("albedo.{name}"), &|i| film.albedo[i][c], 0.0);
+                }
+            }
+        }
+    }
+    channels
 }
 
 /// An AOV of the rendered region as 8-bit RGB.
