@@ -26,7 +26,8 @@ seed ply $'ply\n' "$fixtures"/*.ply
 seed pcd $'VERSION .7\n' "$fixtures"/*.pcd
 seed scan_set 'bmesh ' "$fixtures"/*.conf
 printf 'scan.ply 0 0 0 0 0 0 1\n' > corpus/scan_set/seed-one-scan.conf
-mkdir -p corpus/las corpus/mesh corpus/png
+mkdir -p corpus/las corpus/mesh corpus/png corpus/scene
+cp ../scenes/*.toml corpus/scene/ 2>/dev/null || true
 printf 'format ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n4 1 3 2 0\n' \
   > corpus/mesh/seed-quad.ply
 python3 -c '
@@ -38,7 +39,7 @@ png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 4, 4, 8, 2, 
 png += chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
 open("corpus/png/seed-4x4.png", "wb").write(png)'
 
-for target in cloud ply las pcd xyz scan_set mesh png; do
+for target in cloud ply las pcd xyz scan_set mesh png scene; do
   echo "== $target: $seconds s"
   cargo +nightly fuzz run "$target" "corpus/$target" -- \
     -max_total_time="$seconds" -max_len=65536 -rss_limit_mb=4096 -print_final_stats=1 2>&1 |

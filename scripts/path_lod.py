@@ -70,7 +70,7 @@ def main():
         png, stats = os.path.join(work, f"{name}.png"), os.path.join(work, f"{name}.json")
         run([pointray, "-q", "render", scene, "-o", png, "--stats", stats, "--threads", a.threads, *extra])
         s = json.load(open(stats))
-        options = " ".join(map(str, extra)) or "--lod on"
+        options = " ".join(map(str, extra))
         return png, {"name": name, "seed": seed, "options": options,
                      "render_seconds": s["render_seconds"], "rays": s["rays"],
                      "secondary_rays": s["secondary_rays"], "nodes_visited_per_ray": s["nodes_visited_per_ray"],
@@ -80,11 +80,11 @@ def main():
         c = json.loads(run([pointray, "compare", x, y, "--json"]))
         return c["psnr_db"]
 
-    full, full_rec = render("full", 1, ["--lod", "off"])
-    noise, noise_rec = render("full-seed2", 2, ["--lod", "off"])
+    full, full_rec = render("full", 1, ["--lod", "off", "--diffuse-spread", "0"])
+    noise, noise_rec = render("full-seed2", 2, ["--lod", "off", "--diffuse-spread", "0"])
     noise_rec["psnr_vs_full_db"] = psnr(noise, full)
     records = [full_rec, noise_rec]
-    camera, camera_rec = render("camera-lod", 1, [])
+    camera, camera_rec = render("camera-lod", 1, ["--diffuse-spread", "0"])
     camera_rec["psnr_vs_full_db"] = psnr(camera, full)
     records.append(camera_rec)
     for spread in a.spreads.split(","):
