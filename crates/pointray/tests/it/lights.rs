@@ -5,10 +5,9 @@ use pointray::accel::{Bvh, BvhParams};
 use pointray::camera::{Camera, Region};
 use pointray::material::{Material, Phong};
 use pointray::render::{RenderConfig, render};
-use pointray::shading::{Environment, Light};
-use pointray::splat::scheme::SurfaceScheme;
+use pointray::shading::Light;
 
-use crate::util::plane_splats;
+use crate::util::{plane_splats, render_config};
 
 /// A receiver plane z = 0 under a sheet at z = 0.5 covering x < 0, lit by a sphere of radius
 /// 0.3 centred 1.5 above the origin. Returns the visible fraction of the light at receiver
@@ -24,22 +23,11 @@ fn visibility(xs: &[f32], light_radius: f32, samples: u32) -> Vec<f32> {
     // Low and to the side, under the sheet's level: it sees the receiver, not the sheet.
     let cam = Camera::look_at(Vec3::new(0.0, -3.0, 0.15), Vec3::ZERO, Vec3::Z, 30.0, 256, 256);
     let config = |x: u32, y: u32| RenderConfig {
-        sampler: pointray::render::Sampler::Random,
-        filter: pointray::render::Filter::Box,
-        integrator: pointray::render::Integrator::Whitted,
-        scheme: SurfaceScheme::sj(),
         lights: vec![Light::Sphere { center: Vec3::new(0.0, 0.0, 1.5), radius: light_radius, intensity: 1.0 }],
         materials: vec![Material::Phong(Phong { ambient: 0.0, specular: 0.0, shininess: 1.0 })],
-        shadows: true,
-        shadow_offset: 1.0,
-        environment: Environment::Uniform { color: [0.0; 3] },
         max_depth: 1,
-        region: Region { x0: x, y0: y, x1: x + 1, y1: y + 1 },
-        samples,
         seed: 7,
-        lod_threshold: 0.0,
-        cull_backfaces: false,
-        diffuse_spread: 0.0,
+        ..render_config(Region { x0: x, y0: y, x1: x + 1, y1: y + 1 }, samples)
     };
     xs.iter()
         .map(|&x| {

@@ -9,9 +9,8 @@ use pointray::material::Material;
 use pointray::metrics::compare_rgb8;
 use pointray::render::{RenderConfig, render};
 use pointray::shading::{Environment, Light};
-use pointray::splat::scheme::SurfaceScheme;
 
-use crate::util::sphere_splats;
+use crate::util::{render_config, sphere_splats};
 
 const SIZE: u32 = 96;
 const MAX_DEPTH: u32 = 6;
@@ -74,22 +73,11 @@ fn psnr_against_exact(material: Material) -> f64 {
     let bvh = Bvh::build(sphere_splats(200_000, 1.0, 31), &BvhParams::standard());
     let cam = Camera::look_at(Vec3::new(0.4, 0.9, 3.0), Vec3::ZERO, Vec3::Y, 45.0, SIZE, SIZE);
     let config = RenderConfig {
-        sampler: pointray::render::Sampler::Random,
-        filter: pointray::render::Filter::Box,
-        integrator: pointray::render::Integrator::Whitted,
-        scheme: SurfaceScheme::sj(),
         lights: vec![Light::Directional { direction: Vec3::Y, intensity: 1.0 }],
         materials: vec![material],
-        shadows: true,
-        shadow_offset: 1.0,
         environment: sky(),
         max_depth: MAX_DEPTH,
-        region: Region::full(SIZE, SIZE),
-        samples: 1,
-        seed: 0,
-        lod_threshold: 0.0,
-        cull_backfaces: false,
-        diffuse_spread: 0.0,
+        ..render_config(Region::full(SIZE, SIZE), 1)
     };
     let (film, stats) = render(&bvh, &cam, &config, &|_| {});
     assert!(stats.secondary_rays >= stats.primary_hits, "every hit spawns a secondary ray: {stats:?}");

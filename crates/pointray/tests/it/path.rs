@@ -7,13 +7,11 @@
 use glam::Vec3;
 use pointray::accel::{Bvh, BvhParams};
 use pointray::camera::{Camera, Region};
-use pointray::material::Material;
 use pointray::render::{Integrator, RenderConfig, render};
 use pointray::shading::Environment;
-use pointray::splat::scheme::SurfaceScheme;
 use pointray::splat::{Splat, pack_color};
 
-use crate::util::{plane_splats, sphere_splats, torus_splats};
+use crate::util::{plane_splats, render_config, sphere_splats, torus_splats};
 use pointray::shading::Light;
 
 /// Mean and largest deviation from `expected` over the pixels wholly on the splats, rendered
@@ -23,22 +21,11 @@ fn furnace(mut splats: Vec<Splat>, srgb: f32, expected: f32, max_depth: u32) -> 
     let bvh = Bvh::build(splats, &BvhParams::standard());
     let cam = Camera::look_at(Vec3::new(0.5, 1.8, 2.6), Vec3::ZERO, Vec3::Y, 50.0, 64, 64);
     let config = RenderConfig {
-        sampler: pointray::render::Sampler::Random,
-        filter: pointray::render::Filter::Box,
         integrator: Integrator::Path,
-        scheme: SurfaceScheme::sj(),
-        lights: Vec::new(),
-        materials: vec![Material::standard()],
-        shadows: true,
-        shadow_offset: 1.0,
         environment: Environment::Uniform { color: [1.0; 3] },
         max_depth,
-        region: Region::full(64, 64),
-        samples: 16,
         seed: 3,
-        lod_threshold: 0.0,
-        cull_backfaces: false,
-        diffuse_spread: 0.0,
+        ..render_config(Region::full(64, 64), 16)
     };
     let (film, _) = render(&bvh, &cam, &config, &|_| {});
     // Pixels whose every sample hit: their mean normal is (nearly) unit; a miss counts zero.
@@ -78,22 +65,12 @@ fn plane_mean(lights: Vec<Light>, sky: Environment, samples: u32) -> (f32, f32) 
     let bvh = Bvh::build(splats, &BvhParams::standard());
     let cam = Camera::look_at(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Y, 30.0, 32, 32);
     let config = RenderConfig {
-        sampler: pointray::render::Sampler::Random,
-        filter: pointray::render::Filter::Box,
         integrator: Integrator::Path,
-        scheme: SurfaceScheme::sj(),
         lights,
-        materials: vec![Material::standard()],
-        shadows: true,
-        shadow_offset: 1.0,
         environment: sky,
         max_depth: 6,
-        region: Region::full(32, 32),
-        samples,
         seed: 4,
-        lod_threshold: 0.0,
-        diffuse_spread: 0.0,
-        cull_backfaces: false,
+        ..render_config(Region::full(32, 32), samples)
     };
     let (film, _) = render(&bvh, &cam, &config, &|_| {});
     assert!(film.depth.iter().all(|d| d.is_finite()), "the plane fills the frame");
@@ -140,22 +117,10 @@ fn occlusion_beside_a_wall(wall: bool) -> f32 {
     let cam = Camera::look_at(Vec3::new(-1.0, 0.0, 1.0), point, Vec3::Z, 20.0, 65, 65);
     let (px, py) = cam.project(point).unwrap();
     let config = RenderConfig {
-        sampler: pointray::render::Sampler::Random,
-        filter: pointray::render::Filter::Box,
         integrator: Integrator::AmbientOcclusion { distance: 100.0 },
-        scheme: SurfaceScheme::sj(),
-        lights: Vec::new(),
-        materials: vec![Material::standard()],
-        shadows: true,
-        shadow_offset: 1.0,
-        environment: Environment::Uniform { color: [0.0; 3] },
         max_depth: 1,
-        region: Region { x0: px as u32, y0: py as u32, x1: px as u32 + 1, y1: py as u32 + 1 },
-        samples: 4096,
         seed: 5,
-        lod_threshold: 0.0,
-        diffuse_spread: 0.0,
-        cull_backfaces: false,
+        ..render_config(Region { x0: px as u32, y0: py as u32, x1: px as u32 + 1, y1: py as u32 + 1 }, 4096)
     };
     render(&bvh, &cam, &config, &|_| {}).0.rgb[0][1]
 }
@@ -180,21 +145,10 @@ fn coverage(sampler: pointray::render::Sampler, samples: u32) -> Vec<f32> {
     let cam = Camera::look_at(Vec3::new(0.0, 0.0, 4.0), Vec3::ZERO, Vec3::Y, 30.0, 48, 48);
     let config = RenderConfig {
         sampler,
-        filter: pointray::render::Filter::Box,
         integrator: Integrator::AmbientOcclusion { distance: 1.0 },
-        scheme: SurfaceScheme::sj(),
-        lights: Vec::new(),
-        materials: vec![Material::standard()],
-        shadows: true,
-        shadow_offset: 1.0,
-        environment: Environment::Uniform { color: [0.0; 3] },
         max_depth: 1,
-        region: Region::full(48, 48),
-        samples,
         seed: 8,
-        lod_threshold: 0.0,
-        diffuse_spread: 0.0,
-        cull_backfaces: false,
+        ..render_config(Region::full(48, 48), samples)
     };
     render(&bvh, &cam, &config, &|_| {}).0.rgb.iter().map(|c| c[1]).collect()
 }

@@ -59,3 +59,27 @@ pub fn random_rays(n: usize, target: &pointray::math::Aabb, seed: u64) -> Vec<po
         })
         .collect()
 }
+
+/// A render's settings with neutral defaults (Whitted, SJ, no light, the standard material, a
+/// black environment, independent samples, full detail), for tests to override by field.
+pub fn render_config(region: pointray::camera::Region, samples: u32) -> pointray::render::RenderConfig {
+    use pointray::render::{Filter, Integrator, RenderConfig, Sampler};
+    RenderConfig {
+        sampler: Sampler::Random,
+        filter: Filter::Box,
+        integrator: Integrator::Whitted,
+        scheme: pointray::splat::scheme::SurfaceScheme::sj(),
+        lights: Vec::new(),
+        materials: vec![pointray::material::Material::standard()],
+        shadows: true,
+        shadow_offset: 1.0,
+        environment: pointray::shading::Environment::Uniform { color: [0.0; 3] },
+        max_depth: 5,
+        region,
+        samples,
+        seed: 0,
+        lod_threshold: 0.0,
+        diffuse_spread: 0.0,
+        cull_backfaces: false,
+    }
+}
