@@ -15,6 +15,14 @@ pub fn bar(len: u64, message: &'static str, quiet: bool) -> ProgressBar {
     pb
 }
 
+/// Runs `work` under a spinner labelled `message`, cleared when it ends.
+pub fn spinning<T>(message: &'static str, quiet: bool, work: impl FnOnce() -> T) -> T {
+    let spinner = spinner(message, quiet);
+    let result = work();
+    spinner.finish_and_clear();
+    result
+}
+
 pub fn spinner(message: &'static str, quiet: bool) -> ProgressBar {
     if quiet {
         return ProgressBar::hidden();

@@ -35,10 +35,7 @@ pub fn check_output_path(path: &Path) -> anyhow::Result<()> {
 /// Reads a cloud file, with the file name in any error.
 pub fn load(path: &Path, quiet: bool) -> anyhow::Result<(pointray_io::LoadedCloud, f64)> {
     let t = Instant::now();
-    let spinner = crate::progress::spinner("read", quiet);
-    let loaded = pointray_io::read_cloud(path);
-    spinner.finish_and_clear();
-    let loaded = loaded?;
+    let loaded = crate::progress::spinning("read", quiet, || pointray_io::read_cloud(path))?;
     tracing::info!("read {} points from {} in {:.3} s", loaded.cloud.len(), path.display(), t.elapsed().as_secs_f64());
     Ok((loaded, t.elapsed().as_secs_f64()))
 }

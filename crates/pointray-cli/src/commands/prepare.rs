@@ -7,10 +7,8 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     let (loaded, _) = super::load(&a.input, quiet)?;
     let mut cloud = loaded.cloud;
     let stats = super::prepare_cloud(&mut cloud, &a.preprocess, &a.input.display().to_string(), quiet)?;
-    let spinner = crate::progress::spinner("write", quiet);
-    let written = pointray_io::write_ply(&a.output, &cloud);
-    spinner.finish_and_clear();
-    written.map_err(crate::failure::output)?;
+    crate::progress::spinning("write", quiet, || pointray_io::write_ply(&a.output, &cloud))
+        .map_err(crate::failure::output)?;
     if !quiet {
         eprintln!(
             "{}: {} {}, normals {}, radii {}, wrote {}",

@@ -284,9 +284,9 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
     }
     let mean_radius = splats.iter().map(|s| f64::from(s.radius)).sum::<f64>() / splats.len() as f64;
     let t = Instant::now();
-    let spinner = crate::progress::spinner("build", quiet);
-    let accel = AnyAccel::build(a.accel, splats, a.sphere_from_level, surface_kind(a.surface).shape());
-    spinner.finish_and_clear();
+    let shape = surface_kind(a.surface).shape();
+    let accel =
+        crate::progress::spinning("build", quiet, || AnyAccel::build(a.accel, splats, a.sphere_from_level, shape));
     let build_seconds = t.elapsed().as_secs_f64();
     tracing::info!("built {} over {} splats in {build_seconds:.3} s", accel.name(), cloud.len());
 

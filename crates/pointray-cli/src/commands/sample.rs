@@ -8,6 +8,7 @@ use pointray::mesh_sampling::{SampleNormals, sample_surface};
 
 use crate::args::{NormalsArg, SampleArgs};
 use crate::failure;
+use crate::progress::spinning;
 
 pub fn run(a: &SampleArgs, quiet: bool) -> anyhow::Result<()> {
     // No more than `render` can index: a larger cloud could be written but never rendered.
@@ -17,10 +18,7 @@ pub fn run(a: &SampleArgs, quiet: bool) -> anyhow::Result<()> {
     }
     super::check_output_path(&a.output)?;
     let t = Instant::now();
-    let spinner = crate::progress::spinner("read", quiet);
-    let mesh = pointray_io::read_mesh(&a.input);
-    spinner.finish_and_clear();
-    let mesh = mesh?;
+    let mesh = spinning("read", quiet, || pointray_io::read_mesh(&a.input))?;
     let read_seconds = t.elapsed().as_secs_f64();
     if mesh.skipped_faces > 0 {
         let n = mesh.skipped_faces;
@@ -29,13 +27,13 @@ pub fn run(a: &SampleArgs, quiet: bool) -> anyhow::Result<()> {
     }
 
     let t = Instant::now();
-    let spinner = crate::progress::spinner("sample", quiet);
     let normals = match a.normals {
         NormalsArg::Smooth => SampleNormals::Smooth,
         NormalsArg::Face => SampleNormals::Face,
     };
-    let samples = sample_surface(&mesh.vertices.positions, &mesh.triangles, a.points as usize, a.seed, normals);
-    spinner.finish_and_clear();
+    let samples = spinning("sample", quiet, || {
+        sample_surface(&mesh.vertices.positions, &mesh.triangles, a.points as usize, a.seed, normals)
+    });
     let samples = samples.with_context(|| format!("{}: sampling", a.input.display()))?;
     let sample_seconds = t.elapsed().as_secs_f64();
     if samples.empty_triangles > 0 {
@@ -53,10 +51,7 @@ pub fn run(a: &SampleArgs, quiet: bool) -> anyhow::Result<()> {
         ..PointCloud::default()
     };
     drop(mesh.vertices);
-    let spinner = crate::progress::spinner("write", quiet);
-    let written = pointray_io::write_ply(&a.output, &cloud);
-    spinner.finish_and_clear();
-    written.map_err(failure::output)?;
+    spinning("write", quiet, || pointray_io::write_ply(&a.output, &cloud)).map_err(failure::output)?;
     let write_seconds = t.elapsed().as_secs_f64();
     if !quiet {
         eprintln!(

@@ -5,7 +5,7 @@ use pointray::accel::{Bvh, BvhParams, TraversalStats};
 use pointray::camera::{Camera, Region};
 use pointray::material::Material;
 use pointray::render::{RenderConfig, render};
-use pointray::shading::{Environment, Light};
+use pointray::shading::Light;
 use pointray::splat::scheme::{self, SurfaceHit, SurfaceScheme};
 
 use crate::util::sphere_splats;
@@ -116,22 +116,8 @@ fn sphere_image_matches_the_analytic_image() {
     let bvh = Bvh::build(splats, &BvhParams::standard());
     let cam = Camera::look_at(Vec3::new(0.0, 0.0, 3.2), Vec3::ZERO, Vec3::Y, 45.0, 64, 64);
     let config = RenderConfig {
-        sampler: pointray::render::Sampler::Random,
-        filter: pointray::render::Filter::Box,
-        integrator: pointray::render::Integrator::Whitted,
-        scheme: SurfaceScheme::sj(),
         lights: vec![Light::Point { position: Vec3::new(2.0, 3.0, 4.0), intensity: 25.0 }],
-        materials: vec![Material::standard()],
-        shadows: true,
-        shadow_offset: 1.0,
-        environment: Environment::Uniform { color: [0.0, 0.0, 0.0] },
-        max_depth: 5,
-        region: Region::full(64, 64),
-        samples: 1,
-        seed: 0,
-        lod_threshold: 0.0,
-        cull_backfaces: false,
-        diffuse_spread: 0.0,
+        ..crate::util::render_config(Region::full(64, 64), 1)
     };
     let (film, stats) = render(&bvh, &cam, &config, &|_| {});
     let exact = analytic_image(&cam, &config);

@@ -3,10 +3,8 @@
 use glam::Vec3;
 use pointray::accel::{Bvh, BvhParams};
 use pointray::camera::Camera;
-use pointray::material::Material;
 use pointray::render::{RenderConfig, render};
 use pointray::shading::Environment;
-use pointray::splat::scheme::SurfaceScheme;
 
 use crate::util::torus_splats;
 
@@ -23,23 +21,13 @@ fn image_is_identical_with_one_and_two_threads() {
         40,
     );
     let config = RenderConfig {
-        sampler: pointray::render::Sampler::Random,
-        filter: pointray::render::Filter::Box,
-        integrator: pointray::render::Integrator::Whitted,
-        scheme: SurfaceScheme::sj(),
         lights: vec![pointray::demo::demo_light()],
-        materials: vec![Material::standard()],
-        shadows: true,
-        shadow_offset: 1.0,
         environment: Environment::Uniform { color: [0.1, 0.1, 0.1] },
-        max_depth: 5,
-        region: pointray::camera::Region::full(48, 40),
-        samples: 3,
         seed: 42,
         // Level of detail and culling on: their work must not depend on the threads either.
         lod_threshold: 1.0,
         cull_backfaces: true,
-        diffuse_spread: 0.0,
+        ..crate::util::render_config(pointray::camera::Region::full(48, 40), 3)
     };
     let run = |threads| {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();

@@ -235,9 +235,8 @@ fn ray_facing_disks_leave_no_cracks_at_the_silhouette() {
 #[test]
 fn shadow_rays_do_not_hit_their_own_surface() {
     use pointray::camera::Region;
-    use pointray::material::Material;
     use pointray::render::{RenderConfig, render};
-    use pointray::shading::{Environment, Light};
+    use pointray::shading::Light;
     let cases = [
         (plane(), Vec3::new(0.0, -0.4, 2.5), Vec3::new(1.0, 0.3, 0.4)),
         (sphere(), Vec3::new(0.0, 0.0, 3.2), Vec3::new(1.0, 0.6, 0.8)),
@@ -247,22 +246,10 @@ fn shadow_rays_do_not_hit_their_own_surface() {
         let cam = Camera::look_at(eye, Vec3::ZERO, Vec3::Y, 40.0, 64, 64);
         for (name, scheme) in schemes() {
             let config = |shadows| RenderConfig {
-                sampler: pointray::render::Sampler::Random,
-                filter: pointray::render::Filter::Box,
-                integrator: pointray::render::Integrator::Whitted,
                 scheme,
                 lights: vec![Light::Directional { direction: light, intensity: 3.0 }],
-                materials: vec![Material::standard()],
                 shadows,
-                shadow_offset: 1.0,
-                environment: Environment::Uniform { color: [0.0; 3] },
-                max_depth: 5,
-                region: Region::full(64, 64),
-                samples: 1,
-                seed: 0,
-                lod_threshold: 0.0,
-                cull_backfaces: false,
-                diffuse_spread: 0.0,
+                ..crate::util::render_config(Region::full(64, 64), 1)
             };
             let (lit, stats) = render(&bvh, &cam, &config(true), &|_| {});
             let (free, _) = render(&bvh, &cam, &config(false), &|_| {});
