@@ -194,6 +194,10 @@ pub struct RenderArgs {
     /// Bounces a path may take (off mirrors and glass; with --integrator path, any).
     #[arg(long, default_value_t = 5)]
     pub max_depth: u32,
+    /// An analytic floor under the model: a checkered plane just below its bounding box
+    /// along --up, which it stands on and shadows.
+    #[arg(long)]
+    pub ground: bool,
     /// A sky-blue gradient above a grey ground around the scene, instead of the dark
     /// background (what mirrors and glass show).
     #[arg(long)]

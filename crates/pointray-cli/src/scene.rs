@@ -11,11 +11,13 @@ use std::time::Instant;
 use anyhow::Context;
 use glam::{DMat3, DVec3, Vec3};
 use pointray::PointCloud;
+use pointray::film::srgb_to_linear;
+use pointray::ground::{Checker, GroundPlane};
 use pointray::material::{Material, Phong};
 use pointray::preprocess::PreprocessStats;
 use pointray::shading::{Environment, Light};
 use pointray_io::scene::{
-    CloudSpec, EnvironmentSpec, GroundSpec, IntegratorSpec, LightSpec, MaterialSpec, parse_scene,
+    CloudSpec, EnvironmentSpec, GridSpec, GroundSpec, IntegratorSpec, LightSpec, MaterialSpec, parse_scene,
 };
 
 use crate::args::{RenderArgs, SurfaceArg};
@@ -29,6 +31,7 @@ pub struct Scene {
     pub materials: Vec<Material>,
     pub lights: Vec<Light>,
     pub environment: Environment,
+    pub ground: Option<GroundPlane>,
     /// The command line with the scene's camera and render settings put in.
     pub args: RenderArgs,
     pub points_read: usize,
@@ -53,14 +56,14 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
     let (mut points_read, mut preprocess) = (0, PreprocessStats::default());
     for (index, cloud) in spec.clouds.iter().enumerate() {
         let name = format!("{}: cloud {}", path.display(), index + 1);
-        let (mut points, label) = match (&cloud.file, &cloud.ground) {
+        let (mut points, label) = match (&cloud.file, &cloud.grid) {
             (Some(file), None) => {
                 let file = folder.join(file);
                 let (loaded, _) = crate::commands::load(&file, quiet).with_context(|| name.clone())?;
                 (loaded.cloud, file.display().to_string())
             }
-            (None, Some(ground)) => (ground_cloud(ground).with_context(|| name.clone())?, format!("{name} (ground)")),
-            _ => anyhow::bail!("{name}: give either `file` or `ground`"),
+            (None, Some(grid)) => (grid_cloud(grid).with_context(|| name.clone())?, format!("{name} (grid)")),
+            _ => anyhow::bail!("{name}: give either `file` or `grid`"),
         };
         if let Some(color) = cloud.color {
             points.colors = Some(vec![color; points.len()]);
@@ -122,6 +125,8 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
     args.region = None;
     super::commands::render::check_args(&args).map_err(|e| failure::usage(e.context(path.display().to_string())))?;
     let lights = spec.lights.iter().map(light).collect();
+    let ground =
+        spec.ground.as_ref().map(ground).transpose().with_context(|| format!("{}: [ground]", path.display()))?;
     let environment = match spec.environment {
         EnvironmentSpec::Uniform { color } => Environment::Uniform { color },
         EnvironmentSpec::Sky { zenith, horizon, ground } => {
@@ -134,6 +139,7 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
         materials,
         lights,
         environment,
+        ground,
         args,
         points_read,
         preprocess,
@@ -141,12 +147,12 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
     })
 }
 
-fn ground_cloud(g: &GroundSpec) -> anyhow::Result<PointCloud> {
-    anyhow::ensure!(g.size > 0.0 && g.spacing > 0.0, "ground: size and spacing must be positive");
+fn grid_cloud(g: &GridSpec) -> anyhow::Result<PointCloud> {
+    anyhow::ensure!(g.size > 0.0 && g.spacing > 0.0, "grid: size and spacing must be positive");
     // In f64 first: a huge size over a tiny spacing must not overflow the count.
     let side = (g.size / g.spacing).ceil() + 1.0;
     let most = (pointray::accel::bvh::MAX_SPLATS as f64).sqrt();
-    anyhow::ensure!(side <= most, "ground: {side} x {side} points is too many (at most {most:.0} a side)");
+    anyhow::ensure!(side <= most, "grid: {side} x {side} points is too many (at most {most:.0} a side)");
     let n = side as usize;
     let half = 0.5 * g.size;
     let mut world = Vec::with_capacity(n * n);
@@ -165,6 +171,26 @@ fn ground_cloud(g: &GroundSpec) -> anyhow::Result<PointCloud> {
     cloud.normals = Some(vec![Vec3::Y; world.len()]);
     cloud.colors = g.checker.is_some().then_some(colors);
     Ok(cloud)
+}
+
+fn ground(spec: &GroundSpec) -> anyhow::Result<GroundPlane> {
+    let up = Vec3::from(spec.up).try_normalize().context("`up` must be a non-zero direction")?;
+    anyhow::ensure!(spec.height.is_finite(), "`height` must be finite");
+    let linear = |c: [f32; 3]| c.map(srgb_to_linear);
+    let checker = match &spec.checker {
+        Some(c) => {
+            anyhow::ensure!(c.tile > 0.0 && c.tile.is_finite(), "the checker's `tile` must be positive");
+            Some(Checker { color: linear(c.color), tile: c.tile as f32 })
+        }
+        None => None,
+    };
+    Ok(GroundPlane {
+        up,
+        height: spec.height as f32,
+        color: linear(spec.color),
+        checker,
+        material: material(&spec.material),
+    })
 }
 
 /// Moves a preprocessed cloud to its place in the world: positions, normals and radii.
@@ -255,9 +281,23 @@ mod tests {
     }
 
     #[test]
-    fn a_ground_too_fine_to_count_is_refused() {
-        let spec: GroundSpec = toml::from_str("size = 1e30\nspacing = 1e-30").unwrap();
-        assert!(ground_cloud(&spec).unwrap_err().to_string().contains("too many"));
+    fn a_grid_too_fine_to_count_is_refused() {
+        let spec: GridSpec = toml::from_str("size = 1e30\nspacing = 1e-30").unwrap();
+        assert!(grid_cloud(&spec).unwrap_err().to_string().contains("too many"));
+    }
+
+    #[test]
+    fn a_ground_is_placed_and_coloured_as_written() {
+        let spec: GroundSpec =
+            toml::from_str("height = -0.5\nup = [0.0, 2.0, 0.0]\ncolor = [1.0, 0.5, 0.0]\nchecker = { color = [0.0, 0.0, 0.0], tile = 0.25 }")
+                .unwrap();
+        let g = ground(&spec).unwrap();
+        assert_eq!((g.up, g.height, g.checker.unwrap().tile), (Vec3::Y, -0.5, 0.25));
+        assert_eq!(g.color, [1.0, srgb_to_linear(0.5), 0.0]);
+        let flat: GroundSpec = toml::from_str("up = [0.0, 0.0, 0.0]").unwrap();
+        assert!(ground(&flat).unwrap_err().to_string().contains("up"));
+        let tiny: GroundSpec = toml::from_str("checker = { color = [0.0, 0.0, 0.0], tile = 0.0 }").unwrap();
+        assert!(ground(&tiny).unwrap_err().to_string().contains("tile"));
     }
 
     /// The example scenes follow the schema (rendering them needs the shared data).

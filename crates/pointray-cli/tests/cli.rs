@@ -341,6 +341,10 @@ inner = 10.0
 outer = 20.0
 intensity = 6.0
 
+[ground]
+color = [0.8, 0.8, 0.8]
+checker = {{ color = [0.2, 0.2, 0.2], tile = 1.0 }}
+
 [[cloud]]
 file = "sphere.ply"
 translate = [-1.2, 1.0, 0.0]
@@ -351,9 +355,6 @@ file = "sphere.ply"
 scale = 0.5
 translate = [1.2, 0.5, 0.0]
 color = [0.9, 0.2, 0.1]
-
-[[cloud]]
-ground = {{ size = 6.0, spacing = 0.05, checker = [[0.2, 0.2, 0.2], [0.8, 0.8, 0.8], 1.0] }}
 "#
     )
 }
@@ -369,18 +370,50 @@ fn scene_files_place_clouds_with_their_materials_and_lights() {
     let run = run_in(dir.path(), &["-q", "render", "scenes/two.toml", "-o", "a.png", "--stats", "a.json"]);
     run.assert_success();
     let s = read_stats(&dir.path().join("a.json"));
-    assert_eq!(s["materials"], serde_json::json!(["mirror", "phong", "phong"]), "{s:#}");
-    let sphere_points = 2 * 3000;
-    assert_eq!(stat_u64(&s, "points_read"), sphere_points + 121 * 121, "{s:#}");
+    assert_eq!(s["materials"], serde_json::json!(["mirror", "phong"]), "{s:#}");
+    assert_eq!(s["ground"], "phong", "{s:#}");
+    assert_eq!(stat_u64(&s, "points_read"), 2 * 3000, "{s:#}");
     assert!(stat_u64(&s, "secondary_rays") > 0 && stat_u64(&s, "shadow_rays") > 0, "{s:#}");
     assert_eq!((stat_u64(&s, "width"), stat_u64(&s, "height"), stat_u64(&s, "samples_per_pixel")), (64, 48, 4));
     let image = read_png(&dir.path().join("a.png"));
     assert_eq!((image.width, image.height), (64, 48));
-    // The red sphere is red, the mirror shows the sky and the ground.
+    // The red sphere is red; below the horizon the ground's light and dark squares show.
     assert!(image.pixels().any(|(_, _, [r, g, b])| r > 120 && g < 60 && b < 60), "no red sphere");
+    let greys = |levels: std::ops::RangeInclusive<u8>| {
+        image.pixels().filter(|&(_, y, [r, g, b])| y > 40 && r == g && g == b && levels.contains(&r)).count()
+    };
+    let (dark, light) = (greys(20..=110), greys(150..=255));
+    assert!(dark > 20 && light > 20, "no checkered ground: {dark} dark and {light} light grey pixels");
     // The same scene, the same pixels, whatever the thread count.
     run_in(dir.path(), &["-q", "render", "scenes/two.toml", "-o", "b.png", "--threads", "1"]).assert_success();
     assert!(image == read_png(&dir.path().join("b.png")), "the thread count changed the image");
+}
+
+#[test]
+fn ground_puts_a_floor_under_the_model_that_takes_its_shadow() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let render = |name: &str, extra: &[&str]| {
+        render_in(dir.path(), &[&["sphere.ply", "-o", name][..], extra].concat()).assert_success();
+        read_png(&dir.path().join(name))
+    };
+    let plain = render("plain.png", &[]);
+    // Light from straight above: the shadow lies under the sphere, in front of it as seen.
+    let floor = render("floor.png", &["--ground", "--light-dir", "0,1,0", "--stats", "floor.json"]);
+    let unshadowed = render("lit.png", &["--ground", "--light-dir", "0,1,0", "--no-shadows"]);
+    assert_eq!(read_stats(&dir.path().join("floor.json"))["ground"], "phong");
+    // The floor fills the view below the horizon.
+    let bg = background_srgb8();
+    assert!(
+        floor.count_not(bg) > plain.count_not(bg) + 1000,
+        "{} against {}",
+        floor.count_not(bg),
+        plain.count_not(bg)
+    );
+    // Shadow rays only darken, and they darken the floor under the sphere.
+    let pairs = || floor.pixels().zip(unshadowed.pixels()).map(|((_, _, a), (_, _, b))| (a[1], b[1]));
+    let darker = pairs().filter(|(a, b)| a + 20 < *b).count();
+    assert!(darker > 50 && pairs().all(|(a, b)| a <= b), "{darker} pixels in shadow");
 }
 
 #[test]
@@ -393,9 +426,10 @@ fn bad_scene_files_are_refused_with_their_name_and_line() {
         ("missing.toml", two_sphere_scene(1).replace("sphere.ply", "nothing.ply"), "nothing.ply"),
         (
             "both.toml",
-            two_sphere_scene(1).replace("[[cloud]]\nfile", "[[cloud]]\nground = { size = 1.0, spacing = 0.1 }\nfile"),
-            "either `file` or `ground`",
+            two_sphere_scene(1).replace("[[cloud]]\nfile", "[[cloud]]\ngrid = { size = 1.0, spacing = 0.1 }\nfile"),
+            "either `file` or `grid`",
         ),
+        ("flat.toml", two_sphere_scene(1).replace("[ground]", "[ground]\nup = [0.0, 0.0, 0.0]"), "[ground]: `up`"),
         ("none.toml", "cloud = []\n[camera]\neye = [0, 0, 1]\nlook_at = [0, 0, 0]\n".to_string(), "no [[cloud]]"),
         ("scale.toml", two_sphere_scene(1).replace("scale = 0.5", "scale = -1.0"), "scale must be positive"),
     ];

@@ -32,6 +32,7 @@ pub struct SceneFile {
     pub environment: EnvironmentSpec,
     #[serde(default, rename = "light")]
     pub lights: Vec<LightSpec>,
+    pub ground: Option<GroundSpec>,
     #[serde(rename = "cloud")]
     pub clouds: Vec<CloudSpec>,
 }
@@ -151,9 +152,9 @@ pub enum LightSpec {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CloudSpec {
-    /// A point-cloud file, relative to the scene file; or, instead, `ground`.
+    /// A point-cloud file, relative to the scene file; or, instead, `grid`.
     pub file: Option<PathBuf>,
-    pub ground: Option<GroundSpec>,
+    pub grid: Option<GridSpec>,
     /// Applied in this order: scale, rotations about x, y and z (degrees), translation.
     #[serde(default = "one")]
     pub scale: f64,
@@ -171,15 +172,43 @@ fn one() -> f64 {
     1.0
 }
 
-/// A square floor of points, normals up (+y), sampled on a grid.
+/// A square grid of points at y = 0, normals up (+y): a floor made of splats.
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct GroundSpec {
+pub struct GridSpec {
     pub size: f64,
     pub spacing: f64,
     /// Two colours alternating in squares of `tile`.
     #[serde(default)]
     pub checker: Option<([f32; 3], [f32; 3], f64)>,
+}
+
+/// The analytic ground plane `{p : p·up = height}`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GroundSpec {
+    #[serde(default)]
+    pub height: f64,
+    #[serde(default = "y_up")]
+    pub up: [f32; 3],
+    /// sRGB, 0–1.
+    #[serde(default = "ground_color")]
+    pub color: [f32; 3],
+    /// Squares of side `tile` alternating between `color` and this `color`.
+    pub checker: Option<CheckerSpec>,
+    #[serde(default)]
+    pub material: MaterialSpec,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CheckerSpec {
+    pub color: [f32; 3],
+    pub tile: f64,
+}
+
+fn ground_color() -> [f32; 3] {
+    [0.8; 3]
 }
 
 #[derive(Debug, Default, Deserialize)]

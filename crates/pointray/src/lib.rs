@@ -15,6 +15,7 @@ pub mod camera;
 pub mod cloud;
 pub mod demo;
 pub mod film;
+pub mod ground;
 pub mod knn;
 pub mod material;
 pub mod math;

@@ -13,6 +13,7 @@ use rayon::prelude::*;
 use crate::accel::Accel;
 use crate::camera::{Camera, Region};
 use crate::film::Film;
+use crate::ground::GroundPlane;
 use crate::material::{self, Material};
 use crate::math::Ray;
 use crate::shading::{Environment, Light};
@@ -75,6 +76,8 @@ pub struct RenderConfig {
     pub shadow_offset: f32,
     /// What rays that leave the scene see.
     pub environment: Environment,
+    /// An analytic plane under the clouds, tested by every ray beside the accelerator.
+    pub ground: Option<GroundPlane>,
     /// Bounces a path may take (Whitted: off mirrors and glass; the path tracer: any); the
     /// camera ray is bounce 0. A path that would go deeper contributes nothing more.
     pub max_depth: u32,
@@ -262,28 +265,24 @@ impl<A: Accel> Tracer<'_, A> {
         if depth > 0 {
             self.stats.secondary_rays += 1;
         }
-        let Some(hit) = scheme::intersect(self.accel, ray, &config.scheme, &mut self.stats.traversal) else {
+        let Some((hit, material)) = self.closest(ray, depth == 0) else {
             return config.environment.radiance(ray.dir);
         };
         if depth == 0 {
-            self.stats.primary_hits += 1;
-            self.stats.blended_splats += u64::from(hit.blended);
             self.first.normal += hit.normal;
             self.first.albedo += Vec3::from(hit.color);
             self.first.depth += hit.t;
             self.first.hits += 1;
         }
-        let index = usize::from(self.accel.splat(hit.splat).material());
-        let material = config.materials.get(index).or(config.materials.first()).copied();
         let bounce = |direction: Vec3| secondary(ray, &hit, direction, config);
-        match material.unwrap_or(Material::standard()) {
+        match material {
             Material::Phong(_) if config.integrator == Integrator::Path => self.diffuse(ray, &hit, depth, inside),
             Material::Phong(_) if let Integrator::AmbientOcclusion { distance } = config.integrator => {
                 let direction = cosine_direction(hit.normal, [self.rng.random(), self.rng.random()]);
                 let probe = secondary(ray, &hit, direction, config);
                 self.stats.secondary_rays += 1;
                 self.stats.rays += 1;
-                let open = !scheme::occluded(self.accel, &probe, distance, &config.scheme, &mut self.stats.traversal);
+                let open = !self.occluded(&probe, distance);
                 Vec3::from(hit.color) * f32::from(u8::from(open))
             }
             Material::Phong(phong) => {
@@ -323,6 +322,33 @@ impl<A: Accel> Tracer<'_, A> {
                 }
             }
         }
+    }
+
+    /// The nearest surface along `ray`, a splat or the ground in front of it, and its material.
+    /// Camera rays (`primary`) that meet a splat are counted.
+    fn closest(&mut self, ray: &Ray, primary: bool) -> Option<(scheme::SurfaceHit, Material)> {
+        let config = self.config;
+        let splat = scheme::intersect(self.accel, ray, &config.scheme, &mut self.stats.traversal);
+        let t_max = splat.map_or(f32::INFINITY, |hit| hit.t);
+        if let Some(ground) = &config.ground
+            && let Some(hit) = ground.intersect(ray, t_max)
+        {
+            return Some((hit, ground.material));
+        }
+        let hit = splat?;
+        if primary {
+            self.stats.primary_hits += 1;
+            self.stats.blended_splats += u64::from(hit.blended);
+        }
+        let index = usize::from(self.accel.splat(hit.splat).material());
+        let material = config.materials.get(index).or(config.materials.first()).copied();
+        Some((hit, material.unwrap_or(Material::standard())))
+    }
+
+    /// Whether anything, a splat or the ground, meets `ray` before `t_max`.
+    fn occluded(&mut self, ray: &Ray, t_max: f32) -> bool {
+        self.config.ground.is_some_and(|ground| ground.intersect(ray, t_max).is_some())
+            || scheme::occluded(self.accel, ray, t_max, &self.config.scheme, &mut self.stats.traversal)
     }
 
     /// Calls `lit` with the direction towards each light that `hit` faces and sees (one
@@ -380,7 +406,7 @@ impl<A: Accel> Tracer<'_, A> {
         // light keeps it that wide), and takes its level of detail from it.
         let mut ray = secondary(incoming, hit, to_light, self.config);
         ray.cone.spread = 0.0;
-        scheme::occluded(self.accel, &ray, light_dist, &self.config.scheme, &mut self.stats.traversal)
+        self.occluded(&ray, light_dist)
     }
 }
 

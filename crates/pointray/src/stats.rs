@@ -10,7 +10,7 @@ pub struct RenderStats {
     /// Reflected and refracted rays.
     pub secondary_rays: u64,
     pub shadow_rays: u64,
-    /// Primary rays that hit the surface.
+    /// Primary rays that hit a splat (the ground plane's hits are not counted).
     pub primary_hits: u64,
     /// Disks blended into primary hits (SJ window sizes, summed).
     pub blended_splats: u64,

@@ -5,6 +5,7 @@ use std::time::Instant;
 use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, backfacing_fraction};
 use pointray::camera::{Camera, Region};
 use pointray::film::Film;
+use pointray::ground::{Checker, GroundPlane};
 use pointray::material::Material;
 use pointray::render::{Filter, Integrator, RenderConfig, Sampler, render};
 use pointray::shading::{Environment, Light};
@@ -112,6 +113,8 @@ struct StatsReport {
     integrator: Integrator,
     /// The materials, by index (one per cloud of a scene).
     materials: Vec<&'static str>,
+    /// The analytic ground plane's material, if there is one.
+    ground: Option<&'static str>,
     samples_per_pixel: u32,
     load_seconds: f64,
     preprocess_seconds: PreprocessSeconds,
@@ -414,6 +417,10 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
             },
             None => Environment::Uniform { color: [0.010, 0.011, 0.019] },
         },
+        ground: match &scene {
+            Some(scene) => scene.ground,
+            None => a.ground.then(|| floor_under(&bounds, a.up)),
+        },
         max_depth: a.max_depth,
         region,
         samples: a.spp,
@@ -491,6 +498,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
             surface: scheme.kind.name(),
             integrator: config.integrator,
             materials: config.materials.iter().map(|m| m.name()).collect(),
+            ground: config.ground.map(|g| g.material.name()),
             samples_per_pixel: a.spp,
             load_seconds,
             preprocess_seconds: PreprocessSeconds { total: pre.seconds.total(), stages: pre.seconds },
@@ -624,5 +632,22 @@ fn surface_kind(arg: SurfaceArg) -> SurfaceKind {
         SurfaceArg::Rfd => SurfaceKind::Rfd,
         SurfaceArg::Pss => SurfaceKind::Pss,
         SurfaceArg::FirstHit => SurfaceKind::FirstHit,
+    }
+}
+
+/// `--ground`: a checkered grey plane just under the model's bounding box (along `up`), with
+/// squares an eighth of the box's diagonal. It lies a thousandth of the diagonal below the
+/// box, so that a floor of points in the model (the demo's) shows instead of fighting it.
+fn floor_under(bounds: &pointray::math::Aabb, up: glam::Vec3) -> GroundPlane {
+    let up = up.normalize();
+    let lowest = bounds.corners().iter().map(|c| c.dot(up)).fold(f32::INFINITY, f32::min);
+    let height = lowest - 1e-3 * bounds.diagonal();
+    let grey = |c: f32| [pointray::film::srgb_to_linear(c); 3];
+    GroundPlane {
+        up,
+        height,
+        color: grey(0.8),
+        checker: Some(Checker { color: grey(0.6), tile: bounds.diagonal() / 8.0 }),
+        material: Material::standard(),
     }
 }

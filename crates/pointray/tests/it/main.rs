@@ -4,6 +4,7 @@
 mod accel_agree;
 mod analytic;
 mod determinism;
+mod ground;
 mod lights;
 mod materials;
 mod multires;
