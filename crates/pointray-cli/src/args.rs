@@ -48,11 +48,22 @@ pub enum Command {
     #[command(after_help = "Example:
   pointray info dragon.ply")]
     Info(InfoArgs),
-    /// Compare two PNGs of the same size: PSNR, RMSE, largest channel difference, pixels that differ.
+    /// Compare two PNGs of the same size: PSNR, RMSE, largest channel difference, pixels that
+    /// differ, and the perceptual difference (mean FLIP).
     #[command(after_help = "Examples:
   pointray compare bvh.png brute.png
   pointray compare new.png golden.png --json")]
     Compare(CompareArgs),
+    /// Measure an experiment's matrix (models × accelerators × schemes × level of detail ×
+    /// distance), beside Embree if it names Embree's bench; write JSON lines and CSV.
+    #[command(after_help = "Examples:
+  pointray bench experiments/thesis.toml --out results/thesis
+  pointray bench experiments/thesis.toml --models bunny --dry-run")]
+    Bench(BenchArgs),
+    /// Write the Markdown report of a bench run, with its figures (SVG and PNG) and image pairs.
+    #[command(after_help = "Example:
+  pointray report results/thesis -o docs/RESULTS.md")]
+    Report(ReportArgs),
 }
 
 #[derive(Args, Clone, Debug)]
@@ -277,6 +288,44 @@ pub enum NormalsArg {
 pub struct InfoArgs {
     /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, or a Stanford scan set .conf).
     pub input: PathBuf,
+}
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// The experiment (TOML; experiments/README.md documents it).
+    pub experiment: PathBuf,
+    /// Folder for results.jsonl, results.csv and the images.
+    #[arg(long, default_value = "results")]
+    pub out: PathBuf,
+    /// Only these models (comma-separated names).
+    #[arg(long, value_delimiter = ',')]
+    pub models: Vec<String>,
+    /// List the points that would be measured, and measure nothing.
+    #[arg(long)]
+    pub dry_run: bool,
+    /// Worker threads (0 = all cores).
+    #[arg(long, default_value_t = 0)]
+    pub threads: usize,
+    /// Then write the report (Markdown) of the run here, as `pointray report` does.
+    #[arg(long)]
+    pub report: Option<PathBuf>,
+    /// Folder for the report's figures and images [default: results/ beside the report].
+    #[arg(long, requires = "report")]
+    pub figures: Option<PathBuf>,
+    #[command(flatten)]
+    pub preprocess: PreprocessArgs,
+}
+
+#[derive(Args, Debug)]
+pub struct ReportArgs {
+    /// A bench run's folder (its results.jsonl and images).
+    pub results: PathBuf,
+    /// The report (Markdown; its `## Discussion` section, if any, is kept).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Folder for the figures and images [default: results/ beside the report].
+    #[arg(long)]
+    pub figures: Option<PathBuf>,
 }
 
 #[derive(Args, Debug)]

@@ -1,9 +1,12 @@
 //! `pointray`: the command line. Argument parsing, logging and progress live here; the work is
 //! in the `pointray` and `pointray-io` libraries.
 
+mod any_accel;
 mod args;
+mod bench;
 mod commands;
 mod failure;
+mod perceptual;
 mod progress;
 mod scene;
 
@@ -24,6 +27,8 @@ fn main() -> ExitCode {
         Command::Sample(a) => commands::sample::run(a, cli.quiet),
         Command::Info(a) => commands::info::run(a, cli.quiet),
         Command::Compare(a) => commands::compare::run(a),
+        Command::Bench(a) => bench::run(a, cli.quiet),
+        Command::Report(a) => bench::run_report(a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

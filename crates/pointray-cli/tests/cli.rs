@@ -5,6 +5,9 @@
 #[path = "cli/support.rs"]
 mod support;
 
+#[path = "cli/bench.rs"]
+mod bench;
+
 use std::io::{BufRead, BufReader, Read};
 use std::process::Stdio;
 
@@ -1168,24 +1171,30 @@ fn compare_identical_and_different_images() {
 
     let run = run_in(dir.path(), &["compare", "a.png", "b.png"]);
     run.assert_success();
-    assert_eq!(run.stdout, "PSNR inf dB, RMSE 0.0000, max diff 0, 0 of 32 pixels differ\n", "{run}");
+    assert_eq!(run.stdout, "PSNR inf dB, RMSE 0.0000, max diff 0, 0 of 32 pixels differ, mean FLIP 0.0000\n", "{run}");
     let run = run_in(dir.path(), &["compare", "a.png", "b.png", "--json"]);
     run.assert_success();
     let json: serde_json::Value = serde_json::from_str(&run.stdout).unwrap_or_else(|e| panic!("{e}: {run}"));
     assert_eq!(
         json,
-        serde_json::json!({"psnr_db": null, "rmse": 0.0, "max_abs_diff": 0, "differing_pixels": 0, "pixels": 32})
+        serde_json::json!({"psnr_db": null, "rmse": 0.0, "max_abs_diff": 0, "differing_pixels": 0, "pixels": 32, "flip_mean": 0.0})
     );
 
     // Every channel off by one: PSNR 20·log10(255).
     let run = run_in(dir.path(), &["compare", "a.png", "c.png"]);
     run.assert_success();
-    assert_eq!(run.stdout, "PSNR 48.13 dB, RMSE 0.0039, max diff 1, 32 of 32 pixels differ\n", "{run}");
+    assert!(
+        run.stdout.starts_with("PSNR 48.13 dB, RMSE 0.0039, max diff 1, 32 of 32 pixels differ, mean FLIP 0.0"),
+        "{run}"
+    );
     let run = run_in(dir.path(), &["compare", "c.png", "a.png", "--json"]);
     run.assert_success();
     let json: serde_json::Value = serde_json::from_str(&run.stdout).unwrap_or_else(|e| panic!("{e}: {run}"));
     assert!((stat_f64(&json, "psnr_db") - 48.1308).abs() < 1e-4, "{json}");
     assert_eq!(stat_u64(&json, "differing_pixels"), 32);
+    // A step of one level in 255 is all but invisible.
+    let flip = stat_f64(&json, "flip_mean");
+    assert!(flip > 0.0 && flip < 0.01, "{json}");
     assert_dir_contains_exactly(dir.path(), &["a.png", "b.png", "c.png"]);
 }
 

@@ -28,15 +28,25 @@ pub fn run(a: &CompareArgs) -> anyhow::Result<()> {
         }
     };
     let diff = compare_rgb8(&rgb_a, &rgb_b);
+    let (w, h) = a.region.map_or((wa, ha), |r| (r.width(), r.height()));
+    let flip = crate::perceptual::flip_mean(&rgb_a, &rgb_b, w, h);
     let mut out = io::stdout().lock();
     if a.json {
-        serde_json::to_writer(&mut out, &diff).context("cannot encode the comparison as JSON")?;
+        #[derive(serde::Serialize)]
+        struct Comparison {
+            #[serde(flatten)]
+            diff: pointray::metrics::ImageDiff,
+            /// Mean FLIP error of the second image against the first (0: the same).
+            flip_mean: f64,
+        }
+        serde_json::to_writer(&mut out, &Comparison { diff, flip_mean: flip })
+            .context("cannot encode the comparison as JSON")?;
         writeln!(out)?;
     } else {
         let psnr = diff.psnr_db.map_or_else(|| "inf".to_string(), |p| format!("{p:.2}"));
         writeln!(
             out,
-            "PSNR {psnr} dB, RMSE {:.4}, max diff {}, {} of {} pixels differ",
+            "PSNR {psnr} dB, RMSE {:.4}, max diff {}, {} of {} pixels differ, mean FLIP {flip:.4}",
             diff.rmse, diff.max_abs_diff, diff.differing_pixels, diff.pixels
         )?;
     }

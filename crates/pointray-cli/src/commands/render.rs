@@ -2,95 +2,23 @@
 
 use std::time::Instant;
 
-use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, backfacing_fraction};
+use pointray::accel::NodeBounds;
 use pointray::camera::{Camera, Region};
 use pointray::film::Film;
 use pointray::ground::{Checker, GroundPlane};
 use pointray::material::Material;
-use pointray::render::{Filter, Integrator, RenderConfig, Sampler, render};
+use pointray::render::{Filter, Integrator, RenderConfig, Sampler};
 use pointray::shading::{Environment, Light};
 use pointray::splat::scheme::{SurfaceKind, SurfaceScheme};
 use pointray::splat::{DiskShape, Splat, splats_from_cloud};
 use pointray::stats::RenderStats;
 use serde::Serialize;
 
+use crate::any_accel::AnyAccel;
 use crate::args::{
     AccelArg, AovArg, CullArg, FilterArg, IntegratorArg, MaterialArg, RenderArgs, SamplerArg, SurfaceArg, Switch,
 };
 
-/// The accelerators the CLI can build; the render loop is monomorphised for each.
-enum AnyAccel {
-    Bvh(Bvh),
-    KdTree(KdTree),
-    Brute(BruteForce),
-}
-
-impl AnyAccel {
-    /// The accelerator over `splats`, its bounds holding the disks of `shape`.
-    fn build(kind: AccelArg, splats: Vec<Splat>, node_bounds: NodeBounds, shape: DiskShape) -> Self {
-        match kind {
-            AccelArg::Bvh => {
-                AnyAccel::Bvh(Bvh::build(splats, &BvhParams { node_bounds, shape, ..BvhParams::standard() }))
-            }
-            AccelArg::Kdtree => {
-                AnyAccel::KdTree(KdTree::build(splats, &KdTreeParams { shape, ..KdTreeParams::standard() }))
-            }
-            AccelArg::Brute => AnyAccel::Brute(BruteForce::new(splats)),
-        }
-    }
-
-    fn memory_bytes(&self) -> usize {
-        match self {
-            AnyAccel::Bvh(a) => a.memory_bytes(),
-            AnyAccel::KdTree(a) => a.memory_bytes(),
-            AnyAccel::Brute(a) => a.memory_bytes(),
-        }
-    }
-
-    fn name(&self) -> &'static str {
-        match self {
-            AnyAccel::Bvh(a) => a.name(),
-            AnyAccel::KdTree(a) => a.name(),
-            AnyAccel::Brute(a) => a.name(),
-        }
-    }
-
-    fn bounds(&self) -> pointray::math::Aabb {
-        match self {
-            AnyAccel::Bvh(a) => a.bounds(),
-            AnyAccel::KdTree(a) => a.bounds(),
-            AnyAccel::Brute(a) => a.bounds(),
-        }
-    }
-
-    fn backfacing_fraction(&self) -> Option<f64> {
-        match self {
-            AnyAccel::Bvh(a) => backfacing_fraction(a, CULL_CHECK_RAYS, 0),
-            // Only the BVH culls.
-            AnyAccel::KdTree(_) | AnyAccel::Brute(_) => None,
-        }
-    }
-
-    /// Nodes, the nodes that test spheres, and bytes per node (none for brute force).
-    fn node_summary(&self) -> (usize, usize, usize) {
-        match self {
-            AnyAccel::Bvh(a) => (a.node_count(), a.sphere_node_count(), Bvh::NODE_BYTES),
-            AnyAccel::KdTree(a) => (a.node_count(), 0, KdTree::NODE_BYTES),
-            AnyAccel::Brute(_) => (0, 0, 0),
-        }
-    }
-
-    fn render(&self, camera: &Camera, config: &RenderConfig, progress: &(dyn Fn(u64) + Sync)) -> (Film, RenderStats) {
-        match self {
-            AnyAccel::Bvh(a) => render(a, camera, config, progress),
-            AnyAccel::KdTree(a) => render(a, camera, config, progress),
-            AnyAccel::Brute(a) => render(a, camera, config, progress),
-        }
-    }
-}
-
-/// Rays of the `--cull auto` check (a few milliseconds on the BVH).
-const CULL_CHECK_RAYS: usize = 4096;
 /// `--cull auto` culls when at most this fraction of rays from around the model meets a back
 /// face first. Closed scans measure 0.1–0.4 % (stray disks at silhouettes and creases), open
 /// ones several percent and more.

@@ -31,7 +31,7 @@ use super::{DiskShape, DiskTest, Oriented, RayFacing, Splat, pss};
 use crate::accel::{Accel, SplatVisitor, TraversalStats};
 use crate::math::Ray;
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum SurfaceKind {
     Sj,

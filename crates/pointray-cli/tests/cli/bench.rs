@@ -1,0 +1,158 @@
+//! `pointray bench`: an experiment's matrix measured end to end on the sphere test cloud.
+
+use super::support::*;
+
+const EXPERIMENT: &str = r#"
+title = "sphere"
+width = 96
+height = 96
+repeats = 2
+min_seconds = 0
+reference = "pss"
+
+[[model]]
+name = "sphere"
+file = "sphere.ply"
+
+[[matrix]]
+accel = ["bvh", "kdtree"]
+surface = ["sj"]
+lod_threshold = [0, 2]
+distance = [1, 4]
+
+[[matrix]]
+accel = ["bvh-spheres", "bvh"]
+surface = ["rfd"]
+lod_threshold = [0]
+distance = [1]
+"#;
+
+fn lines(path: &std::path::Path) -> Vec<serde_json::Value> {
+    std::fs::read_to_string(path).unwrap().lines().map(|l| serde_json::from_str(l).unwrap()).collect()
+}
+
+#[test]
+fn bench_measures_every_point_and_compares_each_image_with_full_detail() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    write_file(dir.path(), "e.toml", EXPERIMENT);
+    let dry = run_in(dir.path(), &["bench", "e.toml", "--dry-run"]);
+    dry.assert_success().assert_stdout_contains("10 points");
+    run_in(dir.path(), &["-q", "bench", "e.toml", "--out", "out", "--report", "doc/RESULTS.md"]).assert_success();
+
+    let records = lines(&dir.path().join("out/results.jsonl"));
+    let header = &records[0];
+    assert_eq!((header["kind"].as_str(), header["title"].as_str()), (Some("header"), Some("sphere")));
+    assert!(
+        header["machine"]["cores"].as_u64().unwrap() >= 1 && header["machine"]["date"].as_str().unwrap().len() == 16
+    );
+    assert_eq!(records[1]["kind"], "model");
+    assert_eq!(records[1]["points"], 3000);
+    let points: Vec<&serde_json::Value> = records.iter().filter(|r| r["kind"] == "point").collect();
+    assert_eq!(points.len(), 10);
+    let find = |accel: &str, lod: f64, distance: f64| {
+        points
+            .iter()
+            .find(|p| {
+                p["accel"] == accel && p["surface"] == "sj" && p["lod_threshold"] == lod && p["distance"] == distance
+            })
+            .unwrap_or_else(|| panic!("no {accel} {lod} {distance}"))
+    };
+    for p in &points {
+        // Primary rays only, one per traced pixel; every frame timed.
+        assert_eq!(p["rays"], p["pixels"], "{p}");
+        assert!(p["render_seconds"].as_f64().unwrap() > 0.0 && p["frames"].as_u64().unwrap() >= 2, "{p}");
+        assert!(p["render_seconds_min"].as_f64() <= p["render_seconds"].as_f64(), "{p}");
+        // The sphere seen through PSS is smooth; SJ at full detail differs from it a little,
+        // RFD more (its silhouette is thicker by up to a radius). Measured: 47.1–49.5 dB and 16.6 dB.
+        if p["lod_threshold"] == 0.0 {
+            let least = if p["surface"] == "sj" { 40.0 } else { 14.0 };
+            let reference = p["psnr_reference_db"].as_f64().unwrap();
+            assert!(reference > least && p["flip_reference"].as_f64().unwrap() > 0.0, "{p}");
+        }
+    }
+    // At full detail every accelerator draws the full-detail image exactly.
+    for accel in ["bvh", "kdtree"] {
+        for distance in [1.0, 4.0] {
+            let p = find(accel, 0.0, distance);
+            assert!(p["psnr_db"].is_null() && p["differing_pixels"] == 0 && p["flip"] == 0.0, "{p}");
+        }
+    }
+    // Far away, level of detail stops early and changes a few pixels, not many.
+    for accel in ["bvh", "kdtree"] {
+        let (near, far) = (find(accel, 0.0, 4.0), find(accel, 2.0, 4.0));
+        assert!(far["lod_stops_per_ray"].as_f64().unwrap() > 0.0, "{far}");
+        assert!(far["nodes_visited_per_ray"].as_f64() < near["nodes_visited_per_ray"].as_f64(), "{far}");
+        let psnr = far["psnr_db"].as_f64().expect("the level of detail changed no pixel");
+        assert!(psnr > 15.0 && far["flip"].as_f64().unwrap() > 0.0, "{far}");
+    }
+    // A distant model covers fewer pixels (the crop).
+    assert!(find("bvh", 0.0, 4.0)["pixels"].as_u64() < find("bvh", 0.0, 1.0)["pixels"].as_u64());
+    assert!(points.iter().any(|p| p["accel"] == "bvh-spheres" && p["surface"] == "rfd"));
+
+    // The CSV holds the same points, one row each, and the images are written.
+    let csv = std::fs::read_to_string(dir.path().join("out/results.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 10);
+    assert!(csv.lines().next().unwrap().starts_with("kind,model,points,accel,surface,lod_threshold,distance"));
+    let image = points[0]["image"].as_str().unwrap();
+    let png = read_png(&dir.path().join("out").join(image));
+    assert_eq!(u64::from(png.width * png.height), points[0]["pixels"].as_u64().unwrap());
+}
+
+#[test]
+fn the_report_shows_every_experiment_with_figures_and_keeps_its_discussion() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    write_file(dir.path(), "e.toml", EXPERIMENT);
+    run_in(dir.path(), &["-q", "bench", "e.toml", "--out", "out", "--report", "doc/RESULTS.md"]).assert_success();
+    let report = std::fs::read_to_string(dir.path().join("doc/RESULTS.md")).unwrap();
+    for section in [
+        "# Results: sphere",
+        "Regenerated by `pointray -q bench e.toml --out out --report doc/RESULTS.md`",
+        "## Level of detail against distance: the BVH",
+        "## Level of detail against distance: the SAH kd-tree",
+        "## Percentage improvement from level of detail",
+        "## Surface schemes",
+        "## Images: full detail and level of detail",
+        "| sphere | bvh | 2 |",
+    ] {
+        assert!(report.contains(section), "no {section:?} in\n{report}");
+    }
+    for figure in ["time_bvh_sphere", "work_bvh_sphere", "time_kdtree_sphere", "work_kdtree_sphere"] {
+        assert!(report.contains(&format!("results/{figure}.svg")), "{figure} not linked");
+        for ext in ["svg", "png"] {
+            let path = dir.path().join("doc/results").join(format!("{figure}.{ext}"));
+            assert!(std::fs::metadata(&path).is_ok_and(|m| m.len() > 1000), "{} missing", path.display());
+        }
+    }
+    assert!(dir.path().join("doc/results/images/sphere_sj_d4_t2.png").exists(), "{report}");
+    // Regenerated from the same run, the hand-written discussion stays.
+    std::fs::write(dir.path().join("doc/RESULTS.md"), report.clone() + "\n## Discussion\n\nWritten by hand.\n")
+        .unwrap();
+    run_in(dir.path(), &["report", "out", "-o", "doc/RESULTS.md"]).assert_success();
+    let again = std::fs::read_to_string(dir.path().join("doc/RESULTS.md")).unwrap();
+    assert!(again.ends_with("## Discussion\n\nWritten by hand.\n"), "{again}");
+    assert!(again.contains("Regenerated by `pointray report out -o doc/RESULTS.md`"));
+}
+
+#[test]
+fn bad_experiments_are_refused_with_the_file_and_the_problem() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let cases = [
+        ("accel.toml", EXPERIMENT.replace("\"kdtree\"", "\"octree\""), "unknown accelerator \"octree\""),
+        ("model.toml", EXPERIMENT.replace("sphere.ply", "none.ply"), "none.ply"),
+        ("key.toml", EXPERIMENT.replace("repeats", "repeat"), "unknown field `repeat`"),
+    ];
+    for (name, text, fragment) in &cases {
+        write_file(dir.path(), name, text);
+        let run = run_in(dir.path(), &["-q", "bench", name, "--out", "out"]);
+        run.assert_failure(1).assert_stderr_contains(fragment);
+        if *name != "model.toml" {
+            run.assert_stderr_contains(name);
+        }
+    }
+    run_in(dir.path(), &["bench", "accel.toml", "--models", "nothing"]).assert_failure(1);
+    let run = run_in(dir.path(), &["-q", "bench", "key.toml"]);
+    assert!(!dir.path().join("results").exists(), "{run}");
+}
