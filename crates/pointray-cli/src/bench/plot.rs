@@ -17,6 +17,27 @@ pub struct LineChart {
     pub x_desc: String,
     pub y_desc: String,
     pub series: Vec<Series>,
+    /// Where the legend goes: the corner the lines leave free.
+    pub legend: Legend,
+}
+
+#[derive(Clone, Copy)]
+pub enum Legend {
+    UpperLeft,
+    UpperRight,
+}
+
+/// 1, 2 and 5 times the powers of ten in `[lo, hi]`: ticks for a logarithmic axis.
+fn one_two_five(lo: f64, hi: f64) -> Vec<f64> {
+    let first = lo.log10().floor() as i32;
+    let last = hi.log10().ceil() as i32;
+    (first..=last).flat_map(|e| [1.0, 2.0, 5.0].map(|m| m * 10f64.powi(e))).filter(|v| (lo..=hi).contains(v)).collect()
+}
+
+/// A tick label without trailing zeros: 1, 2.5, 0.25.
+fn tick(v: &f64) -> String {
+    let text = if v.abs() >= 10.0 { format!("{v:.0}") } else { format!("{v:.2}") };
+    if text.contains('.') { text.trim_end_matches('0').trim_end_matches('.').to_string() } else { text }
 }
 
 pub struct Series {
@@ -38,6 +59,14 @@ const COLORS: [RGBColor; 7] = [
 const SIZE: (u32, u32) = (640, 420);
 
 impl LineChart {
+    /// The x values of the points, each once: the distances measured.
+    fn xs(&self) -> Vec<f64> {
+        let mut xs: Vec<f64> = self.series.iter().flat_map(|s| s.points.iter().map(|p| p.0)).collect();
+        xs.sort_by(f64::total_cmp);
+        xs.dedup();
+        xs
+    }
+
     /// Writes `stem.svg` and `stem.png`. A chart with no positive point draws nothing and
     /// says so.
     pub fn write(&self, stem: &Path) -> anyhow::Result<()> {
@@ -72,7 +101,10 @@ impl LineChart {
             .margin(12)
             .x_label_area_size(42)
             .y_label_area_size(64)
-            .build_cartesian_2d((x0 / 1.25..x1 * 1.25).log_scale(), (y0 / 1.5..y1 * 1.5).log_scale())?;
+            .build_cartesian_2d(
+                (x0 / 1.25..x1 * 1.25).log_scale().with_key_points(self.xs()),
+                (y0 / 1.5..y1 * 1.5).log_scale().with_key_points(one_two_five(y0 / 1.5, y1 * 1.5)),
+            )?;
         chart
             .configure_mesh()
             .x_desc(&self.x_desc)
@@ -80,6 +112,8 @@ impl LineChart {
             .label_style(("sans-serif", 13))
             .axis_desc_style(("sans-serif", 14))
             .light_line_style(WHITE.mix(0.0))
+            .x_label_formatter(&tick)
+            .y_label_formatter(&tick)
             .draw()?;
         for (i, series) in self.series.iter().enumerate() {
             let color = COLORS[i % COLORS.len()];
@@ -92,7 +126,10 @@ impl LineChart {
         }
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::UpperRight)
+            .position(match self.legend {
+                Legend::UpperLeft => SeriesLabelPosition::UpperLeft,
+                Legend::UpperRight => SeriesLabelPosition::UpperRight,
+            })
             .label_font(("sans-serif", 13))
             .background_style(WHITE.mix(0.85))
             .border_style(BLACK.mix(0.4))
@@ -106,6 +143,16 @@ mod tests {
     use super::*;
 
     #[test]
+    fn logarithmic_ticks_are_one_two_five() {
+        assert_eq!(one_two_five(0.15, 30.0), [0.2, 0.5, 1.0, 2.0, 5.0, 10.0, 20.0]);
+    }
+
+    #[test]
+    fn tick_labels_have_no_trailing_zeros() {
+        assert_eq!([1.0, 2.5, 0.25, 10.0, 0.1].map(|v| tick(&v)), ["1", "2.5", "0.25", "10", "0.1"]);
+    }
+
+    #[test]
     fn charts_are_written_as_svg_with_their_labels_and_as_png() {
         let dir = tempfile::tempdir().unwrap();
         let chart = LineChart {
@@ -116,6 +163,7 @@ mod tests {
                 Series { label: "full detail".into(), points: vec![(1.0, 10.0), (4.0, 3.0), (16.0, 1.0)] },
                 Series { label: "τ = 1".into(), points: vec![(1.0, 10.0), (4.0, 2.0), (16.0, 0.2)] },
             ],
+            legend: Legend::UpperRight,
         };
         chart.write(&dir.path().join("c")).unwrap();
         let svg = std::fs::read_to_string(dir.path().join("c.svg")).unwrap();

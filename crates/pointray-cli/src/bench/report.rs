@@ -9,7 +9,7 @@ use std::path::Path;
 use anyhow::Context;
 use pointray::splat::scheme::SurfaceKind;
 
-use super::plot::{LineChart, Series};
+use super::plot::{Legend, LineChart, Series};
 use super::{Header, ModelRecord, PointRecord};
 
 /// A bench run as its JSON lines hold it.
@@ -53,7 +53,7 @@ pub fn write_report(results: &Path, report: &Path, figures: &Path, command: &str
     for accel in ["bvh", "kdtree"] {
         lod_against_distance(&mut md, &run, accel, figures, &link)?;
     }
-    improvement_table(&mut md, &run);
+    improvement_table(&mut md, &run, figures, &link)?;
     bounding_volumes(&mut md, &run);
     schemes(&mut md, &run);
     image_pairs(&mut md, &run, results, figures, &link)?;
@@ -276,6 +276,7 @@ fn lod_against_distance(
             x_desc: "camera distance (bounding-box diagonals)".into(),
             y_desc: "ms per frame".into(),
             series,
+            legend: Legend::UpperRight,
         }
         .write(&figures.join(&stem))?;
         let nodes = LineChart {
@@ -299,6 +300,7 @@ fn lod_against_distance(
                     ]
                 })
                 .collect(),
+            legend: Legend::UpperRight,
         };
         let work = format!("work_{accel}_{}", m.model);
         nodes.write(&figures.join(&work))?;
@@ -314,7 +316,7 @@ fn lod_against_distance(
 
 /// Thesis tables 3.1, 3.2 and 4.1: the percentage level of detail saves, per model, for each
 /// accelerator, threshold and distance.
-fn improvement_table(md: &mut String, run: &Run) {
+fn improvement_table(md: &mut String, run: &Run, figures: &Path, link: &dyn Fn(&str) -> String) -> anyhow::Result<()> {
     let sj: Vec<&PointRecord> = run
         .points
         .iter()
@@ -323,7 +325,7 @@ fn improvement_table(md: &mut String, run: &Run) {
     let distances = sorted_set(sj.iter().map(|p| p.distance));
     let lods: Vec<f32> = sorted_set(sj.iter().map(|p| p.lod_threshold)).into_iter().filter(|l| *l > 0.0).collect();
     if lods.is_empty() || distances.is_empty() {
-        return;
+        return Ok(());
     }
     let _ = writeln!(md, "## Percentage improvement from level of detail\n");
     let _ = writeln!(md, "Render time saved against full detail (SJ), per model, accelerator and threshold.\n");
@@ -356,6 +358,41 @@ fn improvement_table(md: &mut String, run: &Run) {
         }
     }
     md.push('\n');
+    // The figure: the speed-up at the least threshold against distance, per model.
+    let lod = lods[0];
+    for accel in ["bvh", "kdtree"] {
+        let series: Vec<Series> = run
+            .models
+            .iter()
+            .map(|m| {
+                let of: Vec<&PointRecord> =
+                    sj.iter().copied().filter(|p| p.model == m.model && p.accel == accel).collect();
+                let points = distances
+                    .iter()
+                    .filter_map(|&d| {
+                        Some((f64::from(d), find(&of, 0.0, d)?.render_seconds / find(&of, lod, d)?.render_seconds))
+                    })
+                    .collect();
+                Series { label: m.model.clone(), points }
+            })
+            .filter(|s| !s.points.is_empty())
+            .collect();
+        if series.is_empty() {
+            continue;
+        }
+        let stem = format!("speedup_{accel}");
+        LineChart {
+            title: format!("speed-up from level of detail, τ = {lod}, {accel}"),
+            x_desc: "camera distance (bounding-box diagonals)".into(),
+            y_desc: "time at full detail / time with LoD".into(),
+            series,
+            legend: Legend::UpperLeft,
+        }
+        .write(&figures.join(&stem))?;
+        let _ = write!(md, "![speed-up, {accel}]({}) ", link(&format!("{stem}.svg")));
+    }
+    md.push_str("\n\n");
+    Ok(())
 }
 
 /// Thesis ch. 3: boxes, spheres, and the two mixed, per model and distance.
@@ -430,9 +467,13 @@ fn schemes(md: &mut String, run: &Run) {
         writeln!(md, "| model | scheme | distance | ms | Mrays/s | vs {reference}: PSNR / FLIP | speed vs Embree |");
     let _ = writeln!(md, "|---|---|---:|---:|---:|---|---:|");
     for m in &run.models {
+        // Only the distances at which the schemes were measured side by side.
+        let of_model: Vec<&PointRecord> = points.iter().copied().filter(|p| p.model == m.model).collect();
+        let shared = |d: f32| of_model.iter().filter(|p| p.distance == d).count() >= 2;
         for kind in &kinds {
-            for p in points.iter().filter(|p| p.model == m.model && p.surface == *kind) {
+            for p in of_model.iter().filter(|p| p.surface == *kind && shared(p.distance)) {
                 let versus = match p.flip_reference {
+                    _ if Some(p.surface) == run.header.reference => "(the reference)".into(),
                     Some(flip) => format!("{} / {flip:.3}", psnr(p.psnr_reference_db)),
                     None => String::new(),
                 };
@@ -462,12 +503,22 @@ fn image_pairs(
     link: &dyn Fn(&str) -> String,
 ) -> anyhow::Result<()> {
     let _ = writeln!(md, "## Images: full detail and level of detail\n");
-    let _ = writeln!(md, "BVH, SJ; each pair at the distance where the two differ most (FLIP).\n");
+    let _ = writeln!(
+        md,
+        "BVH, SJ, the largest threshold; each pair at the farthest distance whose crop still has 64 × 64 pixels \
+         (shown enlarged; the nearest if none has).\n"
+    );
     let _ = writeln!(md, "| model | distance | full detail | level of detail | PSNR dB | FLIP |");
     let _ = writeln!(md, "|---|---:|---|---|---:|---:|");
     for m in &run.models {
         let points = select(run, &m.model, "bvh", SurfaceKind::Sj);
-        let Some(worst) = points.iter().filter(|p| p.lod_threshold > 0.0).max_by(|a, b| a.flip.total_cmp(&b.flip))
+        let top = sorted_set(points.iter().map(|p| p.lod_threshold)).last().copied().unwrap_or(0.0);
+        // The farthest with 64 × 64 pixels, or else the nearest.
+        let key = |p: &PointRecord| (p.pixels >= 64 * 64, if p.pixels >= 64 * 64 { p.distance } else { -p.distance });
+        let Some(worst) = points
+            .iter()
+            .filter(|p| p.lod_threshold == top && top > 0.0)
+            .max_by(|a, b| key(a).partial_cmp(&key(b)).expect("finite distances"))
         else {
             continue;
         };
@@ -487,7 +538,7 @@ fn image_pairs(
             let name = Path::new(&image).file_name().context("image name")?.to_string_lossy().into_owned();
             std::fs::copy(results.join(&image), figures.join("images").join(&name))
                 .with_context(|| format!("{}: cannot copy", results.join(&image).display()))?;
-            cells.push(format!("<img src=\"{}\" width=\"200\">", link(&format!("images/{name}"))));
+            cells.push(format!("<img src=\"{}\" width=\"240\">", link(&format!("images/{name}"))));
         }
         let _ = writeln!(
             md,

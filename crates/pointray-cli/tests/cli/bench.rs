@@ -125,7 +125,9 @@ fn the_report_shows_every_experiment_with_figures_and_keeps_its_discussion() {
             assert!(std::fs::metadata(&path).is_ok_and(|m| m.len() > 1000), "{} missing", path.display());
         }
     }
-    assert!(dir.path().join("doc/results/images/sphere_sj_d4_t2.png").exists(), "{report}");
+    for image in ["sphere_sj_d1_t0.png", "sphere_sj_d1_t2.png"] {
+        assert!(dir.path().join("doc/results/images").join(image).exists(), "{image}: {report}");
+    }
     // Regenerated from the same run, the hand-written discussion stays.
     std::fs::write(dir.path().join("doc/RESULTS.md"), report.clone() + "\n## Discussion\n\nWritten by hand.\n")
         .unwrap();
