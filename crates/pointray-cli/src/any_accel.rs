@@ -47,15 +47,6 @@ impl AnyAccel {
         }
     }
 
-    /// The disks its bounds hold.
-    pub fn shape(&self) -> DiskShape {
-        match self {
-            AnyAccel::Bvh(a) => a.shape(),
-            AnyAccel::KdTree(a) => a.shape(),
-            AnyAccel::Brute(a) => a.shape(),
-        }
-    }
-
     pub fn bounds(&self) -> pointray::math::Aabb {
         match self {
             AnyAccel::Bvh(a) => a.bounds(),

@@ -125,6 +125,10 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
     args.region = None;
     super::commands::render::check_args(&args).map_err(|e| failure::usage(e.context(path.display().to_string())))?;
     let lights = spec.lights.iter().map(light).collect();
+    if a.ground {
+        let e = anyhow::anyhow!("--ground: {} has its own ground, a [ground] table (or none)", path.display());
+        return Err(failure::usage(e));
+    }
     let ground =
         spec.ground.as_ref().map(ground).transpose().with_context(|| format!("{}: [ground]", path.display()))?;
     let environment = match spec.environment {
@@ -184,6 +188,12 @@ fn ground(spec: &GroundSpec) -> anyhow::Result<GroundPlane> {
         }
         None => None,
     };
+    // Glass would make the half-space below a glass body, which the path's one inside flag
+    // cannot tell from the clouds' glass.
+    anyhow::ensure!(
+        !matches!(spec.material, MaterialSpec::Glass { .. }),
+        "the ground may be phong or mirror, not glass"
+    );
     Ok(GroundPlane {
         up,
         height: spec.height as f32,
@@ -298,6 +308,8 @@ mod tests {
         assert!(ground(&flat).unwrap_err().to_string().contains("up"));
         let tiny: GroundSpec = toml::from_str("checker = { color = [0.0, 0.0, 0.0], tile = 0.0 }").unwrap();
         assert!(ground(&tiny).unwrap_err().to_string().contains("tile"));
+        let glass: GroundSpec = toml::from_str("material = { kind = \"glass\" }").unwrap();
+        assert!(ground(&glass).unwrap_err().to_string().contains("not glass"));
     }
 
     /// The example scenes follow the schema (rendering them needs the shared data).

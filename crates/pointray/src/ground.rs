@@ -29,6 +29,12 @@ pub struct Checker {
 }
 
 impl GroundPlane {
+    /// Whether `ray` meets the plane in `(ray.t_min, t_max)` (shadow rays).
+    pub fn blocks(&self, ray: &Ray, t_max: f32) -> bool {
+        let t = (self.height - ray.origin.dot(self.up)) / ray.dir.dot(self.up);
+        t > ray.t_min && t < t_max
+    }
+
     /// Where `ray` meets the plane in `(ray.t_min, t_max)`, if it does. The hit's `splat` is
     /// `u32::MAX` (no splat) and its `radius`, which sets how far rays leaving it start off the
     /// plane, is a few hundred ulps of the hit's coordinates: the plane is exact, so only
@@ -89,6 +95,7 @@ mod tests {
         assert_eq!(ground().intersect(&up, f32::INFINITY).unwrap().normal, Vec3::NEG_Y);
         // Beyond t_max, behind the origin, or along the plane: no hit.
         assert!(ground().intersect(&down, 3.7).is_none());
+        assert!(ground().blocks(&down, 3.8) && !ground().blocks(&down, 3.7));
         assert!(ground().intersect(&Ray::new(Vec3::ZERO, Vec3::Y, cone), f32::INFINITY).is_none());
         assert!(ground().intersect(&Ray::new(Vec3::new(0.0, -1.0, 0.0), Vec3::X, cone), f32::INFINITY).is_none());
     }

@@ -347,7 +347,7 @@ impl<A: Accel> Tracer<'_, A> {
 
     /// Whether anything, a splat or the ground, meets `ray` before `t_max`.
     fn occluded(&mut self, ray: &Ray, t_max: f32) -> bool {
-        self.config.ground.is_some_and(|ground| ground.intersect(ray, t_max).is_some())
+        self.config.ground.is_some_and(|ground| ground.blocks(ray, t_max))
             || scheme::occluded(self.accel, ray, t_max, &self.config.scheme, &mut self.stats.traversal)
     }
 

@@ -19,6 +19,12 @@ pub enum Light {
 }
 
 impl Light {
+    /// A directional light from behind `camera`, raised and shifted right: the command line's
+    /// default and the bench's (Embree's bench lights its frames so too).
+    pub fn headlight(camera: &crate::camera::Camera, intensity: f32) -> Self {
+        Light::Directional { direction: -camera.forward() + 0.6 * camera.up() + 0.4 * camera.right(), intensity }
+    }
+
     /// Unit direction towards the light, the distance to it, and the irradiance scale at `p`.
     pub fn towards(&self, p: Vec3) -> (Vec3, f32, f32) {
         match *self {
@@ -82,6 +88,9 @@ pub enum Environment {
 }
 
 impl Environment {
+    /// The dark blue the command line renders behind a model by default.
+    pub const BACKGROUND: Environment = Environment::Uniform { color: [0.010, 0.011, 0.019] };
+
     /// Linear radiance arriving along unit `dir` (pointing away from the scene).
     pub fn radiance(&self, dir: Vec3) -> Vec3 {
         match *self {

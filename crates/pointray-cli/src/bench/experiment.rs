@@ -211,6 +211,12 @@ fn check(e: &Experiment) -> anyhow::Result<()> {
     ensure!(e.repeats > 0, "repeats must be at least 1");
     ensure!((0.0..=600.0).contains(&e.min_seconds), "min_seconds must be 0 to 600");
     ensure!(!e.models.is_empty(), "no [[model]]");
+    // Its full-detail images are drawn with whichever accelerator a point has built; bounds
+    // for ray-facing disks hold oriented ones, not the other way round.
+    ensure!(
+        e.reference.is_none_or(|r| r.shape() == pointray::splat::DiskShape::Oriented),
+        "the reference must be sj, pss or first-hit (oriented disks)"
+    );
     ensure!(!e.matrices.is_empty(), "no [[matrix]]");
     let mut names = BTreeSet::new();
     for m in &e.models {
@@ -314,5 +320,6 @@ distance = [1]
         fails(&SMALL.replace("distance = [1]", "distance = [0]"), "distances must be positive");
         fails(&SMALL.replace("name = \"b\"", "name = \"a\""), "two models named \"a\"");
         fails(&SMALL.replace("lod_threshold = [0]", "lod_threshold = []"), "at least one value");
+        fails(&format!("reference = \"rfd\"\n{SMALL}"), "the reference must be sj, pss or first-hit");
     }
 }

@@ -54,7 +54,7 @@ fn utc_minutes(seconds: u64) -> String {
 }
 
 /// Processor time spent so far, in clock ticks: by everything (busy, not idle), and by this
-/// process.
+/// process with its children that have ended (the Embree bench it runs).
 #[derive(Clone, Copy)]
 pub struct LoadSample {
     at: Instant,
@@ -65,20 +65,31 @@ pub struct LoadSample {
 /// Linux's clock tick for `/proc` (USER_HZ), 100 on every architecture it runs on.
 const TICKS_PER_SECOND: f64 = 100.0;
 
+/// Busy ticks of all processors from `/proc/stat`: user, nice, system, irq, softirq and steal
+/// (time the hypervisor gave to another machine is time this one could not use either).
+fn busy_ticks(proc_stat: &str) -> Option<u64> {
+    // cpu  user nice system idle iowait irq softirq steal guest guest_nice
+    let f: Vec<u64> = proc_stat.lines().next()?.split_whitespace().skip(1).filter_map(|v| v.parse().ok()).collect();
+    (f.len() >= 8).then(|| f[0] + f[1] + f[2] + f[5] + f[6] + f[7])
+}
+
+/// A process's ticks from its `/proc/PID/stat`: user and system time, its own and that of its
+/// children it has waited for.
+fn process_ticks(pid_stat: &str) -> Option<u64> {
+    // The command name may hold spaces and parentheses: fields are counted after the last ')'.
+    let f: Vec<&str> = pid_stat[pid_stat.rfind(')')? + 1..].split_whitespace().collect();
+    // state ppid pgrp session tty tpgid flags minflt cminflt majflt cmajflt utime stime cutime cstime
+    (11..=14).map(|i| f.get(i)?.parse::<u64>().ok()).sum()
+}
+
 impl LoadSample {
     pub fn now() -> Self {
-        let busy_ticks = std::fs::read_to_string("/proc/stat").ok().and_then(|s| {
-            // cpu  user nice system idle iowait irq softirq steal guest guest_nice
-            let f: Vec<u64> = s.lines().next()?.split_whitespace().skip(1).filter_map(|v| v.parse().ok()).collect();
-            (f.len() >= 8).then(|| f[0] + f[1] + f[2] + f[5] + f[6] + f[7])
-        });
-        let own_ticks = std::fs::read_to_string("/proc/self/stat").ok().and_then(|s| {
-            // The command name may hold spaces: fields are counted after its closing parenthesis.
-            let rest = &s[s.rfind(')')? + 1..];
-            let f: Vec<&str> = rest.split_whitespace().collect();
-            Some(f.get(11)?.parse::<u64>().ok()? + f.get(12)?.parse::<u64>().ok()?)
-        });
-        Self { at: Instant::now(), busy_ticks, own_ticks }
+        let read = |path: &str| std::fs::read_to_string(path).ok();
+        Self {
+            at: Instant::now(),
+            busy_ticks: read("/proc/stat").as_deref().and_then(busy_ticks),
+            own_ticks: read("/proc/self/stat").as_deref().and_then(process_ticks),
+        }
     }
 
     /// Cores that other processes kept busy on average since `self`.
@@ -87,7 +98,7 @@ impl LoadSample {
         let seconds = now.at.duration_since(self.at).as_secs_f64();
         let busy = now.busy_ticks?.checked_sub(self.busy_ticks?)?;
         let own = now.own_ticks?.checked_sub(self.own_ticks?)?;
-        (seconds > 0.0).then(|| (busy.saturating_sub(own) as f64 / TICKS_PER_SECOND / seconds).max(0.0))
+        (seconds > 0.0).then(|| busy.saturating_sub(own) as f64 / TICKS_PER_SECOND / seconds)
     }
 }
 
@@ -104,19 +115,25 @@ mod tests {
     }
 
     #[test]
-    fn this_process_busy_is_not_counted_as_other_load() {
+    fn proc_stat_busy_time_leaves_out_idle_and_iowait() {
+        let stat = "cpu  100 2 30 5000 40 6 7 8 0 0\ncpu0 50 1 15 2500 20 3 3 4 0 0\n";
+        assert_eq!(busy_ticks(stat), Some(100 + 2 + 30 + 6 + 7 + 8));
+        assert_eq!(busy_ticks("cpu 1 2\n"), None);
+    }
+
+    #[test]
+    fn process_time_counts_itself_and_its_waited_children() {
+        // A command name with a space and a parenthesis; utime 11, stime 12, cutime 13, cstime 14.
+        let stat = "4242 (a (b) c) R 1 4242 4242 0 -1 4194560 300 0 0 0 11 12 13 14 20 0 3 0 100 0";
+        assert_eq!(process_ticks(stat), Some(11 + 12 + 13 + 14));
+        assert_eq!(process_ticks("4242 (short) R 1"), None);
+    }
+
+    #[cfg(target_os = "linux")]
+    #[test]
+    fn load_is_measured_on_linux() {
         let start = LoadSample::now();
-        // Half a second of this thread's work.
-        let until = Instant::now() + std::time::Duration::from_millis(500);
-        let mut x = 0u64;
-        while Instant::now() < until {
-            x = std::hint::black_box(x.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1));
-        }
-        if let Some(other) = start.other_cores_since() {
-            // Whatever else runs, our own core is not in it; a 2-core machine can show at most
-            // about one other busy core (tick rounding aside).
-            let cores = std::thread::available_parallelism().map_or(1, |n| n.get()) as f64;
-            assert!((0.0..=cores - 0.5).contains(&other), "other processes: {other} cores");
-        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+        assert!(start.other_cores_since().is_some_and(|cores| cores >= 0.0));
     }
 }

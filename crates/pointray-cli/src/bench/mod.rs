@@ -1,11 +1,12 @@
 //! `pointray bench EXPERIMENT.toml`: measures an experiment's matrix on its models (thesis
-//! E1: accelerator × surface scheme × level of detail × camera distance), with Embree's point
-//! bench beside it when the experiment names it, and writes JSON lines and CSV.
+//! E1: accelerator × surface scheme × level of detail × camera distance), with an Embree bench
+//! beside it when the experiment names one, and writes JSON lines and CSV.
 //!
 //! Each model is loaded and preprocessed once, each accelerator variant built once. Each point
-//! renders one untimed frame, which gives the image and the counters, then `repeats` timed
-//! frames, measured again when other processes were busy. Every image is compared with the
-//! full-detail image of its scheme (and with the reference scheme's, if one is named).
+//! renders one untimed frame, which gives the image and the counters, then timed frames,
+//! measured again when other processes were busy. Every image is compared with the
+//! full-detail image of its scheme (and with the reference scheme's, if one is named). Embree
+//! then traces the same pixels, timed with as many frames as pointray's full detail took.
 
 pub mod experiment;
 pub mod machine;
@@ -22,6 +23,7 @@ use glam::Vec3;
 use pointray::PointCloud;
 use pointray::camera::{Camera, Region};
 use pointray::film::{Film, linear_to_srgb};
+use pointray::math::Aabb;
 use pointray::metrics::compare_rgb8;
 use pointray::render::RenderConfig;
 use pointray::shading::{Environment, Light};
@@ -42,18 +44,22 @@ pub struct Header {
     pub title: String,
     pub experiment: String,
     pub pointray: String,
-    pub commit: Option<String>,
+    /// `git describe` of the checkout the bench ran in (it is meant to run in pointray's).
+    pub checkout: Option<String>,
     pub machine: Machine,
     pub threads: usize,
     pub width: u32,
     pub height: u32,
     pub repeats: u32,
     pub min_seconds: f64,
+    pub max_other_load: f64,
+    pub retries: u32,
     pub shadows: bool,
     pub crop_to_model: bool,
     pub fov: f32,
     pub reference: Option<SurfaceKind>,
-    pub embree: bool,
+    /// The Embree bench's file name, if one ran.
+    pub embree: Option<String>,
 }
 
 /// A model as loaded and preprocessed.
@@ -108,10 +114,13 @@ pub struct PointRecord {
     /// Cores other processes kept busy during the kept attempt's timed frames.
     pub other_load_cores: Option<f64>,
     pub attempts: u32,
-    /// Embree's point bench on the same prepared cloud, camera and pixels: its oriented discs
-    /// beside SJ, PSS and first-hit, its ray-facing discs beside RFD.
+    /// The Embree bench on the same prepared cloud, camera and pixels (its oriented discs
+    /// beside SJ, PSS and first-hit, its ray-facing discs beside RFD): rays per second, the
+    /// rays it traced, its build time, and the cores other processes kept busy meanwhile.
     pub embree_mrays_per_second: Option<f64>,
+    pub embree_rays: Option<u64>,
     pub embree_build_seconds: Option<f64>,
+    pub embree_other_load_cores: Option<f64>,
     /// pointray's rays per second over Embree's.
     pub speed_vs_embree: Option<f64>,
     pub image: Option<String>,
@@ -125,74 +134,86 @@ pub fn run(a: &BenchArgs, quiet: bool) -> anyhow::Result<()> {
 }
 
 fn run_experiment(a: &BenchArgs, e: &Experiment, threads: usize, quiet: bool) -> anyhow::Result<()> {
-    let folder = a.experiment.parent().unwrap_or(Path::new("."));
+    // "." rather than "": a bench named by a bare file name is run from there, not looked up.
+    let folder = a.experiment.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    if let Some(unknown) = a.models.iter().find(|name| !e.models.iter().any(|m| &m.name == *name)) {
+        let e = anyhow::anyhow!("--models: no model named {unknown:?} in {}", a.experiment.display());
+        return Err(crate::failure::usage(e));
+    }
     let models: Vec<&ModelSpec> =
         e.models.iter().filter(|m| a.models.is_empty() || a.models.contains(&m.name)).collect();
-    anyhow::ensure!(!models.is_empty(), "--models {}: no such model in {}", a.models.join(","), a.experiment.display());
     let planned: usize = models.iter().map(|m| e.points(&m.name).len()).sum();
     if a.dry_run {
         for m in &models {
             for p in e.points(&m.name) {
-                println!(
-                    "{} {} {} lod {} distance {}",
-                    m.name,
-                    p.accel.name(),
-                    p.surface.name(),
-                    p.lod_threshold,
-                    p.distance
-                );
+                let (accel, surface) = (p.accel.name(), p.surface.name());
+                println!("{} {accel} {surface} lod {} distance {}", m.name, p.lod_threshold, p.distance);
             }
         }
         println!("{planned} points");
         return Ok(());
     }
+    let embree = e.embree.as_ref().map(|bench| folder.join(bench));
+    if let Some(bench) = &embree {
+        anyhow::ensure!(bench.is_file(), "{}: no Embree bench there (see experiments/README.md)", bench.display());
+    }
     std::fs::create_dir_all(a.out.join("images")).with_context(|| format!("{}: cannot create", a.out.display()))?;
-    let jsonl_path = a.out.join("results.jsonl");
+    // Written as measured, and renamed when complete: a run that fails leaves the last
+    // complete results in place.
+    let partial = a.out.join("results.jsonl.partial");
     let mut jsonl = std::io::BufWriter::new(
-        std::fs::File::create(&jsonl_path).with_context(|| format!("{}: cannot create", jsonl_path.display()))?,
+        std::fs::File::create(&partial).with_context(|| format!("{}: cannot create", partial.display()))?,
     );
     let header = Header {
         kind: "header".into(),
         title: e.title.clone(),
         experiment: a.experiment.display().to_string(),
         pointray: env!("CARGO_PKG_VERSION").into(),
-        commit: git_commit(),
+        checkout: git_describe(),
         machine: Machine::describe(),
         threads,
         width: e.width,
         height: e.height,
         repeats: e.repeats,
         min_seconds: e.min_seconds,
+        max_other_load: e.max_other_load,
+        retries: e.retries,
         shadows: e.shadows,
         crop_to_model: e.camera.crop_to_model,
         fov: e.camera.fov,
         reference: e.reference,
-        embree: e.embree.is_some(),
+        embree: embree.as_ref().and_then(|b| b.file_name()).map(|n| n.to_string_lossy().into_owned()),
     };
-    writeln!(jsonl, "{}", serde_json::to_string(&header)?)?;
+    let mut line = |record: &dyn erased::Line| -> anyhow::Result<()> {
+        writeln!(jsonl, "{}", record.json()?)?;
+        jsonl.flush()?;
+        Ok(())
+    };
+    line(&header)?;
     let mut records = Vec::new();
     let bar = crate::progress::bar(planned as u64, "bench", quiet);
     for spec in models {
-        let model = load_model(spec, folder, a, quiet)?;
-        writeln!(jsonl, "{}", serde_json::to_string(&model.record)?)?;
-        let embree = match &e.embree {
-            Some(bench) => embree_runs(&folder.join(bench), &model, e, threads, &a.out)?,
-            None => BTreeMap::new(),
-        };
-        for record in measure_model(e, &model, &embree, &a.out, &|| bar.inc(1))? {
-            writeln!(jsonl, "{}", serde_json::to_string(&record)?)?;
-            jsonl.flush()?;
+        let mut model = load_model(spec, e, folder, a, quiet)?;
+        line(&model.record)?;
+        let mut measured = measure_model(e, &model, &a.out, &|| bar.inc(1))?;
+        if let Some(bench) = &embree {
+            beside_embree(bench, &mut model, e, threads, &a.out, &mut measured)?;
+        }
+        for record in measured {
+            line(&record)?;
             records.push(record);
         }
     }
     bar.finish_and_clear();
+    jsonl.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+    let jsonl_path = a.out.join("results.jsonl");
+    std::fs::rename(&partial, &jsonl_path).with_context(|| format!("{}: cannot write", jsonl_path.display()))?;
     let csv_path = a.out.join("results.csv");
-    let mut csv =
-        csv::Writer::from_path(&csv_path).with_context(|| format!("{}: cannot create", csv_path.display()))?;
-    for r in &records {
-        csv.serialize(r)?;
-    }
-    csv.flush()?;
+    pointray_io::atomic_write(&csv_path, |w| {
+        let mut csv = csv::Writer::from_writer(w);
+        records.iter().try_for_each(|r| csv.serialize(r)).map_err(std::io::Error::other)?;
+        csv.flush()
+    })?;
     if !quiet {
         eprintln!("{} points measured; wrote {} and {}", records.len(), jsonl_path.display(), csv_path.display());
     }
@@ -201,6 +222,19 @@ fn run_experiment(a: &BenchArgs, e: &Experiment, threads: usize, quiet: bool) ->
         report::write_report(&a.out, path, &figures, &command_line())?;
     }
     Ok(())
+}
+
+/// JSON lines of different record types through one writer.
+mod erased {
+    pub trait Line {
+        fn json(&self) -> serde_json::Result<String>;
+    }
+
+    impl<T: serde::Serialize> Line for T {
+        fn json(&self) -> serde_json::Result<String> {
+            serde_json::to_string(self)
+        }
+    }
 }
 
 /// The report's figures go beside it, in `results/`.
@@ -220,8 +254,7 @@ pub fn run_report(a: &crate::args::ReportArgs) -> anyhow::Result<()> {
     report::write_report(&a.results, &a.output, &figures, &command_line())
 }
 
-/// The commit of the working tree pointray runs in, if it is a git checkout.
-fn git_commit() -> Option<String> {
+fn git_describe() -> Option<String> {
     let out = std::process::Command::new("git").args(["describe", "--always", "--dirty"]).output().ok()?;
     out.status.success().then(|| String::from_utf8_lossy(&out.stdout).trim().to_string())
 }
@@ -229,12 +262,13 @@ fn git_commit() -> Option<String> {
 struct Model {
     name: String,
     cloud: PointCloud,
+    bounds: Aabb,
     view_dir: Vec3,
     up: Vec3,
     record: ModelRecord,
 }
 
-fn load_model(spec: &ModelSpec, folder: &Path, a: &BenchArgs, quiet: bool) -> anyhow::Result<Model> {
+fn load_model(spec: &ModelSpec, e: &Experiment, folder: &Path, a: &BenchArgs, quiet: bool) -> anyhow::Result<Model> {
     let t = Instant::now();
     let (mut cloud, source) = match spec.source(folder)? {
         Source::Cloud(path) => (crate::commands::load(&path, quiet)?.0.cloud, path.display().to_string()),
@@ -264,6 +298,7 @@ fn load_model(spec: &ModelSpec, folder: &Path, a: &BenchArgs, quiet: bool) -> an
     let preprocess_seconds = t.elapsed().as_secs_f64();
     let radii = cloud.radii.as_deref().unwrap_or_default();
     let mean_radius = radii.iter().map(|&r| f64::from(r)).sum::<f64>() / radii.len().max(1) as f64;
+    let bounds = cloud.bounds();
     let record = ModelRecord {
         kind: "model".into(),
         model: spec.name.clone(),
@@ -272,24 +307,23 @@ fn load_model(spec: &ModelSpec, folder: &Path, a: &BenchArgs, quiet: bool) -> an
         points: cloud.len(),
         load_seconds,
         preprocess_seconds,
-        bounds_diagonal: cloud.bounds().diagonal(),
+        bounds_diagonal: bounds.diagonal(),
         mean_radius,
     };
-    let or = |v: Option<[f32; 3]>, default: [f32; 3]| Vec3::from(v.unwrap_or(default));
     Ok(Model {
         name: spec.name.clone(),
-        view_dir: or(spec.view_dir, [0.4, 0.3, 1.0]),
-        up: or(spec.up, [0.0, 1.0, 0.0]),
+        view_dir: Vec3::from(spec.view_dir.unwrap_or(e.camera.view_dir)),
+        up: Vec3::from(spec.up.unwrap_or(e.camera.up)),
         cloud,
+        bounds,
         record,
     })
 }
 
 /// The camera of a point, and the pixels it traces.
 fn frame(e: &Experiment, model: &Model, distance: f32) -> (Camera, Region) {
-    let bounds = model.cloud.bounds();
-    let camera = Camera::orbit(&bounds, model.view_dir, model.up, distance, e.camera.fov, e.width, e.height);
-    let region = if e.camera.crop_to_model { camera.region_of(&bounds) } else { Region::full(e.width, e.height) };
+    let camera = Camera::orbit(&model.bounds, model.view_dir, model.up, distance, e.camera.fov, e.width, e.height);
+    let region = if e.camera.crop_to_model { camera.region_of(&model.bounds) } else { Region::full(e.width, e.height) };
     (camera, region)
 }
 
@@ -299,15 +333,11 @@ fn config(e: &Experiment, camera: &Camera, region: Region, surface: SurfaceKind,
         filter: pointray::render::Filter::Box,
         integrator: pointray::render::Integrator::Whitted,
         scheme: SurfaceScheme::of_kind(surface),
-        // The command line's headlight, raised and shifted right (Embree's bench lights so too).
-        lights: vec![Light::Directional {
-            direction: -camera.forward() + 0.6 * camera.up() + 0.4 * camera.right(),
-            intensity: 1.0,
-        }],
+        lights: vec![Light::headlight(camera, 1.0)],
         materials: vec![pointray::material::Material::standard()],
         shadows: e.shadows,
         shadow_offset: 1.0,
-        environment: Environment::Uniform { color: [0.010, 0.011, 0.019] },
+        environment: Environment::BACKGROUND,
         ground: None,
         max_depth: 0,
         region,
@@ -324,60 +354,47 @@ fn region_srgb8(film: &Film) -> Vec<u8> {
     film.rgb.iter().flat_map(|c| c.map(|v| (linear_to_srgb(v) * 255.0 + 0.5) as u8)).collect()
 }
 
+/// The median of sorted values (the mean of the middle two for an even count).
+fn median(sorted: &[f64]) -> f64 {
+    let n = sorted.len();
+    if n % 2 == 1 { sorted[n / 2] } else { 0.5 * (sorted[n / 2 - 1] + sorted[n / 2]) }
+}
+
 /// An accelerator built for one variant and disk shape, with what the build cost.
 struct Built {
     accel: AnyAccel,
     seconds: f64,
 }
 
-fn measure_model(
-    e: &Experiment,
-    model: &Model,
-    embree: &BTreeMap<(DiskShape, u32), EmbreeRun>,
-    out: &Path,
-    tick: &dyn Fn(),
-) -> anyhow::Result<Vec<PointRecord>> {
-    let points = e.points(&model.name);
-    let mut builds: BTreeMap<(AccelVariant, bool), Built> = BTreeMap::new();
+fn measure_model(e: &Experiment, model: &Model, out: &Path, tick: &dyn Fn()) -> anyhow::Result<Vec<PointRecord>> {
+    let mut built: Option<((AccelVariant, DiskShape), Built)> = None;
     // Full-detail images by (distance, scheme), shared by every accelerator (they agree there).
-    let mut full_detail: BTreeMap<(u32, &'static str), Vec<u8>> = BTreeMap::new();
-    let mut saved: std::collections::BTreeSet<String> = Default::default();
+    let mut full_detail: BTreeMap<(u32, SurfaceKind), Vec<u8>> = BTreeMap::new();
     let mut records = Vec::new();
-    for p in points {
-        let shape = p.surface.shape();
-        let key = (p.accel, shape == DiskShape::RayFacing);
-        if !builds.contains_key(&key) {
-            // One accelerator in memory at a time: the next variant replaces it.
-            builds.clear();
+    for p in e.points(&model.name) {
+        let key = (p.accel, p.surface.shape());
+        if built.as_ref().is_none_or(|(k, _)| *k != key) {
+            // One accelerator in memory at a time: the next replaces it.
+            drop(built.take());
             let splats = splats_from_cloud(&model.cloud);
             let t = Instant::now();
-            let accel = AnyAccel::build(p.accel.kind(), splats, p.accel.node_bounds(), shape);
-            builds.insert(key, Built { accel, seconds: t.elapsed().as_secs_f64() });
+            let accel = AnyAccel::build(p.accel.kind(), splats, p.accel.node_bounds(), key.1);
+            built = Some((key, Built { accel, seconds: t.elapsed().as_secs_f64() }));
         }
-        let built = &builds[&key];
+        let (_, built) = built.as_ref().expect("built above");
         let (camera, region) = frame(e, model, p.distance);
-        let reference_image = |surface: SurfaceKind| {
-            let (film, _) = built.accel.render(&camera, &config(e, &camera, region, surface, 0.0), &|_| {});
-            region_srgb8(&film)
-        };
-        let distance_key = p.distance.to_bits();
+        // The reference scheme's disks are oriented (`experiment::check`), which every
+        // accelerator's bounds hold.
         for surface in std::iter::once(p.surface).chain(e.reference) {
-            if !full_detail.contains_key(&(distance_key, surface.name()))
-                && (surface == p.surface || shape_holds(built, surface))
-            {
-                let image = reference_image(surface);
-                full_detail.insert((distance_key, surface.name()), image);
-            }
+            full_detail.entry((p.distance.to_bits(), surface)).or_insert_with(|| {
+                let (film, _) = built.accel.render(&camera, &config(e, &camera, region, surface, 0.0), &|_| {});
+                region_srgb8(&film)
+            });
         }
-        let record = measure_point(e, model, &p, built, &camera, region, &full_detail, embree, out, &mut saved)?;
-        records.push(record);
+        records.push(measure_point(e, model, &p, built, &camera, region, &full_detail, out)?);
         tick();
     }
     Ok(records)
-}
-
-fn shape_holds(built: &Built, surface: SurfaceKind) -> bool {
-    built.accel.shape().holds(surface.shape())
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -388,22 +405,19 @@ fn measure_point(
     built: &Built,
     camera: &Camera,
     region: Region,
-    full_detail: &BTreeMap<(u32, &'static str), Vec<u8>>,
-    embree: &BTreeMap<(DiskShape, u32), EmbreeRun>,
+    full_detail: &BTreeMap<(u32, SurfaceKind), Vec<u8>>,
     out: &Path,
-    saved: &mut std::collections::BTreeSet<String>,
 ) -> anyhow::Result<PointRecord> {
     let config = config(e, camera, region, p.surface, p.lod_threshold);
     let t = Instant::now();
     let (film, stats) = built.accel.render(camera, &config, &|_| {});
     let first_seconds = t.elapsed().as_secs_f64();
     let image = region_srgb8(&film);
-    let distance_key = p.distance.to_bits();
     let (w, h) = (region.width(), region.height());
-    let own_full = &full_detail[&(distance_key, p.surface.name())];
+    let own_full = &full_detail[&(p.distance.to_bits(), p.surface)];
     let own = compare_rgb8(&image, own_full);
     let flip = crate::perceptual::flip_mean(own_full, &image, w, h);
-    let reference = e.reference.and_then(|r| full_detail.get(&(distance_key, r.name()))).map(|reference| {
+    let reference = e.reference.and_then(|r| full_detail.get(&(p.distance.to_bits(), r))).map(|reference| {
         (compare_rgb8(&image, reference).psnr_db, crate::perceptual::flip_mean(reference, &image, w, h))
     });
     let frames = e.repeats.max((e.min_seconds / first_seconds.max(1e-6)).ceil().min(1000.0) as u32);
@@ -422,8 +436,7 @@ fn measure_point(
             })
             .collect();
         let other = load.other_cores_since();
-        let quieter = best.as_ref().is_none_or(|(_, o)| other.unwrap_or(0.0) < o.unwrap_or(0.0));
-        if quieter {
+        if best.as_ref().is_none_or(|(_, o)| other.unwrap_or(0.0) < o.unwrap_or(0.0)) {
             best = Some((times, other));
         }
         if other.is_none_or(|o| o <= e.max_other_load) {
@@ -432,18 +445,11 @@ fn measure_point(
     }
     let (mut times, other_load_cores) = best.expect("one attempt at least");
     times.sort_by(f64::total_cmp);
-    let median = times[times.len() / 2];
+    let seconds = median(&times);
 
-    let image_name = format!("{}_{}_d{}_t{}.png", model.name, p.surface.name(), p.distance, p.lod_threshold);
-    let image_file = if saved.insert(image_name.clone()) {
-        let path = out.join("images").join(&image_name);
-        pointray_io::write_png(&path, region.width(), region.height(), &image)?;
-        Some(format!("images/{image_name}"))
-    } else {
-        None
-    };
-    let embree_run = embree.get(&(p.surface.shape(), distance_key));
-    let mrays = stats.rays as f64 / median / 1e6;
+    let image_name =
+        format!("{}_{}_{}_d{}_t{}.png", model.name, p.accel.name(), p.surface.name(), p.distance, p.lod_threshold);
+    pointray_io::write_png(&out.join("images").join(&image_name), w, h, &image)?;
     let per_ray = |n: u64| n as f64 / stats.rays.max(1) as f64;
     Ok(PointRecord {
         kind: "point".into(),
@@ -456,10 +462,10 @@ fn measure_point(
         pixels: region.pixel_count(),
         rays: stats.rays,
         frames,
-        render_seconds: median,
+        render_seconds: seconds,
         render_seconds_min: times[0],
         render_seconds_max: times[times.len() - 1],
-        mrays_per_second: mrays,
+        mrays_per_second: stats.rays as f64 / seconds / 1e6,
         hit_fraction: stats.hit_fraction(),
         nodes_visited_per_ray: stats.nodes_visited_per_ray(),
         box_tests_per_ray: per_ray(stats.traversal.box_tests),
@@ -475,77 +481,117 @@ fn measure_point(
         flip_reference: reference.map(|r| r.1),
         other_load_cores,
         attempts,
-        embree_mrays_per_second: embree_run.map(|r| r.mrays_per_second),
-        embree_build_seconds: embree_run.map(|r| r.build_seconds),
-        speed_vs_embree: embree_run.map(|r| mrays / r.mrays_per_second),
-        image: image_file,
+        embree_mrays_per_second: None,
+        embree_rays: None,
+        embree_build_seconds: None,
+        embree_other_load_cores: None,
+        speed_vs_embree: None,
+        image: Some(format!("images/{image_name}")),
     })
 }
 
+/// Runs the Embree bench on the model as pointray prepared it, written re-centred (Embree
+/// works in f32), with the experiment's camera and pixels: once per disk shape and distance
+/// that the model's points use, timed with as many frames as pointray's first full-detail
+/// point there took. Fills in the Embree columns of `records`.
+fn beside_embree(
+    bench: &Path,
+    model: &mut Model,
+    e: &Experiment,
+    threads: usize,
+    out: &Path,
+    records: &mut [PointRecord],
+) -> anyhow::Result<()> {
+    let prepared = tempfile::Builder::new()
+        .prefix(&format!("{}.", model.name))
+        .suffix(".ply")
+        .tempfile_in(out)
+        .with_context(|| format!("{}: cannot create a file", out.display()))?;
+    let origin = std::mem::replace(&mut model.cloud.origin, glam::DVec3::ZERO);
+    let written = pointray_io::write_ply(prepared.path(), &model.cloud);
+    model.cloud.origin = origin;
+    written?;
+    let mut runs: BTreeMap<(DiskShape, u32), EmbreeRun> = BTreeMap::new();
+    for r in records.iter() {
+        let key = (r.surface.shape(), r.distance.to_bits());
+        if runs.contains_key(&key) {
+            continue;
+        }
+        // As many frames as pointray's full-detail point at this distance (or this point's).
+        let frames = records
+            .iter()
+            .find(|f| f.surface.shape() == key.0 && f.distance == r.distance && f.lod_threshold == 0.0)
+            .map_or(r.frames, |f| f.frames);
+        let run = run_embree(bench, prepared.path(), key.0, r.distance, frames, model, e, threads)?;
+        runs.insert(key, run);
+    }
+    for r in records.iter_mut() {
+        let run = &runs[&(r.surface.shape(), r.distance.to_bits())];
+        r.embree_mrays_per_second = Some(run.mrays_per_second);
+        r.embree_rays = Some(run.rays);
+        r.embree_build_seconds = Some(run.build_seconds);
+        r.embree_other_load_cores = run.other_load_cores;
+        r.speed_vs_embree = Some(r.mrays_per_second / run.mrays_per_second);
+    }
+    Ok(())
+}
+
 /// One of Embree's measurements: a geometry at a distance.
-#[derive(Clone, Copy, Debug, Serialize)]
 struct EmbreeRun {
     mrays_per_second: f64,
     build_seconds: f64,
     rays: u64,
-    other_load_cores: f64,
+    other_load_cores: Option<f64>,
 }
 
-/// Runs Embree's point bench on the model, prepared as pointray prepared it, with the camera
-/// and pixels of the experiment: oriented discs and ray-facing discs at every distance the
-/// model's points use. Keyed by the disk shape and the distance's bits.
-fn embree_runs(
+#[allow(clippy::too_many_arguments)]
+fn run_embree(
     bench: &Path,
+    cloud: &Path,
+    shape: DiskShape,
+    distance: f32,
+    frames: u32,
     model: &Model,
     e: &Experiment,
     threads: usize,
-    out: &Path,
-) -> anyhow::Result<BTreeMap<(DiskShape, u32), EmbreeRun>> {
-    anyhow::ensure!(bench.is_file(), "{}: no Embree bench there (see shared/bench/embree)", bench.display());
-    let prepared: PathBuf = out.join(format!("{}.prepared.ply", model.name));
-    pointray_io::write_ply(&prepared, &model.cloud)?;
-    let points = e.points(&model.name);
-    let mut runs = BTreeMap::new();
-    for (shape, geom) in [(DiskShape::Oriented, "oriented"), (DiskShape::RayFacing, "disc")] {
-        let mut distances: Vec<f32> =
-            points.iter().filter(|p| p.surface.shape() == shape).map(|p| p.distance).collect();
-        distances.sort_by(f32::total_cmp);
-        distances.dedup();
-        if distances.is_empty() {
-            continue;
-        }
-        let list = |v: Vec3| format!("{},{},{}", v.x, v.y, v.z);
-        let dist = distances.iter().map(f32::to_string).collect::<Vec<_>>().join(",");
-        let mut command = std::process::Command::new(bench);
-        command.arg(&prepared).args(["--geom", geom, "--threads", &threads.to_string(), "--dist", &dist]);
-        command.args(["--size", &format!("{}x{}", e.width, e.height), "--fov", &e.camera.fov.to_string()]);
-        command.args(["--view", &list(model.view_dir), "--up", &list(model.up)]);
-        command.args(["--reps", &e.repeats.to_string(), "--retries", &e.retries.to_string()]);
-        if e.camera.crop_to_model {
-            command.arg("--crop");
-        }
-        let output = command.output().with_context(|| format!("{}: cannot run", bench.display()))?;
-        anyhow::ensure!(
-            output.status.success(),
-            "{} failed: {}",
-            bench.display(),
-            String::from_utf8_lossy(&output.stderr).trim()
-        );
-        for line in String::from_utf8_lossy(&output.stdout).lines().filter(|l| l.starts_with('{')) {
-            let v: serde_json::Value = serde_json::from_str(line).context("Embree bench output")?;
-            let number = |key: &str| v[key].as_f64().with_context(|| format!("Embree bench output lacks {key}"));
-            let k = number("k")? as f32;
-            runs.insert(
-                (shape, k.to_bits()),
-                EmbreeRun {
-                    mrays_per_second: number("mrays_s")?,
-                    build_seconds: number("build_s")?,
-                    rays: number("rays")? as u64,
-                    other_load_cores: number("other_cores")?,
-                },
-            );
-        }
+) -> anyhow::Result<EmbreeRun> {
+    let list = |v: Vec3| format!("{},{},{}", v.x, v.y, v.z);
+    let geom = match shape {
+        DiskShape::Oriented => "oriented",
+        DiskShape::RayFacing => "disc",
+    };
+    let mut command = std::process::Command::new(bench);
+    command.arg(cloud).args(["--geom", geom, "--threads", &threads.to_string(), "--dist", &distance.to_string()]);
+    command.args(["--size", &format!("{}x{}", e.width, e.height), "--fov", &e.camera.fov.to_string()]);
+    command.args(["--view", &list(model.view_dir), "--up", &list(model.up), "--reps", &frames.to_string()]);
+    if e.camera.crop_to_model {
+        command.arg("--crop");
     }
-    std::fs::remove_file(&prepared).ok();
-    Ok(runs)
+    let load = LoadSample::now();
+    let output = command.output().with_context(|| format!("{}: cannot run", bench.display()))?;
+    let other_load_cores = load.other_cores_since();
+    let failed = || format!("{} on {} at distance {distance}", bench.display(), model.name);
+    anyhow::ensure!(output.status.success(), "{} failed: {}", failed(), String::from_utf8_lossy(&output.stderr).trim());
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let line = stdout.lines().rfind(|l| l.starts_with('{')).with_context(|| format!("{}: no JSON line", failed()))?;
+    let v: serde_json::Value = serde_json::from_str(line).with_context(failed)?;
+    let number = |key: &str| v[key].as_f64().with_context(|| format!("{}: no {key:?} in its output", failed()));
+    Ok(EmbreeRun {
+        mrays_per_second: number("mrays_s")?,
+        build_seconds: number("build_s")?,
+        rays: number("rays")? as u64,
+        other_load_cores,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_median_of_an_even_count_is_the_mean_of_the_middle_two() {
+        assert_eq!(median(&[1.0, 2.0, 3.0]), 2.0);
+        assert_eq!(median(&[1.0, 2.0, 4.0, 10.0]), 3.0);
+        assert_eq!(median(&[5.0]), 5.0);
+    }
 }

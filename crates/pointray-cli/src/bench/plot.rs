@@ -36,7 +36,13 @@ fn one_two_five(lo: f64, hi: f64) -> Vec<f64> {
 
 /// A tick label without trailing zeros: 1, 2.5, 0.25.
 fn tick(v: &f64) -> String {
-    let text = if v.abs() >= 10.0 { format!("{v:.0}") } else { format!("{v:.2}") };
+    let text = if v.abs() >= 10.0 {
+        format!("{v:.0}")
+    } else if v.abs() >= 0.01 {
+        format!("{v:.2}")
+    } else {
+        format!("{v:.1e}")
+    };
     if text.contains('.') { text.trim_end_matches('0').trim_end_matches('.').to_string() } else { text }
 }
 
@@ -67,8 +73,8 @@ impl LineChart {
         xs
     }
 
-    /// Writes `stem.svg` and `stem.png`. A chart with no positive point draws nothing and
-    /// says so.
+    /// Writes `stem.svg` and `stem.png`. A chart with no positive point is left blank (the
+    /// axes are logarithmic).
     pub fn write(&self, stem: &Path) -> anyhow::Result<()> {
         static REGISTER: Once = Once::new();
         REGISTER.call_once(|| {
@@ -150,6 +156,7 @@ mod tests {
     #[test]
     fn tick_labels_have_no_trailing_zeros() {
         assert_eq!([1.0, 2.5, 0.25, 10.0, 0.1].map(|v| tick(&v)), ["1", "2.5", "0.25", "10", "0.1"]);
+        assert_eq!(tick(&0.002), "2.0e-3");
     }
 
     #[test]

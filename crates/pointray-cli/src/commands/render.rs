@@ -252,11 +252,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         },
         (None, Some(direction)) => Light::Directional { direction, intensity: a.light_intensity },
         (None, None) if a.input.is_none() => pointray::demo::demo_light(),
-        // A headlight raised and shifted right, as in the Embree bench.
-        (None, None) => Light::Directional {
-            direction: -camera.forward() + 0.6 * camera.up() + 0.4 * camera.right(),
-            intensity: a.light_intensity,
-        },
+        (None, None) => Light::headlight(&camera, a.light_intensity),
     };
     let region = if a.crop_to_model {
         let r = camera.region_of(&bounds);
@@ -343,7 +339,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
                 horizon: [0.75, 0.82, 0.90],
                 ground: [0.25, 0.24, 0.22],
             },
-            None => Environment::Uniform { color: [0.010, 0.011, 0.019] },
+            None => Environment::BACKGROUND,
         },
         ground: match &scene {
             Some(scene) => scene.ground,

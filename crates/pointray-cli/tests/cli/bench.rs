@@ -125,7 +125,7 @@ fn the_report_shows_every_experiment_with_figures_and_keeps_its_discussion() {
             assert!(std::fs::metadata(&path).is_ok_and(|m| m.len() > 1000), "{} missing", path.display());
         }
     }
-    for image in ["sphere_sj_d1_t0.png", "sphere_sj_d1_t2.png"] {
+    for image in ["sphere_bvh_sj_d1_t0.png", "sphere_bvh_sj_d1_t2.png"] {
         assert!(dir.path().join("doc/results/images").join(image).exists(), "{image}: {report}");
     }
     // Regenerated from the same run, the hand-written discussion stays.
@@ -157,4 +157,94 @@ fn bad_experiments_are_refused_with_the_file_and_the_problem() {
     run_in(dir.path(), &["bench", "accel.toml", "--models", "nothing"]).assert_failure(1);
     let run = run_in(dir.path(), &["-q", "bench", "key.toml"]);
     assert!(!dir.path().join("results").exists(), "{run}");
+}
+
+/// Answers like Embree's point bench: one JSON line for the `--dist` it is given, reporting
+/// as many rays as the `--reps` it was asked for, so the test can see both arrive.
+const FAKE_EMBREE: &str = r#"#!/bin/sh
+dist=""; reps=""
+while [ $# -gt 0 ]; do
+  case "$1" in --dist) dist="$2"; shift;; --reps) reps="$2"; shift;; esac
+  shift
+done
+echo "Embree 3.13.5 (fake)"
+echo "{\"k\":$dist,\"mrays_s\":2.5,\"build_s\":0.125,\"rays\":$reps,\"other_cores\":0.0}"
+"#;
+
+#[cfg(unix)]
+#[test]
+fn embree_runs_beside_each_model_with_as_many_frames_as_full_detail() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let fake = write_file(dir.path(), "fake_embree.sh", FAKE_EMBREE);
+    std::fs::set_permissions(&fake, std::fs::Permissions::from_mode(0o755)).unwrap();
+    write_file(
+        dir.path(),
+        "e.toml",
+        format!("embree = \"fake_embree.sh\"\n{EXPERIMENT}").replace("repeats = 2", "repeats = 3"),
+    );
+    run_in(dir.path(), &["-q", "bench", "e.toml", "--out", "out"]).assert_success();
+    let records = lines(&dir.path().join("out/results.jsonl"));
+    assert_eq!(records[0]["embree"], "fake_embree.sh");
+    let points: Vec<&serde_json::Value> = records.iter().filter(|r| r["kind"] == "point").collect();
+    for p in &points {
+        let full = points
+            .iter()
+            .find(|f| {
+                f["accel"] == "bvh"
+                    && f["surface"] == p["surface"]
+                    && f["distance"] == p["distance"]
+                    && f["lod_threshold"] == 0.0
+            })
+            .unwrap();
+        assert_eq!(p["embree_rays"], full["frames"], "{p}");
+        assert_eq!(
+            (p["embree_mrays_per_second"].as_f64(), p["embree_build_seconds"].as_f64()),
+            (Some(2.5), Some(0.125))
+        );
+        let ratio = p["mrays_per_second"].as_f64().unwrap() / 2.5;
+        assert!((p["speed_vs_embree"].as_f64().unwrap() - ratio).abs() < 1e-9, "{p}");
+        assert!(p["embree_other_load_cores"].as_f64().is_some_and(|o| o >= 0.0), "{p}");
+    }
+    // The cloud handed to Embree is gone; the partial results were renamed.
+    let mut left: Vec<String> = std::fs::read_dir(dir.path().join("out"))
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    left.sort();
+    assert_eq!(left, ["images", "results.csv", "results.jsonl"]);
+    // A bench that fails stops the run, names itself, and leaves no results.
+    write_file(dir.path(), "fake_embree.sh", "#!/bin/sh\necho broken >&2\nexit 3\n");
+    let run = run_in(dir.path(), &["-q", "bench", "e.toml", "--out", "again"]);
+    run.assert_failure(1).assert_stderr_contains("fake_embree.sh").assert_stderr_contains("broken");
+    assert!(!dir.path().join("again/results.jsonl").exists() && !dir.path().join("again/results.csv").exists());
+}
+
+#[test]
+fn the_camera_table_sets_every_model_s_view_unless_the_model_sets_its_own() {
+    let dir = temp_dir();
+    // An ellipsoid three times as long in x: seen along x or along z it covers different pixels.
+    let long: Vec<[f32; 3]> = sphere_points(3000).into_iter().map(|[x, y, z]| [3.0 * x, y, z]).collect();
+    write_file(dir.path(), "long.ply", ascii_ply(&long, 0));
+    let experiment = |camera: &str, model: &str| {
+        format!(
+            "title = \"t\"\nwidth = 64\nheight = 64\nrepeats = 1\nmin_seconds = 0\n{camera}\n[[model]]\nname = \"long\"\nfile = \"long.ply\"\n{model}\n[[matrix]]\naccel = [\"bvh\"]\nsurface = [\"sj\"]\nlod_threshold = [0]\ndistance = [1]\n"
+        )
+    };
+    let pixels = |name: &str, text: String| {
+        write_file(dir.path(), name, text);
+        let out = format!("{name}.out");
+        run_in(dir.path(), &["-q", "bench", name, "--out", &out]).assert_success();
+        lines(&dir.path().join(out).join("results.jsonl"))[2]["pixels"].as_u64().unwrap()
+    };
+    let end_on = pixels("x.toml", experiment("[camera]\nview_dir = [1.0, 0.0, 0.0]", ""));
+    let side_on = pixels("z.toml", experiment("[camera]\nview_dir = [0.0, 0.0, 1.0]", ""));
+    let model_own = pixels("m.toml", experiment("[camera]\nview_dir = [1.0, 0.0, 0.0]", "view_dir = [0.0, 0.0, 1.0]"));
+    assert!(side_on > end_on, "side on {side_on} pixels, end on {end_on}");
+    assert_eq!(model_own, side_on);
+    // An unknown model in --models is an error, not a silent skip.
+    run_in(dir.path(), &["-q", "bench", "x.toml", "--models", "long,lnog"])
+        .assert_failure(2)
+        .assert_stderr_contains("lnog");
 }
