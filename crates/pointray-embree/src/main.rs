@@ -127,7 +127,7 @@ fn run(a: &Args) -> anyhow::Result<()> {
             .collect();
         times.sort_by(f64::total_cmp);
         let rays = region.pixel_count();
-        let render_s = median(&times);
+        let render_s = pointray::stats::median(&times);
         if let Some(folder) = &a.images {
             let stem = a.cloud.file_stem().map_or("cloud".into(), |s| s.to_string_lossy().into_owned());
             let geom = if a.geom == Geom::Oriented { "oriented" } else { "disc" };
@@ -150,7 +150,7 @@ fn run(a: &Args) -> anyhow::Result<()> {
             "rays": rays,
             "fov_deg": a.fov,
             "k": distance,
-            "build_s": median(&build_times),
+            "build_s": pointray::stats::median(&build_times),
             "build_s_min": build_times[0],
             "render_s": render_s,
             "render_s_min": times[0],
@@ -161,11 +161,6 @@ fn run(a: &Args) -> anyhow::Result<()> {
         println!("{line}");
     }
     Ok(())
-}
-
-fn median(sorted: &[f64]) -> f64 {
-    let n = sorted.len();
-    if n % 2 == 1 { sorted[n / 2] } else { 0.5 * (sorted[n / 2 - 1] + sorted[n / 2]) }
 }
 
 /// Embree's scene of the splats as `geom` points (centre and radius; the normal for oriented

@@ -43,6 +43,25 @@ impl RenderStats {
     }
 }
 
+/// The median of sorted values (the mean of the middle two for an even count): frame times.
+///
+/// # Panics
+/// If `sorted` is empty.
+pub fn median(sorted: &[f64]) -> f64 {
+    let n = sorted.len();
+    if n % 2 == 1 { sorted[n / 2] } else { 0.5 * (sorted[n / 2 - 1] + sorted[n / 2]) }
+}
+
 fn ratio(a: u64, b: u64) -> f64 {
     if b == 0 { 0.0 } else { a as f64 / b as f64 }
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn the_median_of_an_even_count_is_the_mean_of_the_middle_two() {
+        assert_eq!(super::median(&[1.0, 2.0, 3.0]), 2.0);
+        assert_eq!(super::median(&[1.0, 2.0, 4.0, 10.0]), 3.0);
+        assert_eq!(super::median(&[5.0]), 5.0);
+    }
 }

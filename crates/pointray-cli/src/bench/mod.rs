@@ -354,12 +354,6 @@ fn region_srgb8(film: &Film) -> Vec<u8> {
     film.rgb.iter().flat_map(|c| c.map(|v| (linear_to_srgb(v) * 255.0 + 0.5) as u8)).collect()
 }
 
-/// The median of sorted values (the mean of the middle two for an even count).
-fn median(sorted: &[f64]) -> f64 {
-    let n = sorted.len();
-    if n % 2 == 1 { sorted[n / 2] } else { 0.5 * (sorted[n / 2 - 1] + sorted[n / 2]) }
-}
-
 /// An accelerator built for one variant and disk shape, with what the build cost.
 struct Built {
     accel: AnyAccel,
@@ -445,7 +439,7 @@ fn measure_point(
     }
     let (mut times, other_load_cores) = best.expect("one attempt at least");
     times.sort_by(f64::total_cmp);
-    let seconds = median(&times);
+    let seconds = pointray::stats::median(&times);
 
     let image_name =
         format!("{}_{}_{}_d{}_t{}.png", model.name, p.accel.name(), p.surface.name(), p.distance, p.lod_threshold);
@@ -582,16 +576,4 @@ fn run_embree(
         rays: number("rays")? as u64,
         other_load_cores,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_median_of_an_even_count_is_the_mean_of_the_middle_two() {
-        assert_eq!(median(&[1.0, 2.0, 3.0]), 2.0);
-        assert_eq!(median(&[1.0, 2.0, 4.0, 10.0]), 3.0);
-        assert_eq!(median(&[5.0]), 5.0);
-    }
 }

@@ -367,7 +367,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
     times.sort_by(f64::total_cmp);
     let (render_seconds, render_seconds_min) = match times.len() {
         0 => (first_seconds, first_seconds),
-        n => (times[n / 2], times[0]),
+        _ => (pointray::stats::median(&times), times[0]),
     };
 
     let nodes_max = film.nodes_visited.iter().copied().max().unwrap_or(0);
