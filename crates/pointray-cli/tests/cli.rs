@@ -594,17 +594,6 @@ fn info_reads_xyz_text() {
 }
 
 /// A closed mesh: the octahedron |x| + |y| + |z| = 1, wound outwards.
-fn octahedron_ply() -> String {
-    let mut text = "ply\nformat ascii 1.0\nelement vertex 6\nproperty float x\nproperty float y\nproperty float z\n\
-                    element face 8\nproperty list uchar int vertex_indices\nend_header\n"
-        .to_string();
-    text += "1 0 0\n-1 0 0\n0 1 0\n0 -1 0\n0 0 1\n0 0 -1\n";
-    for [a, b, c] in [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]] {
-        text += &format!("3 {a} {b} {c}\n");
-    }
-    text
-}
-
 #[test]
 fn sample_makes_a_dense_cloud_on_a_mesh() {
     let dir = temp_dir();

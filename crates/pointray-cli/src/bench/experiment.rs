@@ -219,8 +219,10 @@ fn check(e: &Experiment) -> anyhow::Result<()> {
     );
     ensure!(!e.matrices.is_empty(), "no [[matrix]]");
     let mut names = BTreeSet::new();
+    let most = pointray::accel::bvh::MAX_SPLATS as u64;
     for m in &e.models {
         ensure!(names.insert(m.name.as_str()), "two models named {:?}", m.name);
+        ensure!(m.points.is_none_or(|n| n <= most), "model {}: at most {most} points", m.name);
     }
     for (i, m) in e.matrices.iter().enumerate() {
         let which = || format!("matrix {}", i + 1);
@@ -319,6 +321,7 @@ distance = [1]
         fails(&SMALL.replace("models = [\"b\"]", "models = [\"c\"]"), "no model named \"c\"");
         fails(&SMALL.replace("distance = [1]", "distance = [0]"), "distances must be positive");
         fails(&SMALL.replace("name = \"b\"", "name = \"a\""), "two models named \"a\"");
+        fails(&SMALL.replace("points = 1000", "points = 1_000_000_000"), "model b: at most");
         fails(&SMALL.replace("lod_threshold = [0]", "lod_threshold = []"), "at least one value");
         fails(&format!("reference = \"rfd\"\n{SMALL}"), "the reference must be sj, pss or first-hit");
     }

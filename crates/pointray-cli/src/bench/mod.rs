@@ -273,22 +273,9 @@ fn load_model(spec: &ModelSpec, e: &Experiment, folder: &Path, a: &BenchArgs, qu
     let (mut cloud, source) = match spec.source(folder)? {
         Source::Cloud(path) => (crate::commands::load(&path, quiet)?.0.cloud, path.display().to_string()),
         Source::Mesh { path, points } => {
-            let mesh = pointray_io::read_mesh(&path)?;
-            let samples = pointray::mesh_sampling::sample_surface(
-                &mesh.vertices.positions,
-                &mesh.triangles,
-                points as usize,
-                1,
-                pointray::mesh_sampling::SampleNormals::Smooth,
-            )
-            .with_context(|| format!("{}: sampling", path.display()))?;
-            let cloud = PointCloud {
-                positions: samples.positions,
-                normals: Some(samples.normals),
-                origin: mesh.vertices.origin,
-                ..PointCloud::default()
-            };
-            (cloud, format!("{} ({points} points sampled)", path.display()))
+            let normals = pointray::mesh_sampling::SampleNormals::Smooth;
+            let sampled = crate::commands::sample::sample_mesh(&path, points as usize, 1, normals, quiet)?;
+            (sampled.cloud, format!("{} ({points} points sampled)", path.display()))
         }
     };
     let load_seconds = t.elapsed().as_secs_f64();

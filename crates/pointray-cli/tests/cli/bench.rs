@@ -248,3 +248,18 @@ fn the_camera_table_sets_every_model_s_view_unless_the_model_sets_its_own() {
         .assert_failure(2)
         .assert_stderr_contains("lnog");
 }
+
+#[test]
+fn a_model_may_be_points_sampled_on_a_mesh() {
+    let dir = temp_dir();
+    write_file(dir.path(), "octahedron.ply", octahedron_ply());
+    let experiment = "title = \"mesh\"\nwidth = 48\nheight = 48\nrepeats = 1\nmin_seconds = 0\n\
+                      [[model]]\nname = \"octahedron\"\nmesh = \"octahedron.ply\"\npoints = 2000\n\
+                      [[matrix]]\naccel = [\"bvh\"]\nsurface = [\"sj\"]\nlod_threshold = [0]\ndistance = [1]\n";
+    write_file(dir.path(), "m.toml", experiment);
+    run_in(dir.path(), &["-q", "bench", "m.toml", "--out", "out"]).assert_success();
+    let records = lines(&dir.path().join("out/results.jsonl"));
+    assert_eq!(records[1]["points"], 2000, "{}", records[1]);
+    assert!(records[1]["source"].as_str().unwrap().ends_with("octahedron.ply (2000 points sampled)"));
+    assert!(records[2]["hit_fraction"].as_f64().unwrap() > 0.2, "{}", records[2]);
+}
