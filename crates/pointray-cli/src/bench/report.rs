@@ -39,7 +39,7 @@ pub fn read_run(results: &Path) -> anyhow::Result<Run> {
 }
 
 /// Writes `report` (Markdown) and its figures and images in `figures` from the run in
-/// `results`; `command` is what regenerates it all.
+/// `results`; `command` is the command line that does so, quoted in the report.
 pub fn write_report(results: &Path, report: &Path, figures: &Path, command: &str) -> anyhow::Result<()> {
     let run = read_run(results)?;
     std::fs::create_dir_all(figures.join("images")).with_context(|| format!("{}: cannot create", figures.display()))?;
@@ -134,10 +134,8 @@ fn models(md: &mut String, run: &Run) {
     let _ = writeln!(md, "| model | points | source | load s | preprocess s |");
     let _ = writeln!(md, "|---|---:|---|---:|---:|");
     for m in &run.models {
+        // The file's name, with " (N points sampled)" for a mesh: both in the last component.
         let source = Path::new(&m.source).file_name().map_or(m.source.clone(), |f| f.to_string_lossy().into_owned());
-        let sampled = m.source.find(" (").map_or("", |i| &m.source[i..]);
-        let source =
-            if sampled.is_empty() { source } else { format!("{}{sampled}", source.split(" (").next().unwrap_or("")) };
         let _ = writeln!(
             md,
             "| {} | {} | {source} | {:.2} | {:.2} |",
