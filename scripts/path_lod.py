@@ -36,7 +36,7 @@ integrator = "path"
 [[light]]
 kind = "directional"
 direction = [-0.5, 1.0, 0.6]
-intensity = 2.0
+intensity = 0.64
 
 [[cloud]]
 file = "{dragon}"

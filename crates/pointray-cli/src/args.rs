@@ -88,7 +88,8 @@ pub struct RenderArgs {
     /// content), or a scene file (.toml: several clouds, materials, lights; see
     /// scenes/README.md); none renders the built-in demo scene.
     pub input: Option<PathBuf>,
-    /// Output PNG (written atomically).
+    /// Output image, written atomically: NAME.png (8-bit sRGB, tone-mapped) or NAME.exr
+    /// (linear 32-bit float, with the --aov layers).
     #[arg(short, long)]
     pub output: PathBuf,
     /// Image width in pixels.
@@ -141,6 +142,13 @@ pub struct RenderArgs {
     /// Reconstruction filter: box (the pixel) or tent (two pixels wide, smoother edges).
     #[arg(long, value_enum, default_value_t = FilterArg::Box)]
     pub filter: FilterArg,
+    /// How a PNG shows radiance: clamp (exactly, up to 1; brighter clips to white) or filmic
+    /// (an ACES-like curve that rolls highlights off). EXR output is always linear.
+    #[arg(long, value_enum, default_value_t = ToneArg::Clamp)]
+    pub tonemap: ToneArg,
+    /// Exposure of a PNG in stops: radiance × 2^EXPOSURE before the tone map.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    pub exposure: f32,
     /// Depth of field: the lens radius, in the model's units (0: everything sharp).
     #[arg(long, default_value_t = 0.0)]
     pub lens_radius: f32,
@@ -172,7 +180,8 @@ pub struct RenderArgs {
     /// for soft shadows (noisy at low --spp; they converge as it grows).
     #[arg(long, requires = "light_pos")]
     pub light_radius: Option<f32>,
-    /// Light intensity (a point light's falls off with the squared distance).
+    /// Light intensity: the radiance a white surface facing the light shows, in every
+    /// integrator (a point light's falls off with the squared distance from 1).
     #[arg(long, default_value_t = 1.0)]
     pub light_intensity: f32,
     /// No shadow rays.
@@ -246,6 +255,17 @@ pub struct RenderArgs {
     pub demo_points: usize,
     #[command(flatten)]
     pub preprocess: PreprocessArgs,
+    /// The ids (field names) of the flags given on the command line, as opposed to defaults:
+    /// a scene file's settings give way to these (`main` fills it in).
+    #[arg(skip)]
+    pub given: Vec<String>,
+}
+
+impl RenderArgs {
+    /// Whether the flag of field `id` was given on the command line.
+    pub fn given(&self, id: &str) -> bool {
+        self.given.iter().any(|g| g == id)
+    }
 }
 
 #[derive(Args, Debug)]
@@ -372,6 +392,12 @@ pub enum SamplerArg {
 pub enum FilterArg {
     Box,
     Tent,
+}
+
+#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
+pub enum ToneArg {
+    Clamp,
+    Filmic,
 }
 
 #[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]

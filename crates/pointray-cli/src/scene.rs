@@ -11,16 +11,18 @@ use std::time::Instant;
 use anyhow::Context;
 use glam::{DMat3, DVec3, Vec3};
 use pointray::PointCloud;
-use pointray::film::srgb_to_linear;
+use pointray::film::{ToneCurve, srgb_to_linear};
 use pointray::ground::{Checker, GroundPlane};
 use pointray::material::{Material, Phong};
 use pointray::preprocess::PreprocessStats;
+use pointray::render::{Filter, Sampler};
 use pointray::shading::{Environment, Light};
+use pointray::splat::scheme::SurfaceKind;
 use pointray_io::scene::{
     CloudSpec, EnvironmentSpec, GridSpec, GroundSpec, IntegratorSpec, LightSpec, MaterialSpec, parse_scene,
 };
 
-use crate::args::{RenderArgs, SurfaceArg};
+use crate::args::{FilterArg, IntegratorArg, RenderArgs, SamplerArg, SurfaceArg, Switch, ToneArg};
 use crate::failure;
 
 /// A scene, loaded: one cloud of every placed point (world coordinates, origin zero), the
@@ -72,7 +74,6 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
         let stats =
             crate::commands::prepare_cloud(&mut points, &a.preprocess, &label, quiet).with_context(|| name.clone())?;
         preprocess.add(&stats);
-        anyhow::ensure!(cloud.scale > 0.0 && cloud.scale.is_finite(), "{name}: scale must be positive");
         place(&mut points, cloud);
         point_materials.extend(std::iter::repeat_n(index as u8, points.len()));
         materials.push(material(&cloud.material));
@@ -86,6 +87,34 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
         cloud.len()
     );
 
+    // The scene is the camera, the lights, the materials and the sky: a flag for one of them
+    // would be silently ignored, so it is refused. Render settings given as flags win over the
+    // scene's (`--spp 1 --width 320` for a quick look).
+    const SCENE_OWNS: [&str; 18] = [
+        "eye",
+        "look_at",
+        "up",
+        "fov",
+        "lens_radius",
+        "focus_distance",
+        "view_dir",
+        "distance",
+        "crop_to_model",
+        "light_dir",
+        "light_pos",
+        "light_radius",
+        "light_intensity",
+        "material",
+        "ior",
+        "sky",
+        "ground",
+        "demo_points",
+    ];
+    if let Some(flag) = SCENE_OWNS.iter().find(|id| a.given(id)) {
+        let flag = flag.replace('_', "-");
+        let e = anyhow::anyhow!("--{flag}: {} sets its own camera, lights, materials and sky", path.display());
+        return Err(failure::usage(e));
+    }
     let mut args = a.clone();
     let (c, r) = (&spec.camera, &spec.render);
     args.eye = Some(DVec3::from(c.eye));
@@ -94,41 +123,56 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
     args.fov = c.fov;
     args.lens_radius = c.lens_radius;
     args.focus_distance = c.focus_distance;
-    args.width = r.width;
-    args.height = r.height;
-    args.spp = r.spp;
-    args.max_depth = r.max_depth;
-    args.seed = r.seed;
-    args.surface = match r.surface {
-        pointray::splat::scheme::SurfaceKind::Sj => SurfaceArg::Sj,
-        pointray::splat::scheme::SurfaceKind::Rfd => SurfaceArg::Rfd,
-        pointray::splat::scheme::SurfaceKind::Pss => SurfaceArg::Pss,
-        pointray::splat::scheme::SurfaceKind::FirstHit => SurfaceArg::FirstHit,
-    };
-    args.lod_threshold = r.lod_threshold;
-    args.integrator = match r.integrator {
-        IntegratorSpec::Whitted => crate::args::IntegratorArg::Whitted,
-        IntegratorSpec::Path => crate::args::IntegratorArg::Path,
-        IntegratorSpec::Ao => crate::args::IntegratorArg::Ao,
-    };
-    args.ao_distance = r.ao_distance;
-    args.sampler = match r.sampler {
-        pointray::render::Sampler::Random => crate::args::SamplerArg::Random,
-        pointray::render::Sampler::R2 => crate::args::SamplerArg::R2,
-    };
-    args.filter = match r.filter {
-        pointray::render::Filter::Box => crate::args::FilterArg::Box,
-        pointray::render::Filter::Tent => crate::args::FilterArg::Tent,
-    };
-    args.no_shadows = !r.shadows;
     args.crop_to_model = false;
-    args.region = None;
+    macro_rules! unless_given {
+        ($($field:ident = $value:expr;)*) => {
+            $(if !a.given(stringify!($field)) {
+                args.$field = $value;
+            })*
+        };
+    }
+    unless_given! {
+        width = r.width;
+        height = r.height;
+        spp = r.spp;
+        max_depth = r.max_depth;
+        seed = r.seed;
+        surface = match r.surface {
+            SurfaceKind::Sj => SurfaceArg::Sj,
+            SurfaceKind::Rfd => SurfaceArg::Rfd,
+            SurfaceKind::Pss => SurfaceArg::Pss,
+            SurfaceKind::FirstHit => SurfaceArg::FirstHit,
+        };
+        integrator = match r.integrator {
+            IntegratorSpec::Whitted => IntegratorArg::Whitted,
+            IntegratorSpec::Path => IntegratorArg::Path,
+            IntegratorSpec::Ao => IntegratorArg::Ao,
+        };
+        ao_distance = r.ao_distance;
+        sampler = match r.sampler {
+            Sampler::Random => SamplerArg::Random,
+            Sampler::R2 => SamplerArg::R2,
+        };
+        filter = match r.filter {
+            Filter::Box => FilterArg::Box,
+            Filter::Tent => FilterArg::Tent,
+        };
+        tonemap = match r.tonemap {
+            ToneCurve::Clamp => ToneArg::Clamp,
+            ToneCurve::Filmic => ToneArg::Filmic,
+        };
+        exposure = r.exposure;
+        no_shadows = !r.shadows;
+    }
+    // `lod_threshold = 0` is full detail, as `--lod off` is.
+    if !a.given("lod_threshold") && !a.given("lod") {
+        (args.lod_threshold, args.lod) = match r.lod_threshold {
+            0.0 => (a.lod_threshold, Switch::Off),
+            tau => (tau, Switch::On),
+        };
+    }
     super::commands::render::check_args(&args).map_err(|e| failure::usage(e.context(path.display().to_string())))?;
     let lights = spec.lights.iter().map(light).collect();
-    if a.ground {
-        let e = anyhow::anyhow!("--ground: {} has its own ground, a [ground] table (or none)", path.display());
-        return Err(failure::usage(e));
-    }
     let ground =
         spec.ground.as_ref().map(ground).transpose().with_context(|| format!("{}: [ground]", path.display()))?;
     let environment = match spec.environment {
@@ -166,7 +210,7 @@ fn grid_cloud(g: &GridSpec) -> anyhow::Result<PointCloud> {
             let (x, z) = (-half + i as f64 * g.spacing, -half + j as f64 * g.spacing);
             world.push(DVec3::new(x, 0.0, z));
             if let Some((a, b, tile)) = g.checker {
-                let dark = ((x / tile).floor() as i64 + (z / tile).floor() as i64).rem_euclid(2) == 0;
+                let dark = ((x / tile).floor() + (z / tile).floor()).rem_euclid(2.0) < 1.0;
                 colors.push(if dark { a } else { b });
             }
         }
@@ -181,13 +225,7 @@ fn ground(spec: &GroundSpec) -> anyhow::Result<GroundPlane> {
     let up = Vec3::from(spec.up).try_normalize().context("`up` must be a non-zero direction")?;
     anyhow::ensure!(spec.height.is_finite(), "`height` must be finite");
     let linear = |c: [f32; 3]| c.map(srgb_to_linear);
-    let checker = match &spec.checker {
-        Some(c) => {
-            anyhow::ensure!(c.tile > 0.0 && c.tile.is_finite(), "the checker's `tile` must be positive");
-            Some(Checker { color: linear(c.color), tile: c.tile as f32 })
-        }
-        None => None,
-    };
+    let checker = spec.checker.as_ref().map(|c| Checker { color: linear(c.color), tile: c.tile as f32 });
     // Glass would make the half-space below a glass body, which the path's one inside flag
     // cannot tell from the clouds' glass.
     anyhow::ensure!(
@@ -244,7 +282,7 @@ fn merge(clouds: Vec<PointCloud>) -> PointCloud {
 
 fn material(spec: &MaterialSpec) -> Material {
     match *spec {
-        MaterialSpec::Phong => Material::Phong(Phong::standard()),
+        MaterialSpec::Phong { ambient, specular, shininess } => Material::Phong(Phong { ambient, specular, shininess }),
         MaterialSpec::Mirror { tint } => Material::Mirror { tint },
         MaterialSpec::Glass { ior, tint } => Material::Glass { ior, tint },
     }
@@ -306,8 +344,6 @@ mod tests {
         assert_eq!(g.color, [1.0, srgb_to_linear(0.5), 0.0]);
         let flat: GroundSpec = toml::from_str("up = [0.0, 0.0, 0.0]").unwrap();
         assert!(ground(&flat).unwrap_err().to_string().contains("up"));
-        let tiny: GroundSpec = toml::from_str("checker = { color = [0.0, 0.0, 0.0], tile = 0.0 }").unwrap();
-        assert!(ground(&tiny).unwrap_err().to_string().contains("tile"));
         let glass: GroundSpec = toml::from_str("material = { kind = \"glass\" }").unwrap();
         assert!(ground(&glass).unwrap_err().to_string().contains("not glass"));
     }

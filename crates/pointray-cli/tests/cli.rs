@@ -393,6 +393,58 @@ fn scene_files_place_clouds_with_their_materials_and_lights() {
 }
 
 #[test]
+fn flags_override_a_scenes_render_settings_and_may_not_contradict_the_rest() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    write_file(dir.path(), "two.toml", two_sphere_scene(4));
+    // Render settings given as flags win: a quick look at fewer pixels and samples, without
+    // level of detail.
+    let quick = ["-q", "render", "two.toml", "-o", "q.png", "--spp", "2", "--width", "40", "--stats", "q.json"];
+    run_in(dir.path(), &[&quick[..], &["--lod", "off"]].concat()).assert_success();
+    let s = read_stats(&dir.path().join("q.json"));
+    assert_eq!((stat_u64(&s, "width"), stat_u64(&s, "height"), stat_u64(&s, "samples_per_pixel")), (40, 48, 2));
+    assert!(s["lod_threshold"].is_null(), "{s:#}");
+    // The scene's own settings otherwise, and `lod_threshold = 0` is full detail too.
+    write_file(dir.path(), "full.toml", two_sphere_scene(1).replace("spp = 1", "spp = 1\nlod_threshold = 0.0"));
+    run_in(dir.path(), &["-q", "render", "full.toml", "-o", "f.png", "--stats", "f.json"]).assert_success();
+    let s = read_stats(&dir.path().join("f.json"));
+    assert_eq!((stat_u64(&s, "width"), stat_u64(&s, "samples_per_pixel")), (64, 1));
+    assert!(s["lod_threshold"].is_null(), "{s:#}");
+    // The camera, lights, materials and sky are the scene's: such a flag is refused.
+    for flag in [&["--fov", "30"][..], &["--light-dir", "0,1,0"], &["--material", "glass"], &["--sky"], &["--ground"]] {
+        let run = run_in(dir.path(), &[&["-q", "render", "two.toml", "-o", "x.png"][..], flag].concat());
+        run.assert_failure(2).assert_stderr_contains(flag[0]).assert_stderr_contains("two.toml");
+    }
+    assert!(!dir.path().join("x.png").exists());
+}
+
+#[test]
+fn a_filmic_tone_map_keeps_highlights_that_clamping_burns_out() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let render = |name: &str, extra: &[&str]| {
+        let base =
+            ["-q", "render", "sphere.ply", "-o", name, "--width", "64", "--height", "64", "--light-intensity", "4"];
+        run_in(dir.path(), &[&base[..], extra].concat()).assert_success();
+        read_png(&dir.path().join(name))
+    };
+    let burnt = |image: &Image| image.pixels().filter(|(_, _, c)| c.contains(&255)).count();
+    let clamp = render("clamp.png", &[]);
+    let filmic = render("filmic.png", &["--tonemap", "filmic"]);
+    let brighter = render("filmic2.png", &["--tonemap", "filmic", "--exposure", "1"]);
+    // Four times the light saturates most of the lit sphere; the filmic curve reaches white
+    // only near 12 and keeps its gradations.
+    assert!(burnt(&clamp) > 500 && burnt(&filmic) == 0, "{} and {} burnt pixels", burnt(&clamp), burnt(&filmic));
+    let levels = |image: &Image| image.pixels().map(|(_, _, c)| c[1]).collect::<std::collections::BTreeSet<_>>().len();
+    assert!(levels(&filmic) > levels(&clamp), "{} against {} grey levels", levels(&filmic), levels(&clamp));
+    // One stop more exposure brightens every lit pixel (the background too: it is radiance).
+    let pairs: Vec<(u8, u8)> =
+        filmic.pixels().zip(brighter.pixels()).map(|((_, _, a), (_, _, b))| (a[1], b[1])).collect();
+    assert!(pairs.iter().all(|(a, b)| a <= b));
+    assert!(pairs.iter().filter(|(a, b)| a < b).count() > 1000);
+}
+
+#[test]
 fn ground_puts_a_floor_under_the_model_that_takes_its_shadow() {
     let dir = temp_dir();
     write_sphere(dir.path());
@@ -435,6 +487,31 @@ fn bad_scene_files_are_refused_with_their_name_and_line() {
         ("flat.toml", two_sphere_scene(1).replace("[ground]", "[ground]\nup = [0.0, 0.0, 0.0]"), "[ground]: `up`"),
         ("none.toml", "cloud = []\n[camera]\neye = [0, 0, 1]\nlook_at = [0, 0, 0]\n".to_string(), "no [[cloud]]"),
         ("scale.toml", two_sphere_scene(1).replace("scale = 0.5", "scale = -1.0"), "scale must be positive"),
+        // Values TOML's types cannot refuse, named by table and key.
+        (
+            "dark.toml",
+            two_sphere_scene(1).replace("direction = [1.0, 1.0, 0.0]", "direction = [0.0, 0.0, 0.0]"),
+            "[[light]] 2: direction: must be a non-zero direction",
+        ),
+        (
+            "negative.toml",
+            two_sphere_scene(1).replace("intensity = 0.3", "intensity = -0.3"),
+            "[[light]] 2: intensity: must not be negative",
+        ),
+        ("nan.toml", two_sphere_scene(1).replace("radius = 0.5", "radius = nan"), "[[light]] 1: radius"),
+        (
+            "ior.toml",
+            two_sphere_scene(1).replace("kind = \"mirror\"", "kind = \"glass\", ior = 0.0"),
+            "[[cloud]] 1 material: ior: must be positive",
+        ),
+        (
+            "shiny.toml",
+            two_sphere_scene(1).replace("color = [0.9, 0.2, 0.1]", "material = { kind = \"phong\", shine = 9.0 }"),
+            "unknown field `shine`",
+        ),
+        ("tile.toml", two_sphere_scene(1).replace("tile = 1.0", "tile = 0.0"), "[ground]: the checker's `tile`"),
+        ("spp.toml", two_sphere_scene(1).replace("spp = 1", "spp = 0"), "[render] spp"),
+        ("fov.toml", two_sphere_scene(1).replace("[render]", "fov = 0.0\n[render]"), "[camera] fov"),
     ];
     for (name, text, fragment) in &cases {
         write_file(dir.path(), name, text);
@@ -804,8 +881,10 @@ fn exit_statuses_tell_input_usage_and_output_failures_apart() {
     render_in(dir.path(), &["sphere.ply", "-o", "b.png", "--no-such-flag"]).assert_failure(2);
     run_in(dir.path(), &["-q", "prepare", "sphere.ply", "-o", "b.ply", "--k-normals", "1"]).assert_failure(2);
     render_in(dir.path(), &["sphere.ply", "-o", "no/such/dir/b.png"]).assert_failure(3);
-    render_in(dir.path(), &["sphere.ply", "-o", "."]).assert_failure(3);
-    assert_dir_contains_exactly(dir.path(), &["sphere.ply", "a.png"]);
+    std::fs::create_dir(dir.path().join("folder.png")).unwrap();
+    render_in(dir.path(), &["sphere.ply", "-o", "folder.png"]).assert_failure(3);
+    render_in(dir.path(), &["sphere.ply", "-o", "b.jpg"]).assert_failure(2);
+    assert_dir_contains_exactly(dir.path(), &["sphere.ply", "a.png", "folder.png"]);
 }
 
 /// Ctrl-C in the middle of a render: status 130, a message, and no file at all.
@@ -900,6 +979,8 @@ fn bad_flags_are_rejected_with_clear_messages() {
         (&["--width", "48", "--height", "40", "--aov", "colour"], 2, &["--aov", "nodes", "albedo"]),
         (&["--width", "48", "--height", "40", "--lens-radius=-1"], 2, &["--lens-radius must be non-negative"]),
         (&["--width", "48", "--height", "40", "--focus-distance", "0"], 2, &["--focus-distance"]),
+        (&["--width", "48", "--height", "40", "--exposure", "nan"], 2, &["--exposure"]),
+        (&["--width", "48", "--height", "40", "--tonemap", "gamma"], 2, &["--tonemap", "clamp", "filmic"]),
     ];
     for (extra, code, words) in cases {
         let mut args = vec!["-q", "render", "sphere.ply", "-o", "out.png"];
@@ -910,6 +991,12 @@ fn bad_flags_are_rejected_with_clear_messages() {
             run.assert_stderr_contains(w);
         }
         run.assert_stderr_contains("error");
+        assert_dir_contains_exactly(dir.path(), &["sphere.ply"]);
+    }
+    // The extension of -o chooses the format: another one is not quietly written as PNG.
+    for name in ["out.jpg", "out"] {
+        let run = run_in(dir.path(), &["-q", "render", "sphere.ply", "-o", name, "--width", "48", "--height", "40"]);
+        run.assert_failure(2).assert_stderr_contains(name).assert_stderr_contains(".png or .exr");
         assert_dir_contains_exactly(dir.path(), &["sphere.ply"]);
     }
 }
@@ -1009,16 +1096,16 @@ fn assert_output_failure(run: &Run, file: &str) {
 fn unwritable_outputs_fail_without_leftovers() {
     let dir = temp_dir();
     write_sphere(dir.path());
-    std::fs::create_dir(dir.path().join("adir")).unwrap();
+    std::fs::create_dir(dir.path().join("adir.png")).unwrap();
     // -o names an existing directory, or a file in a directory that does not exist.
-    for out in ["adir", "nodir/out.png"] {
+    for out in ["adir.png", "nodir/out.png"] {
         let run = render_in(dir.path(), &["sphere.ply", "-o", out]);
         assert_output_failure(&run, out);
         let run = run_in(dir.path(), &["-q", "prepare", "sphere.ply", "-o", out]);
         assert_output_failure(&run, out);
     }
-    assert_dir_contains_exactly(dir.path(), &["adir", "sphere.ply"]);
-    assert_dir_contains_exactly(&dir.path().join("adir"), &[]);
+    assert_dir_contains_exactly(dir.path(), &["adir.png", "sphere.ply"]);
+    assert_dir_contains_exactly(&dir.path().join("adir.png"), &[]);
 }
 
 #[test]

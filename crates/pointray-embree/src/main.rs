@@ -136,7 +136,7 @@ fn run(a: &Args) -> anyhow::Result<()> {
             let mut film = pointray::film::Film::new(region);
             film.rgb = image;
             let background = Environment::BACKGROUND.flat_color();
-            pointray_io::write_png(&path, width, height, &film.frame_srgb8(width, height, background))?;
+            pointray_io::write_png(&path, width, height, &film.frame_srgb8(width, height, background, pointray::film::ToneMap::CLAMP))?;
         }
         let line = serde_json::json!({
             "bench": "pointray-embree",

@@ -4,6 +4,8 @@
 
 use std::path::{Path, PathBuf};
 
+use pointray::film::ToneCurve;
+use pointray::material::Phong;
 use pointray::render::{Filter, Sampler};
 use pointray::splat::scheme::SurfaceKind;
 use serde::Deserialize;
@@ -13,13 +15,142 @@ use crate::IoError;
 /// Parses a scene file's text; errors name `path` and the line and column.
 pub fn parse_scene(path: &Path, text: &str) -> Result<SceneFile, IoError> {
     let scene: SceneFile = toml::from_str(text).map_err(|e| IoError::invalid(path, e.to_string()))?;
-    if scene.clouds.is_empty() {
-        return Err(IoError::invalid(path, "the scene has no [[cloud]]"));
-    }
-    if scene.clouds.len() > 256 {
-        return Err(IoError::invalid(path, "at most 256 clouds"));
-    }
+    scene.check().map_err(|message| IoError::invalid(path, message))?;
     Ok(scene)
+}
+
+/// Every number in range, named by its table and key when it is not: what TOML's types
+/// cannot say (a zero direction, a negative intensity, a NaN).
+impl SceneFile {
+    fn check(&self) -> Result<(), String> {
+        if self.clouds.is_empty() {
+            return Err("the scene has no [[cloud]]".into());
+        }
+        if self.clouds.len() > 256 {
+            return Err("at most 256 clouds".into());
+        }
+        let c = &self.camera;
+        finite_points("[camera] eye", &[c.eye])?;
+        finite_points("[camera] look_at", &[c.look_at])?;
+        ensure(c.eye != c.look_at, "[camera]: `eye` and `look_at` must differ")?;
+        nonzero_direction("[camera] up", c.up)?;
+        ensure(c.fov > 0.0 && c.fov < 180.0, "[camera] fov: must be between 0 and 180 degrees")?;
+        ensure(c.lens_radius >= 0.0 && c.lens_radius.is_finite(), "[camera] lens_radius: must not be negative")?;
+        ensure(positive(c.focus_distance), "[camera] focus_distance: must be positive")?;
+        let r = &self.render;
+        ensure(r.width > 0 && r.height > 0, "[render] width and height: must be positive")?;
+        ensure(r.spp >= 1, "[render] spp: must be at least 1")?;
+        ensure(r.max_depth <= 64, "[render] max_depth: must be at most 64")?;
+        ensure(r.exposure.abs() <= 32.0, "[render] exposure: must be between -32 and 32 stops")?;
+        ensure(positive(r.ao_distance), "[render] ao_distance: must be positive")?;
+        let tau = r.lod_threshold;
+        ensure(tau >= 0.0 && tau.is_finite(), "[render] lod_threshold: must not be negative (0: full detail)")?;
+        match self.environment {
+            EnvironmentSpec::Uniform { color } => colors("[environment] color", &[color], f32::MAX)?,
+            EnvironmentSpec::Sky { zenith, horizon, ground } => {
+                colors("[environment] zenith, horizon and ground", &[zenith, horizon, ground], f32::MAX)?
+            }
+        }
+        for (i, light) in self.lights.iter().enumerate() {
+            light.check().map_err(|e| format!("[[light]] {}: {e}", i + 1))?;
+        }
+        if let Some(g) = &self.ground {
+            let tile = g.checker.as_ref().map(|c| c.tile);
+            ground_colors(g.color, g.checker.as_ref().map(|c| c.color), tile).map_err(|e| format!("[ground]: {e}"))?;
+            g.material.check().map_err(|e| format!("[ground] material: {e}"))?;
+        }
+        for (i, cloud) in self.clouds.iter().enumerate() {
+            let name = format!("[[cloud]] {}", i + 1);
+            ensure(cloud.scale > 0.0 && cloud.scale.is_finite(), &format!("{name}: scale must be positive"))?;
+            finite_points(&format!("{name}: rotate and translate"), &[cloud.rotate, cloud.translate])?;
+            if let Some(color) = cloud.color {
+                colors(&format!("{name} color"), &[color], 1.0)?;
+            }
+            cloud.material.check().map_err(|e| format!("{name} material: {e}"))?;
+            if let Some(grid) = &cloud.grid {
+                let [a, b] = grid.checker.map_or([[0.0; 3]; 2], |(a, b, _)| [a, b]);
+                ground_colors(a, Some(b), grid.checker.map(|(.., tile)| tile))
+                    .map_err(|e| format!("{name} grid: {e}"))?;
+            }
+        }
+        Ok(())
+    }
+}
+
+impl LightSpec {
+    fn check(&self) -> Result<(), String> {
+        let intensity = match *self {
+            LightSpec::Directional { direction, intensity } => {
+                nonzero_direction("direction", direction)?;
+                intensity
+            }
+            LightSpec::Point { position, intensity } => {
+                finite_points("position", &[position])?;
+                intensity
+            }
+            LightSpec::Sphere { position, radius, intensity } => {
+                finite_points("position", &[position])?;
+                ensure(radius >= 0.0 && radius.is_finite(), "radius: must not be negative")?;
+                intensity
+            }
+            LightSpec::Spot { position, direction: axis, inner, outer, intensity } => {
+                finite_points("position", &[position])?;
+                nonzero_direction("direction", axis)?;
+                let angle = |a: f32| (0.0..=180.0).contains(&a);
+                ensure(angle(inner) && angle(outer), "inner and outer: must be between 0 and 180 degrees")?;
+                intensity
+            }
+        };
+        ensure(intensity >= 0.0 && intensity.is_finite(), "intensity: must not be negative")
+    }
+}
+
+impl MaterialSpec {
+    fn check(&self) -> Result<(), String> {
+        match *self {
+            MaterialSpec::Phong { ambient, specular, shininess } => {
+                ensure((0.0..=1.0).contains(&ambient), "ambient: must be between 0 and 1")?;
+                ensure(specular >= 0.0 && specular.is_finite(), "specular: must not be negative")?;
+                ensure(shininess > 0.0 && shininess.is_finite(), "shininess: must be positive")
+            }
+            MaterialSpec::Mirror { tint } => colors("tint", &[tint], 1.0),
+            MaterialSpec::Glass { ior, tint } => {
+                ensure(ior > 0.0 && ior.is_finite(), "ior: must be positive")?;
+                colors("tint", &[tint], 1.0)
+            }
+        }
+    }
+}
+
+fn ensure(ok: bool, message: &str) -> Result<(), String> {
+    if ok { Ok(()) } else { Err(message.to_string()) }
+}
+
+fn positive(value: Option<f32>) -> bool {
+    value.is_none_or(|v| v > 0.0 && v.is_finite())
+}
+
+fn finite_points(key: &str, points: &[[f64; 3]]) -> Result<(), String> {
+    ensure(points.iter().flatten().all(|v| v.is_finite()), &format!("{key}: must be finite"))
+}
+
+fn nonzero_direction(key: &str, v: [f32; 3]) -> Result<(), String> {
+    let ok = v.iter().all(|c| c.is_finite()) && v.iter().any(|&c| c != 0.0);
+    ensure(ok, &format!("{key}: must be a non-zero direction"))
+}
+
+/// Colours between 0 and `most` in every channel.
+fn colors(key: &str, colors: &[[f32; 3]], most: f32) -> Result<(), String> {
+    let ok = colors.iter().flatten().all(|&c| (0.0..=most).contains(&c));
+    ensure(
+        ok,
+        &format!("{key}: every channel must be between 0 and {}", if most == 1.0 { "1" } else { "a finite number" }),
+    )
+}
+
+fn ground_colors(color: [f32; 3], second: Option<[f32; 3]>, tile: Option<f64>) -> Result<(), String> {
+    colors("colors", &[color, second.unwrap_or(color)], 1.0)?;
+    ensure(tile.is_none_or(|t| t > 0.0 && t.is_finite()), "the checker's `tile` must be positive")
 }
 
 #[derive(Debug, Deserialize)]
@@ -74,6 +205,9 @@ pub struct RenderSpec {
     pub integrator: IntegratorSpec,
     pub sampler: Sampler,
     pub filter: Filter,
+    /// How a PNG shows radiance (`clamp` or `filmic`) and its exposure in stops.
+    pub tonemap: ToneCurve,
+    pub exposure: f32,
     /// `integrator = "ao"`: how far a surface looks for what occludes it (default: a tenth of
     /// the scene's bounding-box diagonal).
     pub ao_distance: Option<f32>,
@@ -93,6 +227,8 @@ impl Default for RenderSpec {
             integrator: IntegratorSpec::Whitted,
             sampler: Sampler::R2,
             filter: Filter::Box,
+            tonemap: ToneCurve::Clamp,
+            exposure: 0.0,
             ao_distance: None,
             lod_threshold: 0.5,
             shadows: true,
@@ -211,11 +347,20 @@ fn ground_color() -> [f32; 3] {
     [0.8; 3]
 }
 
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields, tag = "kind", rename_all = "kebab-case")]
 pub enum MaterialSpec {
-    #[default]
-    Phong,
+    /// Ambient + Lambert diffuse + a white specular lobe (Whitted; the path tracer takes the
+    /// diffuse part): `ambient` of the albedo shows unlit, `specular` is the lobe's weight and
+    /// `shininess` its exponent (higher: a smaller, sharper highlight).
+    Phong {
+        #[serde(default = "phong_ambient")]
+        ambient: f32,
+        #[serde(default = "phong_specular")]
+        specular: f32,
+        #[serde(default = "phong_shininess")]
+        shininess: f32,
+    },
     Mirror {
         #[serde(default = "white")]
         tint: [f32; 3],
@@ -226,6 +371,24 @@ pub enum MaterialSpec {
         #[serde(default = "white")]
         tint: [f32; 3],
     },
+}
+
+impl Default for MaterialSpec {
+    fn default() -> Self {
+        MaterialSpec::Phong { ambient: phong_ambient(), specular: phong_specular(), shininess: phong_shininess() }
+    }
+}
+
+fn phong_ambient() -> f32 {
+    Phong::standard().ambient
+}
+
+fn phong_specular() -> f32 {
+    Phong::standard().specular
+}
+
+fn phong_shininess() -> f32 {
+    Phong::standard().shininess
 }
 
 fn white() -> [f32; 3] {

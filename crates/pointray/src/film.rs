@@ -39,9 +39,9 @@ impl Film {
     }
 
     /// The whole `width × height` frame as 8-bit sRGB (what a PNG stores), `background`
-    /// (linear) outside the region.
-    pub fn frame_srgb8(&self, width: u32, height: u32, background: [f32; 3]) -> Vec<u8> {
-        let encode = |c: [f32; 3]| c.map(|v| (linear_to_srgb(v) * 255.0 + 0.5) as u8);
+    /// (linear) outside the region, both through `tone`.
+    pub fn frame_srgb8(&self, width: u32, height: u32, background: [f32; 3], tone: ToneMap) -> Vec<u8> {
+        let encode = |c: [f32; 3]| c.map(|v| (linear_to_srgb(tone.display(v)) * 255.0 + 0.5) as u8);
         let bg = encode(background);
         let mut out = Vec::with_capacity(width as usize * height as usize * 3);
         for y in 0..height {
@@ -52,6 +52,50 @@ impl Film {
             }
         }
         out
+    }
+}
+
+/// How linear radiance becomes a display value in [0, 1] before sRGB encoding: scaled by
+/// 2^`exposure` (in stops), then clipped or rolled off by `curve`. EXR output stays linear.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct ToneMap {
+    pub exposure: f32,
+    pub curve: ToneCurve,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ToneCurve {
+    /// Radiance up to 1 shown exactly, brighter clipped to white: the default, and what the
+    /// known-answer tests and the experiments compare.
+    Clamp,
+    /// Narkowicz's (2015) fit of the ACES filmic curve, per channel, on 0.6 × the radiance: a
+    /// gentle toe and a shoulder that rolls highlights off instead of clipping them (radiance
+    /// 1 shows as 0.67, 4 as 0.93, and white is reached near 12), desaturating the brightest
+    /// as film does. Mid-tones come out a little darker than clipped: raise the exposure.
+    Filmic,
+}
+
+impl ToneMap {
+    /// Exactly the radiance, clipped at 1.
+    pub const CLAMP: ToneMap = ToneMap { exposure: 0.0, curve: ToneCurve::Clamp };
+
+    /// The display value in [0, 1] of one linear channel.
+    pub fn display(&self, linear: f32) -> f32 {
+        let x = (linear * self.exposure.exp2()).max(0.0);
+        match self.curve {
+            ToneCurve::Clamp => x.min(1.0),
+            ToneCurve::Filmic => {
+                let x = 0.6 * x;
+                (x * (2.51 * x + 0.03) / (x * (2.43 * x + 0.59) + 0.14)).min(1.0)
+            }
+        }
+    }
+}
+
+impl Default for ToneMap {
+    fn default() -> Self {
+        Self::CLAMP
     }
 }
 
@@ -81,8 +125,26 @@ mod tests {
         let mut f = Film::new(Region { x0: 1, y0: 2, x1: 3, y1: 3 });
         let i = f.index(2, 2);
         f.rgb[i] = [1.0, 1.0, 1.0];
-        let px = f.frame_srgb8(4, 4, [0.0; 3]);
+        let px = f.frame_srgb8(4, 4, [0.0; 3], ToneMap::CLAMP);
         let at = |x: usize, y: usize| px[(y * 4 + x) * 3];
         assert_eq!((at(2, 2), at(1, 2), at(0, 0), at(3, 3)), (255, 0, 0, 0));
+    }
+
+    #[test]
+    fn tone_maps_keep_order_and_range() {
+        let filmic = ToneMap { exposure: 0.0, curve: ToneCurve::Filmic };
+        let values: Vec<f32> = (0..=400).map(|i| i as f32 * 0.05).collect();
+        for tone in [ToneMap::CLAMP, filmic, ToneMap { exposure: 1.0, curve: ToneCurve::Filmic }] {
+            let shown: Vec<f32> = values.iter().map(|&v| tone.display(v)).collect();
+            assert!(shown.iter().all(|s| (0.0..=1.0).contains(s)), "{tone:?}");
+            assert!(shown.windows(2).all(|w| w[0] <= w[1]), "{tone:?} is not monotonic");
+        }
+        // Clamp shows radiance up to 1 exactly; one stop of exposure doubles it.
+        assert_eq!((ToneMap::CLAMP.display(0.37), ToneMap::CLAMP.display(3.0)), (0.37, 1.0));
+        assert_eq!(ToneMap { exposure: 1.0, curve: ToneCurve::Clamp }.display(0.25), 0.5);
+        // Filmic keeps highlights apart that clamping merges, and black stays black.
+        assert_eq!(filmic.display(0.0), 0.0);
+        assert!(filmic.display(2.0) < filmic.display(4.0) && filmic.display(4.0) < 0.95);
+        assert!((filmic.display(1.0) - 0.673).abs() < 1e-3, "{}", filmic.display(1.0));
     }
 }

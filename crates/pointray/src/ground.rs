@@ -64,8 +64,9 @@ impl GroundPlane {
     fn albedo(&self, position: Vec3) -> [f32; 3] {
         let Some(checker) = self.checker else { return self.color };
         let (a, b) = orthonormal_basis(self.up);
-        let square = |axis: Vec3| (position.dot(axis) / checker.tile).floor() as i64;
-        if (square(a) + square(b)).rem_euclid(2) == 0 { self.color } else { checker.color }
+        // Parity in floating point: no integer to overflow however small the tile.
+        let square = |axis: Vec3| (position.dot(axis) / checker.tile).floor();
+        if (square(a) + square(b)).rem_euclid(2.0) < 1.0 { self.color } else { checker.color }
     }
 }
 

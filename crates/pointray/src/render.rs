@@ -29,7 +29,8 @@ pub enum Integrator {
     /// followed by recursion, both branches of glass at every interface.
     Whitted,
     /// A path tracer (global illumination): diffuse surfaces (albedo/π) take each light's
-    /// direct light by a shadow ray (next-event estimation) and the rest by one
+    /// direct light by a shadow ray (next-event estimation; lit by a light as brightly as
+    /// Whitted's Phong, see [`Light`]) and the rest by one
     /// cosine-distributed bounce; glass picks reflection or refraction by its Fresnel
     /// reflectance. Russian roulette from the fourth bounce; unbiased but for `max_depth`.
     Path,
@@ -371,14 +372,15 @@ impl<A: Accel> Tracer<'_, A> {
         }
     }
 
-    /// The path tracer at a diffuse hit: each light's direct light (albedo/π × irradiance ×
-    /// cos θ, if the shadow ray is free), plus the light one cosine-distributed bounce
-    /// brings, which for that distribution weighs exactly the albedo.
+    /// The path tracer at a diffuse hit: each light's direct light (albedo × irradiance ×
+    /// cos θ if the shadow ray is free, which is the albedo/π BRDF under the light's
+    /// radiometric irradiance, π times its scale; see [`Light`]), plus the light one
+    /// cosine-distributed bounce brings, which for that distribution weighs exactly the albedo.
     fn diffuse(&mut self, ray: &Ray, hit: &scheme::SurfaceHit, depth: u32, inside: bool) -> Vec3 {
         let albedo = Vec3::from(hit.color);
         let mut color = Vec3::ZERO;
         self.visible_lights(ray, hit, |to_light, irradiance| {
-            color += albedo * (irradiance * hit.normal.dot(to_light) * std::f32::consts::FRAC_1_PI);
+            color += albedo * (irradiance * hit.normal.dot(to_light));
         });
         if depth >= self.config.max_depth {
             return color;

@@ -4,7 +4,7 @@ use std::time::Instant;
 
 use pointray::accel::NodeBounds;
 use pointray::camera::{Camera, Region};
-use pointray::film::Film;
+use pointray::film::{Film, ToneCurve, ToneMap};
 use pointray::ground::{Checker, GroundPlane};
 use pointray::material::Material;
 use pointray::render::{Filter, Integrator, RenderConfig, Sampler};
@@ -17,6 +17,7 @@ use serde::Serialize;
 use crate::any_accel::AnyAccel;
 use crate::args::{
     AccelArg, AovArg, CullArg, FilterArg, IntegratorArg, MaterialArg, RenderArgs, SamplerArg, SurfaceArg, Switch,
+    ToneArg,
 };
 
 /// `--cull auto` culls when at most this fraction of rays from around the model meets a back
@@ -127,6 +128,12 @@ pub fn run(a: &RenderArgs, quiet: bool) -> anyhow::Result<()> {
 
 pub fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     use anyhow::ensure;
+    let format = a.output.extension().map(|e| e.to_ascii_lowercase());
+    ensure!(
+        format.is_some_and(|e| e == "png" || e == "exr"),
+        "-o {}: the extension chooses the format, .png or .exr",
+        a.output.display()
+    );
     ensure!(a.width > 0 && a.height > 0, "--width and --height must be positive");
     ensure!(
         u64::from(a.width) * u64::from(a.height) <= MAX_PIXELS,
@@ -149,6 +156,7 @@ pub fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     ensure!(a.diffuse_spread >= 0.0 && a.diffuse_spread.is_finite(), "--diffuse-spread must be non-negative");
     ensure!(a.light_radius.is_none_or(|r| r >= 0.0 && r.is_finite()), "--light-radius must be a non-negative number");
     ensure!(a.max_depth <= 64, "--max-depth must be at most 64");
+    ensure!(a.exposure.abs() <= 32.0, "--exposure must be between -32 and 32 stops");
     ensure!(a.up.length_squared() > 0.0, "--up must not be the zero vector");
     ensure!(a.view_dir.is_none_or(|v| v.length_squared() > 0.0), "--view-dir must not be the zero vector");
     ensure!(a.light_dir.is_none_or(|v| v.length_squared() > 0.0), "--light-dir must not be the zero vector");
@@ -375,7 +383,12 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         let channels = exr_channels(&film, &a.aov, a.width, a.height, config.environment.flat_color());
         pointray_io::write_exr(&a.output, a.width, a.height, channels).map_err(crate::failure::output)?;
     } else {
-        let frame = film.frame_srgb8(a.width, a.height, config.environment.flat_color());
+        let curve = match a.tonemap {
+            ToneArg::Clamp => ToneCurve::Clamp,
+            ToneArg::Filmic => ToneCurve::Filmic,
+        };
+        let tone = ToneMap { exposure: a.exposure, curve };
+        let frame = film.frame_srgb8(a.width, a.height, config.environment.flat_color(), tone);
         pointray_io::image::write_png(&a.output, a.width, a.height, &frame).map_err(crate::failure::output)?;
         let mut written = Vec::new();
         for &aov in &a.aov {

@@ -1,8 +1,9 @@
 //! The path tracer against scenes whose answers are known: an object in a uniform white
 //! environment, with no lights, shows its albedo (a convex one, after one bounce) or, with
 //! albedo 1, exactly the environment (energy is conserved however the light bounces); a plane
-//! under a sun shows albedo × E cos θ / π (next-event estimation), and under a sky whose
-//! radiance is the sine of the elevation, 2/3 of its albedo (the cosine-distributed bounces).
+//! under a sun of intensity I shows albedo × I cos θ (next-event estimation), as Whitted's
+//! Phong does, and under a sky whose radiance is the sine of the elevation, 2/3 of its albedo
+//! (the cosine-distributed bounces).
 
 use glam::Vec3;
 use pointray::accel::{Bvh, BvhParams};
@@ -12,6 +13,7 @@ use pointray::shading::Environment;
 use pointray::splat::{Splat, pack_color};
 
 use crate::util::{plane_splats, render_config, sphere_splats, torus_splats};
+use pointray::material::{Material, Phong};
 use pointray::shading::Light;
 
 /// Mean and largest deviation from `expected` over the pixels wholly on the splats, rendered
@@ -60,12 +62,23 @@ fn a_white_torus_in_a_white_furnace_disappears() {
 /// Mean of the green channel over a plane of splats (z = 0, normal +z, albedo from sRGB
 /// 188) seen from straight above, filling the frame, path traced with `lights` and `sky`.
 fn plane_mean(lights: Vec<Light>, sky: Environment, samples: u32) -> (f32, f32) {
+    plane_mean_with(Integrator::Path, Material::standard(), lights, sky, samples)
+}
+
+fn plane_mean_with(
+    integrator: Integrator,
+    material: Material,
+    lights: Vec<Light>,
+    sky: Environment,
+    samples: u32,
+) -> (f32, f32) {
     let mut splats = plane_splats(40_000, 53);
     splats.iter_mut().for_each(|s| s.color = pack_color([188.0 / 255.0; 3]));
     let bvh = Bvh::build(splats, &BvhParams::standard());
     let cam = Camera::look_at(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Y, 30.0, 32, 32);
     let config = RenderConfig {
-        integrator: Integrator::Path,
+        integrator,
+        materials: vec![material],
         lights,
         environment: sky,
         max_depth: 6,
@@ -79,13 +92,39 @@ fn plane_mean(lights: Vec<Light>, sky: Environment, samples: u32) -> (f32, f32) 
 }
 
 #[test]
-fn a_plane_under_a_sun_shows_albedo_times_irradiance_cos_over_pi() {
+fn a_plane_under_a_sun_shows_albedo_times_intensity_cos() {
     let direction = Vec3::new(0.3, 0.0, 1.0);
-    let sun = Light::Directional { direction, intensity: 2.0 };
+    let sun = Light::Directional { direction, intensity: 0.6 };
     let (mean, albedo) = plane_mean(vec![sun], Environment::Uniform { color: [0.0; 3] }, 1);
-    let expected = albedo * 2.0 * direction.normalize().z / std::f32::consts::PI;
+    let expected = albedo * 0.6 * direction.normalize().z;
     eprintln!("plane under a sun: {mean:.5}, expected {expected:.5}");
     assert!((mean - expected).abs() < 1e-4 * expected.max(1.0), "{mean} against {expected}");
+}
+
+#[test]
+fn whitted_and_the_path_tracer_agree_on_direct_light() {
+    // A Lambert surface (no ambient, no specular lobe) under a sun in the dark: Whitted's
+    // Phong and the path tracer's next-event estimation must give the same radiance, so a
+    // scene keeps its brightness whichever integrator renders it. Each light of a kind.
+    let lambert = Material::Phong(Phong { ambient: 0.0, specular: 0.0, shininess: 1.0 });
+    let dark = Environment::Uniform { color: [0.0; 3] };
+    let lights = [
+        Light::Directional { direction: Vec3::new(0.3, -0.2, 1.0), intensity: 0.7 },
+        Light::Point { position: Vec3::new(0.2, 0.1, 1.5), intensity: 0.9 },
+        Light::Spot {
+            position: Vec3::new(0.0, 0.0, 2.0),
+            direction: Vec3::NEG_Z,
+            inner: 0.2,
+            outer: 0.4,
+            intensity: 2.0,
+        },
+    ];
+    for light in lights {
+        let (whitted, _) = plane_mean_with(Integrator::Whitted, lambert, vec![light], dark, 1);
+        let (path, _) = plane_mean_with(Integrator::Path, lambert, vec![light], dark, 1);
+        eprintln!("{light:?}: Whitted {whitted:.5}, path tracer {path:.5}");
+        assert!(whitted > 0.01 && (whitted - path).abs() < 1e-5 * whitted.max(1.0), "{whitted} against {path}");
+    }
 }
 
 #[test]
