@@ -13,7 +13,7 @@ use std::time::Instant;
 
 use anyhow::{Context, ensure};
 use clap::{Parser, ValueEnum};
-use embree3::{BufferUsage, Device, Format, GeometryKind, INVALID_ID, IntersectContext, Ray, RayHit, Scene};
+use embree3::{BufferUsage, Device, DeviceProperty, Format, GeometryKind, INVALID_ID, IntersectContext, Ray, RayHit, Scene};
 use glam::Vec3;
 use pointray::camera::{Camera, Region};
 use pointray::material::Phong;
@@ -104,6 +104,10 @@ fn run(a: &Args) -> anyhow::Result<()> {
 
     let device = Device::with_config(embree3::Config { threads: threads as u32, ..Default::default() })
         .map_err(|e| anyhow::anyhow!("Embree: cannot create a device: {e:?}"))?;
+    // Embree reports its version as one number, major × 10000 + minor × 100 + patch.
+    let version = device.get_property(DeviceProperty::VERSION).map_or("unknown".to_string(), |v| {
+        format!("{}.{}.{}", v / 10_000, v / 100 % 100, v % 100)
+    });
     let mut build_times = Vec::new();
     let mut scene = None;
     for _ in 0..a.build_reps {
@@ -140,6 +144,7 @@ fn run(a: &Args) -> anyhow::Result<()> {
         }
         let line = serde_json::json!({
             "bench": "pointray-embree",
+            "embree_version": version,
             "input": a.cloud.display().to_string(),
             "points": splats.len(),
             "geom": if a.geom == Geom::Oriented { "oriented_disc" } else { "disc" },

@@ -123,6 +123,9 @@ pub struct PointRecord {
     pub embree_other_load_cores: Option<f64>,
     /// pointray's rays per second over Embree's.
     pub speed_vs_embree: Option<f64>,
+    /// The Embree version its bench reports (`pointray-embree` does; older runs lack it).
+    #[serde(default)]
+    pub embree_version: Option<String>,
     pub image: Option<String>,
 }
 
@@ -467,6 +470,7 @@ fn measure_point(
         embree_build_seconds: None,
         embree_other_load_cores: None,
         speed_vs_embree: None,
+        embree_version: None,
         image: Some(format!("images/{image_name}")),
     })
 }
@@ -513,6 +517,7 @@ fn beside_embree(
         r.embree_build_seconds = Some(run.build_seconds);
         r.embree_other_load_cores = run.other_load_cores;
         r.speed_vs_embree = Some(r.mrays_per_second / run.mrays_per_second);
+        r.embree_version.clone_from(&run.version);
     }
     Ok(())
 }
@@ -523,6 +528,7 @@ struct EmbreeRun {
     build_seconds: f64,
     rays: u64,
     other_load_cores: Option<f64>,
+    version: Option<String>,
 }
 
 #[allow(clippy::too_many_arguments)]
@@ -562,5 +568,6 @@ fn run_embree(
         build_seconds: number("build_s")?,
         rays: number("rays")? as u64,
         other_load_cores,
+        version: v["embree_version"].as_str().map(str::to_string),
     })
 }

@@ -48,7 +48,7 @@ pub fn write_report(results: &Path, report: &Path, figures: &Path, command: &str
         format!("{}/{file}", relative.display())
     };
     let mut md = String::new();
-    header(&mut md, &run, command);
+    header(&mut md, &run, &format!("--out {} --report {}", results.display(), report.display()), command);
     models(&mut md, &run);
     for accel in ["bvh", "kdtree"] {
         lod_against_distance(&mut md, &run, accel, figures, &link)?;
@@ -66,15 +66,16 @@ pub fn write_report(results: &Path, report: &Path, figures: &Path, command: &str
     Ok(())
 }
 
-fn header(md: &mut String, run: &Run, command: &str) {
+/// `outputs` are the bench's options that write this run and report again.
+fn header(md: &mut String, run: &Run, outputs: &str, command: &str) {
     let h = &run.header;
     let m = &h.machine;
     let memory = m.memory_bytes.map_or(String::new(), |b| format!(", {:.0} GiB", b as f64 / (1u64 << 30) as f64));
     let _ = writeln!(md, "# Results: {}\n", h.title);
     let _ = writeln!(
         md,
-        "Regenerate the measurements, this report and its figures with `pointray bench {} --out RESULTS \
-         --report REPORT.md`; this file was written by `{command}`.\n",
+        "Regenerate the measurements, this report and its figures with `pointray bench {} {outputs}` (the \
+         `## Discussion` below is kept); this file was written by `{command}`.\n",
         h.experiment
     );
     let crop = if h.crop_to_model {
@@ -108,9 +109,14 @@ fn header(md: &mut String, run: &Run, command: &str) {
         h.retries,
     );
     if let Some(embree) = &h.embree {
+        let version = run.points.iter().find_map(|p| p.embree_version.as_deref());
+        let embree = match version {
+            Some(v) => format!("`{embree}` (Embree {v})"),
+            None => format!("`{embree}`"),
+        };
         let _ = writeln!(
             md,
-            "\n`{embree}` traced the same pixels of the same preprocessed cloud after each model, with its \
+            "\n{embree} traced the same pixels of the same preprocessed cloud after each model, with its \
              oriented discs beside SJ, PSS and first-hit and its ray-facing discs beside RFD, timed with as many \
              frames as pointray's full-detail point at that distance."
         );

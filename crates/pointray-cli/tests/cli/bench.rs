@@ -168,7 +168,7 @@ while [ $# -gt 0 ]; do
   shift
 done
 echo "Embree 3.13.5 (fake)"
-echo "{\"k\":$dist,\"mrays_s\":2.5,\"build_s\":0.125,\"rays\":$reps,\"other_cores\":0.0}"
+echo "{\"k\":$dist,\"mrays_s\":2.5,\"build_s\":0.125,\"rays\":$reps,\"embree_version\":\"3.13.5\"}"
 "#;
 
 #[cfg(unix)]
@@ -206,7 +206,13 @@ fn embree_runs_beside_each_model_with_as_many_frames_as_full_detail() {
         let ratio = p["mrays_per_second"].as_f64().unwrap() / 2.5;
         assert!((p["speed_vs_embree"].as_f64().unwrap() - ratio).abs() < 1e-9, "{p}");
         assert!(p["embree_other_load_cores"].as_f64().is_some_and(|o| o >= 0.0), "{p}");
+        assert_eq!(p["embree_version"], "3.13.5", "{p}");
     }
+    // The report names the Embree it ran beside.
+    run_in(dir.path(), &["report", "out", "-o", "r.md"]).assert_success();
+    let report = std::fs::read_to_string(dir.path().join("r.md")).unwrap();
+    assert!(report.contains("`fake_embree.sh` (Embree 3.13.5) traced the same pixels"), "{report}");
+    assert!(report.contains("--out out --report r.md"), "{report}");
     // The cloud handed to Embree is gone; the partial results were renamed.
     let mut left: Vec<String> = std::fs::read_dir(dir.path().join("out"))
         .unwrap()
