@@ -139,7 +139,8 @@ pub struct RenderArgs {
     /// Where a pixel's samples go: r2 (a low-discrepancy sequence) or random.
     #[arg(long, value_enum, default_value_t = SamplerArg::R2)]
     pub sampler: SamplerArg,
-    /// Reconstruction filter: box (the pixel) or tent (two pixels wide, smoother edges).
+    /// Reconstruction filter: box (the pixel) or tent (two pixels wide, smoother edges); with
+    /// --spp 1 the one sample goes through the pixel's centre.
     #[arg(long, value_enum, default_value_t = FilterArg::Box)]
     pub filter: FilterArg,
     /// How a PNG shows radiance: clamp (exactly, up to 1; brighter clips to white) or filmic
