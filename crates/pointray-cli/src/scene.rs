@@ -173,8 +173,7 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
     }
     super::commands::render::check_args(&args).map_err(|e| failure::usage(e.context(path.display().to_string())))?;
     let lights = spec.lights.iter().map(light).collect();
-    let ground =
-        spec.ground.as_ref().map(ground).transpose().with_context(|| format!("{}: [ground]", path.display()))?;
+    let ground = spec.ground.as_ref().map(ground);
     let environment = match spec.environment {
         EnvironmentSpec::Uniform { color } => Environment::Uniform { color },
         EnvironmentSpec::Sky { zenith, horizon, ground } => {
@@ -221,24 +220,16 @@ fn grid_cloud(g: &GridSpec) -> anyhow::Result<PointCloud> {
     Ok(cloud)
 }
 
-fn ground(spec: &GroundSpec) -> anyhow::Result<GroundPlane> {
-    let up = Vec3::from(spec.up).try_normalize().context("`up` must be a non-zero direction")?;
-    anyhow::ensure!(spec.height.is_finite(), "`height` must be finite");
+/// The ground plane of a `[ground]` table (which `parse_scene` checked).
+fn ground(spec: &GroundSpec) -> GroundPlane {
     let linear = |c: [f32; 3]| c.map(srgb_to_linear);
-    let checker = spec.checker.as_ref().map(|c| Checker { color: linear(c.color), tile: c.tile as f32 });
-    // Glass would make the half-space below a glass body, which the path's one inside flag
-    // cannot tell from the clouds' glass.
-    anyhow::ensure!(
-        !matches!(spec.material, MaterialSpec::Glass { .. }),
-        "the ground may be phong or mirror, not glass"
-    );
-    Ok(GroundPlane {
-        up,
+    GroundPlane {
+        up: Vec3::from(spec.up).normalize(),
         height: spec.height as f32,
         color: linear(spec.color),
-        checker,
+        checker: spec.checker.as_ref().map(|c| Checker { color: linear(c.color), tile: c.tile as f32 }),
         material: material(&spec.material),
-    })
+    }
 }
 
 /// Moves a preprocessed cloud to its place in the world: positions, normals and radii.
@@ -301,7 +292,7 @@ fn light(spec: &LightSpec) -> Light {
         }
         LightSpec::Spot { position, direction, inner, outer, intensity } => Light::Spot {
             position: DVec3::from(position).as_vec3(),
-            direction: Vec3::from(direction).normalize_or(Vec3::NEG_Y),
+            direction: Vec3::from(direction).normalize(),
             inner: inner.to_radians(),
             outer: outer.to_radians(),
             intensity,
@@ -339,13 +330,9 @@ mod tests {
         let spec: GroundSpec =
             toml::from_str("height = -0.5\nup = [0.0, 2.0, 0.0]\ncolor = [1.0, 0.5, 0.0]\nchecker = { color = [0.0, 0.0, 0.0], tile = 0.25 }")
                 .unwrap();
-        let g = ground(&spec).unwrap();
+        let g = ground(&spec);
         assert_eq!((g.up, g.height, g.checker.unwrap().tile), (Vec3::Y, -0.5, 0.25));
         assert_eq!(g.color, [1.0, srgb_to_linear(0.5), 0.0]);
-        let flat: GroundSpec = toml::from_str("up = [0.0, 0.0, 0.0]").unwrap();
-        assert!(ground(&flat).unwrap_err().to_string().contains("up"));
-        let glass: GroundSpec = toml::from_str("material = { kind = \"glass\" }").unwrap();
-        assert!(ground(&glass).unwrap_err().to_string().contains("not glass"));
     }
 
     /// The example scenes follow the schema (rendering them needs the shared data).

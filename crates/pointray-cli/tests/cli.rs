@@ -484,7 +484,12 @@ fn bad_scene_files_are_refused_with_their_name_and_line() {
             two_sphere_scene(1).replace("[[cloud]]\nfile", "[[cloud]]\ngrid = { size = 1.0, spacing = 0.1 }\nfile"),
             "either `file` or `grid`",
         ),
-        ("flat.toml", two_sphere_scene(1).replace("[ground]", "[ground]\nup = [0.0, 0.0, 0.0]"), "[ground]: `up`"),
+        ("flat.toml", two_sphere_scene(1).replace("[ground]", "[ground]\nup = [0.0, 0.0, 0.0]"), "[ground] up"),
+        (
+            "glass.toml",
+            two_sphere_scene(1).replace("[ground]", "[ground]\nmaterial = { kind = \"glass\" }"),
+            "[ground] material: may be phong or mirror, not glass",
+        ),
         ("none.toml", "cloud = []\n[camera]\neye = [0, 0, 1]\nlook_at = [0, 0, 0]\n".to_string(), "no [[cloud]]"),
         ("scale.toml", two_sphere_scene(1).replace("scale = 0.5", "scale = -1.0"), "scale must be positive"),
         // Values TOML's types cannot refuse, named by table and key.

@@ -55,9 +55,15 @@ impl SceneFile {
             light.check().map_err(|e| format!("[[light]] {}: {e}", i + 1))?;
         }
         if let Some(g) = &self.ground {
+            nonzero_direction("[ground] up", g.up)?;
+            ensure(g.height.is_finite(), "[ground] height: must be finite")?;
             let tile = g.checker.as_ref().map(|c| c.tile);
             ground_colors(g.color, g.checker.as_ref().map(|c| c.color), tile).map_err(|e| format!("[ground]: {e}"))?;
             g.material.check().map_err(|e| format!("[ground] material: {e}"))?;
+            // Glass would make the half-space below a glass body, which the path's one inside
+            // flag cannot tell from the clouds' glass.
+            let glass = matches!(g.material, MaterialSpec::Glass { .. });
+            ensure(!glass, "[ground] material: may be phong or mirror, not glass")?;
         }
         for (i, cloud) in self.clouds.iter().enumerate() {
             let name = format!("[[cloud]] {}", i + 1);
@@ -142,10 +148,8 @@ fn nonzero_direction(key: &str, v: [f32; 3]) -> Result<(), String> {
 /// Colours between 0 and `most` in every channel.
 fn colors(key: &str, colors: &[[f32; 3]], most: f32) -> Result<(), String> {
     let ok = colors.iter().flatten().all(|&c| (0.0..=most).contains(&c));
-    ensure(
-        ok,
-        &format!("{key}: every channel must be between 0 and {}", if most == 1.0 { "1" } else { "a finite number" }),
-    )
+    let range = if most == 1.0 { "between 0 and 1" } else { "finite and not negative" };
+    ensure(ok, &format!("{key}: every channel must be {range}"))
 }
 
 fn ground_colors(color: [f32; 3], second: Option<[f32; 3]>, tile: Option<f64>) -> Result<(), String> {
