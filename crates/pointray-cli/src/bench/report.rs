@@ -260,7 +260,7 @@ fn lod_against_distance(
                 (Some(a), Some(b)) => format!("{:.1} → {:.1}", f(a), f(b)),
                 _ => String::new(),
             };
-            let embree_ms = full.and_then(|f| f.embree_mrays_per_second.map(|r| f.rays as f64 / (r * 1e6)));
+            let embree_ms = full.and_then(embree_seconds);
             let ratios = match (full.and_then(|p| p.speed_vs_embree), last.and_then(|p| p.speed_vs_embree)) {
                 (Some(a), Some(b)) => format!("{a:.2}× → {b:.2}×"),
                 _ => String::new(),
@@ -297,7 +297,7 @@ fn lod_against_distance(
         let embree: Vec<(f64, f64)> = points
             .iter()
             .filter(|p| p.lod_threshold == 0.0)
-            .filter_map(|p| Some((f64::from(p.distance), p.rays as f64 / (p.embree_mrays_per_second? * 1e6) * 1e3)))
+            .filter_map(|p| Some((f64::from(p.distance), embree_seconds(p)? * 1e3)))
             .collect();
         if !embree.is_empty() {
             series.push(Series { label: "Embree (oriented discs)".into(), points: embree });
@@ -439,7 +439,8 @@ fn bounding_volumes(md: &mut String, run: &Run) {
         md,
         "SJ, render time per frame in ms at full detail and, after the slash, at the threshold shown; the build \
          time and size of each variant. `bvh` has boxes only, `bvh-spheres` spheres only, `bvh-mixed-L` boxes \
-         above level L and spheres from it, `bvh-auto` whichever has the smaller surface area per node.\n"
+         above level L and spheres from it, `bvh-auto` whichever has the smaller surface area per node. The last \
+         row is Embree's oriented discs on the same pixels (it has no level of detail).\n"
     );
     for m in &run.models {
         let points: Vec<&PointRecord> = run
@@ -476,8 +477,22 @@ fn bounding_volumes(md: &mut String, run: &Run) {
             }
             let _ = writeln!(md, "{row}");
         }
+        let boxes: Vec<&PointRecord> = points.iter().copied().filter(|p| p.accel == "bvh").collect();
+        if boxes.iter().any(|p| p.embree_mrays_per_second.is_some()) {
+            let mut row = "| Embree |".to_string();
+            for &d in &distances {
+                row += &format!(" {} |", find(&boxes, 0.0, d).and_then(embree_seconds).map_or("–".into(), ms));
+            }
+            let build = boxes.iter().find_map(|p| p.embree_build_seconds);
+            let _ = writeln!(md, "{row} {} | |", build.map_or(String::new(), |b| format!("{b:.3}")));
+        }
         md.push('\n');
     }
+}
+
+/// Embree's time for a frame of `p`'s pixels, from its rate.
+fn embree_seconds(p: &PointRecord) -> Option<f64> {
+    p.embree_mrays_per_second.map(|r| p.rays as f64 / (r * 1e6))
 }
 
 /// Thesis ch. 2 and 4: SJ against RFD and PSS, at full detail.
@@ -492,12 +507,14 @@ fn schemes(md: &mut String, run: &Run) {
     let _ = writeln!(
         md,
         "BVH, full detail. Render time in ms and rays per second; the image against the {reference} image \
-         (PSNR dB / FLIP); pointray's speed over Embree's (its oriented discs beside SJ, PSS and first-hit, its \
-         ray-facing discs beside RFD).\n"
+         (PSNR dB / FLIP); Embree's time on the same pixels and pointray's speed over Embree's (its oriented discs \
+         beside SJ, PSS and first-hit, its ray-facing discs beside RFD).\n"
     );
-    let _ =
-        writeln!(md, "| model | scheme | distance | ms | Mrays/s | vs {reference}: PSNR / FLIP | speed vs Embree |");
-    let _ = writeln!(md, "|---|---|---:|---:|---:|---|---:|");
+    let _ = writeln!(
+        md,
+        "| model | scheme | distance | ms | Mrays/s | vs {reference}: PSNR / FLIP | Embree ms | speed vs Embree |"
+    );
+    let _ = writeln!(md, "|---|---|---:|---:|---:|---|---:|---:|");
     for m in &run.models {
         // Only the distances at which the schemes were measured side by side.
         let of_model: Vec<&PointRecord> = points.iter().copied().filter(|p| p.model == m.model).collect();
@@ -511,12 +528,13 @@ fn schemes(md: &mut String, run: &Run) {
                 };
                 let _ = writeln!(
                     md,
-                    "| {} | {} | {} | {} | {:.2} | {versus} | {} |",
+                    "| {} | {} | {} | {} | {:.2} | {versus} | {} | {} |",
                     m.model,
                     kind.name(),
                     p.distance,
                     ms(p.render_seconds),
                     p.mrays_per_second,
+                    embree_seconds(p).map_or(String::new(), ms),
                     p.speed_vs_embree.map_or(String::new(), |r| format!("{r:.2}×"))
                 );
             }

@@ -182,7 +182,8 @@ fn embree_runs_beside_each_model_with_as_many_frames_as_full_detail() {
     write_file(
         dir.path(),
         "e.toml",
-        format!("embree = \"fake_embree.sh\"\n{EXPERIMENT}").replace("repeats = 2", "repeats = 3"),
+        format!("embree = \"fake_embree.sh\"\n{EXPERIMENT}\n[[matrix]]\naccel = [\"bvh-spheres\"]\nsurface = [\"sj\"]\nlod_threshold = [0]\ndistance = [1]\n")
+            .replace("repeats = 2", "repeats = 3"),
     );
     run_in(dir.path(), &["-q", "bench", "e.toml", "--out", "out"]).assert_success();
     let records = lines(&dir.path().join("out/results.jsonl"));
@@ -213,6 +214,9 @@ fn embree_runs_beside_each_model_with_as_many_frames_as_full_detail() {
     let report = std::fs::read_to_string(dir.path().join("r.md")).unwrap();
     assert!(report.contains("`fake_embree.sh` (Embree 3.13.5) traced the same pixels"), "{report}");
     assert!(report.contains("--out out --report r.md"), "{report}");
+    assert!(report.contains("| Embree ms | speed vs Embree |"), "{report}");
+    // Embree's row under the bounding volumes: its time at distance 1 and its build time.
+    assert!(report.lines().any(|l| l.starts_with("| Embree |") && l.contains("| 0.125 |")), "{report}");
     // The cloud handed to Embree is gone; the partial results were renamed.
     let mut left: Vec<String> = std::fs::read_dir(dir.path().join("out"))
         .unwrap()
