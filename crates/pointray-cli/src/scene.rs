@@ -11,7 +11,7 @@ use std::time::Instant;
 use anyhow::Context;
 use glam::{DMat3, DVec3, Vec3};
 use pointray::PointCloud;
-use pointray::film::{ToneCurve, srgb_to_linear};
+use pointray::film::srgb_to_linear;
 use pointray::ground::{Checker, GroundPlane};
 use pointray::material::{Material, Phong};
 use pointray::preprocess::PreprocessStats;
@@ -19,10 +19,10 @@ use pointray::render::{Filter, Sampler};
 use pointray::shading::{Environment, Light};
 use pointray::splat::scheme::SurfaceKind;
 use pointray_io::scene::{
-    CloudSpec, EnvironmentSpec, GridSpec, GroundSpec, IntegratorSpec, LightSpec, MaterialSpec, parse_scene,
+    CloudSpec, EnvironmentSpec, GridSpec, GroundSpec, IntegratorSpec, LightSpec, MaterialSpec, SceneFile, parse_scene,
 };
 
-use crate::args::{FilterArg, IntegratorArg, RenderArgs, SamplerArg, SurfaceArg, Switch, ToneArg};
+use crate::args::{FilterArg, IntegratorArg, RenderArgs, SamplerArg, SurfaceArg, Switch};
 use crate::failure;
 
 /// A scene, loaded: one cloud of every placed point (world coordinates, origin zero), the
@@ -51,6 +51,7 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
     let start = Instant::now();
     let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read", path.display()))?;
     let spec = parse_scene(path, &text)?;
+    let args = scene_args(path, &spec, a)?;
     let folder = path.parent().unwrap_or(Path::new("."));
 
     let mut placed = Vec::new();
@@ -87,32 +88,61 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
         cloud.len()
     );
 
-    // The scene is the camera, the lights, the materials and the sky: a flag for one of them
-    // would be silently ignored, so it is refused. Render settings given as flags win over the
-    // scene's (`--spp 1 --width 320` for a quick look).
-    const SCENE_OWNS: [&str; 18] = [
-        "eye",
-        "look_at",
-        "up",
-        "fov",
-        "lens_radius",
-        "focus_distance",
-        "view_dir",
-        "distance",
-        "crop_to_model",
-        "light_dir",
-        "light_pos",
-        "light_radius",
-        "light_intensity",
-        "material",
-        "ior",
-        "sky",
-        "ground",
-        "demo_points",
-    ];
+    let lights = spec.lights.iter().map(light).collect();
+    let ground = spec.ground.as_ref().map(ground);
+    let environment = match spec.environment {
+        EnvironmentSpec::Uniform { color } => Environment::Uniform { color },
+        EnvironmentSpec::Sky { zenith, horizon, ground } => {
+            Environment::Gradient { up: args.up.normalize(), zenith, horizon, ground }
+        }
+    };
+    Ok(Scene {
+        cloud,
+        point_materials,
+        materials,
+        lights,
+        environment,
+        ground,
+        args,
+        points_read,
+        preprocess,
+        load_seconds: start.elapsed().as_secs_f64(),
+    })
+}
+
+/// Flags that mean nothing beside a scene file, whose camera, lights, materials and sky are its
+/// own: given, they are refused rather than silently ignored.
+const SCENE_OWNS: [&str; 18] = [
+    "eye",
+    "look_at",
+    "up",
+    "fov",
+    "lens_radius",
+    "focus_distance",
+    "view_dir",
+    "distance",
+    "crop_to_model",
+    "light_dir",
+    "light_pos",
+    "light_radius",
+    "light_intensity",
+    "material",
+    "ior",
+    "sky",
+    "ground",
+    "demo_points",
+];
+
+/// The command line with the scene's camera and render settings put in: a render setting given
+/// as a flag wins over the scene's (`--spp 1 --width 320` for a quick look); a flag of
+/// [`SCENE_OWNS`] is an error.
+fn scene_args(path: &Path, spec: &SceneFile, a: &RenderArgs) -> anyhow::Result<RenderArgs> {
     if let Some(flag) = SCENE_OWNS.iter().find(|id| a.given(id)) {
         let flag = flag.replace('_', "-");
-        let e = anyhow::anyhow!("--{flag}: {} sets its own camera, lights, materials and sky", path.display());
+        let e = anyhow::anyhow!(
+            "--{flag} does not apply to a scene file: {} sets its camera, lights, materials and sky",
+            path.display()
+        );
         return Err(failure::usage(e));
     }
     let mut args = a.clone();
@@ -123,7 +153,6 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
     args.fov = c.fov;
     args.lens_radius = c.lens_radius;
     args.focus_distance = c.focus_distance;
-    args.crop_to_model = false;
     macro_rules! unless_given {
         ($($field:ident = $value:expr;)*) => {
             $(if !a.given(stringify!($field)) {
@@ -157,41 +186,20 @@ pub fn load(path: &Path, a: &RenderArgs, quiet: bool) -> anyhow::Result<Scene> {
             Filter::Box => FilterArg::Box,
             Filter::Tent => FilterArg::Tent,
         };
-        tonemap = match r.tonemap {
-            ToneCurve::Clamp => ToneArg::Clamp,
-            ToneCurve::Filmic => ToneArg::Filmic,
-        };
+        tonemap = r.tonemap.into();
         exposure = r.exposure;
         no_shadows = !r.shadows;
     }
-    // `lod_threshold = 0` is full detail, as `--lod off` is.
-    if !a.given("lod_threshold") && !a.given("lod") {
-        (args.lod_threshold, args.lod) = match r.lod_threshold {
-            0.0 => (a.lod_threshold, Switch::Off),
-            tau => (tau, Switch::On),
-        };
+    // `lod_threshold = 0` is full detail, as `--lod off` is; `--lod` and `--lod-threshold`
+    // each override their own half.
+    if !a.given("lod_threshold") && r.lod_threshold > 0.0 {
+        args.lod_threshold = r.lod_threshold;
+    }
+    if !a.given("lod") && !a.given("lod_threshold") {
+        args.lod = if r.lod_threshold > 0.0 { Switch::On } else { Switch::Off };
     }
     super::commands::render::check_args(&args).map_err(|e| failure::usage(e.context(path.display().to_string())))?;
-    let lights = spec.lights.iter().map(light).collect();
-    let ground = spec.ground.as_ref().map(ground);
-    let environment = match spec.environment {
-        EnvironmentSpec::Uniform { color } => Environment::Uniform { color },
-        EnvironmentSpec::Sky { zenith, horizon, ground } => {
-            Environment::Gradient { up: args.up.normalize(), zenith, horizon, ground }
-        }
-    };
-    Ok(Scene {
-        cloud,
-        point_materials,
-        materials,
-        lights,
-        environment,
-        ground,
-        args,
-        points_read,
-        preprocess,
-        load_seconds: start.elapsed().as_secs_f64(),
-    })
+    Ok(args)
 }
 
 fn grid_cloud(g: &GridSpec) -> anyhow::Result<PointCloud> {
@@ -333,6 +341,61 @@ mod tests {
         let g = ground(&spec);
         assert_eq!((g.up, g.height, g.checker.unwrap().tile), (Vec3::Y, -0.5, 0.25));
         assert_eq!(g.color, [1.0, srgb_to_linear(0.5), 0.0]);
+    }
+
+    /// Every flag of `render` is classified: refused beside a scene, set by the scene unless
+    /// given, or applied as to any input. A new flag must be placed in one of the three.
+    #[test]
+    fn every_render_flag_is_refused_overridden_or_applied_beside_a_scene() {
+        use clap::CommandFactory;
+        // The `unless_given!` fields of `scene_args`, and the level of detail.
+        let overridden = [
+            "width",
+            "height",
+            "spp",
+            "max_depth",
+            "seed",
+            "surface",
+            "integrator",
+            "ao_distance",
+            "sampler",
+            "filter",
+            "tonemap",
+            "exposure",
+            "no_shadows",
+            "lod_threshold",
+            "lod",
+        ];
+        let applied = [
+            "input",
+            "output",
+            "threads",
+            "accel",
+            "sj_window",
+            "sj_min_coverage",
+            "region",
+            "shadow_offset",
+            "diffuse_spread",
+            "cull",
+            "sphere_from_level",
+            "aov",
+            "stats",
+            "bench_frames",
+            "k_normals",
+            "k_radius",
+            "radius_scale",
+            "recompute",
+        ];
+        let cli = crate::args::Cli::command();
+        let render = cli.find_subcommand("render").expect("a render subcommand");
+        let mut seen = 0;
+        for arg in render.get_arguments().filter(|a| a.get_id() != "help") {
+            let id = arg.get_id().as_str();
+            let places = [SCENE_OWNS.contains(&id), overridden.contains(&id), applied.contains(&id)];
+            assert_eq!(places.iter().filter(|&&p| p).count(), 1, "--{id} must be in exactly one list: {places:?}");
+            seen += 1;
+        }
+        assert_eq!(seen, SCENE_OWNS.len() + overridden.len() + applied.len(), "a listed flag does not exist");
     }
 
     /// The example scenes follow the schema (rendering them needs the shared data).

@@ -410,6 +410,11 @@ fn flags_override_a_scenes_render_settings_and_may_not_contradict_the_rest() {
     let s = read_stats(&dir.path().join("f.json"));
     assert_eq!((stat_u64(&s, "width"), stat_u64(&s, "samples_per_pixel")), (64, 1));
     assert!(s["lod_threshold"].is_null(), "{s:#}");
+    // `--lod on` switches level of detail on and keeps the scene's threshold.
+    write_file(dir.path(), "tau.toml", two_sphere_scene(1).replace("spp = 1", "spp = 1\nlod_threshold = 0.3"));
+    run_in(dir.path(), &["-q", "render", "tau.toml", "-o", "t.png", "--lod", "on", "--stats", "t.json"])
+        .assert_success();
+    assert_eq!(read_stats(&dir.path().join("t.json"))["lod_threshold"], 0.3);
     // The camera, lights, materials and sky are the scene's: such a flag is refused.
     for flag in [&["--fov", "30"][..], &["--light-dir", "0,1,0"], &["--material", "glass"], &["--sky"], &["--ground"]] {
         let run = run_in(dir.path(), &[&["-q", "render", "two.toml", "-o", "x.png"][..], flag].concat());
@@ -504,6 +509,11 @@ fn bad_scene_files_are_refused_with_their_name_and_line() {
             "[[light]] 2: intensity: must not be negative",
         ),
         ("nan.toml", two_sphere_scene(1).replace("radius = 0.5", "radius = nan"), "[[light]] 1: radius"),
+        (
+            "tiny.toml",
+            two_sphere_scene(1).replace("direction = [0.0, -1.0, 0.0]", "direction = [0.0, -1e-30, 0.0]"),
+            "[[light]] 3: direction: must be a non-zero direction",
+        ),
         (
             "ior.toml",
             two_sphere_scene(1).replace("kind = \"mirror\"", "kind = \"glass\", ior = 0.0"),

@@ -4,7 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
-use pointray::film::ToneCurve;
+use pointray::film::{MAX_PIXELS, ToneCurve, ToneMap};
 use pointray::material::Phong;
 use pointray::render::{Filter, Sampler};
 use pointray::splat::scheme::SurfaceKind;
@@ -41,7 +41,10 @@ impl SceneFile {
         ensure(r.width > 0 && r.height > 0, "[render] width and height: must be positive")?;
         ensure(r.spp >= 1, "[render] spp: must be at least 1")?;
         ensure(r.max_depth <= 64, "[render] max_depth: must be at most 64")?;
-        ensure(r.exposure.abs() <= 32.0, "[render] exposure: must be between -32 and 32 stops")?;
+        let pixels = u64::from(r.width) * u64::from(r.height);
+        ensure(pixels <= MAX_PIXELS, &format!("[render] width and height: at most {MAX_PIXELS} pixels"))?;
+        let most = ToneMap::MAX_EXPOSURE;
+        ensure(r.exposure.abs() <= most, &format!("[render] exposure: must be between -{most} and {most} stops"))?;
         ensure(positive(r.ao_distance), "[render] ao_distance: must be positive")?;
         let tau = r.lod_threshold;
         ensure(tau >= 0.0 && tau.is_finite(), "[render] lod_threshold: must not be negative (0: full detail)")?;
@@ -56,7 +59,7 @@ impl SceneFile {
         }
         if let Some(g) = &self.ground {
             nonzero_direction("[ground] up", g.up)?;
-            ensure(g.height.is_finite(), "[ground] height: must be finite")?;
+            ensure((g.height as f32).is_finite(), "[ground] height: must be a finite 32-bit number")?;
             let tile = g.checker.as_ref().map(|c| c.tile);
             ground_colors(g.color, g.checker.as_ref().map(|c| c.color), tile).map_err(|e| format!("[ground]: {e}"))?;
             g.material.check().map_err(|e| format!("[ground] material: {e}"))?;
@@ -140,9 +143,10 @@ fn finite_points(key: &str, points: &[[f64; 3]]) -> Result<(), String> {
     ensure(points.iter().flatten().all(|v| v.is_finite()), &format!("{key}: must be finite"))
 }
 
+/// A direction that normalises to a unit vector (not zero, nor so small that its length
+/// underflows, nor infinite).
 fn nonzero_direction(key: &str, v: [f32; 3]) -> Result<(), String> {
-    let ok = v.iter().all(|c| c.is_finite()) && v.iter().any(|&c| c != 0.0);
-    ensure(ok, &format!("{key}: must be a non-zero direction"))
+    ensure(glam::Vec3::from(v).try_normalize().is_some(), &format!("{key}: must be a non-zero direction"))
 }
 
 /// Colours between 0 and `most` in every channel.
@@ -154,7 +158,9 @@ fn colors(key: &str, colors: &[[f32; 3]], most: f32) -> Result<(), String> {
 
 fn ground_colors(color: [f32; 3], second: Option<[f32; 3]>, tile: Option<f64>) -> Result<(), String> {
     colors("colors", &[color, second.unwrap_or(color)], 1.0)?;
-    ensure(tile.is_none_or(|t| t > 0.0 && t.is_finite()), "the checker's `tile` must be positive")
+    // Used as f32: a tile must stay positive and finite there too.
+    let fits = |t: f64| t > 0.0 && (t as f32) > 0.0 && (t as f32).is_finite();
+    ensure(tile.is_none_or(fits), "the checker's `tile` must be a positive 32-bit number")
 }
 
 #[derive(Debug, Deserialize)]

@@ -3,6 +3,10 @@
 
 use crate::camera::Region;
 
+/// Largest frame the command line and scene files accept: 2²⁸ pixels (16k × 16k), so that
+/// films and PNG buffers fit.
+pub const MAX_PIXELS: u64 = 1 << 28;
+
 /// Linear RGB radiance per pixel of `region` and arbitrary output variables, row-major, top
 /// row first.
 #[derive(Clone, Debug)]
@@ -79,6 +83,8 @@ pub enum ToneCurve {
 impl ToneMap {
     /// Exactly the radiance, clipped at 1.
     pub const CLAMP: ToneMap = ToneMap { exposure: 0.0, curve: ToneCurve::Clamp };
+    /// Stops either way that an exposure may take (2^32 spans any radiance worth showing).
+    pub const MAX_EXPOSURE: f32 = 32.0;
 
     /// The display value in [0, 1] of one linear channel.
     pub fn display(&self, linear: f32) -> f32 {

@@ -29,8 +29,8 @@ pub enum Integrator {
     /// followed by recursion, both branches of glass at every interface.
     Whitted,
     /// A path tracer (global illumination): diffuse surfaces (albedo/π) take each light's
-    /// direct light by a shadow ray (next-event estimation; lit by a light as brightly as
-    /// Whitted's Phong, see [`Light`]) and the rest by one
+    /// direct light by a shadow ray (next-event estimation; a light's intensity means what it
+    /// means to Whitted's Phong, see [`Light`]) and the rest by one
     /// cosine-distributed bounce; glass picks reflection or refraction by its Fresnel
     /// reflectance. Russian roulette from the fourth bounce; unbiased but for `max_depth`.
     Path,

@@ -2,11 +2,12 @@
 
 use glam::Vec3;
 
-/// A light. Its `intensity` is in the units of what it shows: a white diffuse surface facing
-/// it (at distance 1 from a point, sphere or spot light) has radiance `intensity`, in the
-/// Whitted integrator's Phong and in the path tracer alike. Radiometrically that is an
-/// irradiance of π × `intensity` on the albedo/π BRDF, so the path tracer's lights and its
-/// sky (a radiance) add up physically, and switching integrators keeps a scene's brightness.
+/// A light. Its `intensity` is in the units of what it shows: a white Lambert surface facing
+/// it (at distance 1 from a point, sphere or spot light) has radiance `intensity`, in the path
+/// tracer and in Whitted's Phong alike (which takes 1 − ambient of it and adds its ambient
+/// term instead). Radiometrically that is an irradiance of π × `intensity` on the albedo/π
+/// BRDF, so the path tracer's lights and its sky (a radiance) add up physically, and a scene
+/// keeps its brightness when it changes integrator.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 #[serde(rename_all = "kebab-case", tag = "kind")]
 pub enum Light {

@@ -48,7 +48,11 @@ pub fn write_report(results: &Path, report: &Path, figures: &Path, command: &str
         format!("{}/{file}", relative.display())
     };
     let mut md = String::new();
-    header(&mut md, &run, &format!("--out {} --report {}", results.display(), report.display()), command);
+    let mut outputs = format!("--out {} --report {}", results.display(), report.display());
+    if figures != super::default_figures(report) {
+        outputs += &format!(" --figures {}", figures.display());
+    }
+    header(&mut md, &run, &outputs, command);
     models(&mut md, &run);
     for accel in ["bvh", "kdtree"] {
         lod_against_distance(&mut md, &run, accel, figures, &link)?;

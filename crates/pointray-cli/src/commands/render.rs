@@ -1,10 +1,11 @@
-//! `pointray render`: load (or make the demo), preprocess, build, render, write PNG + stats.
+//! `pointray render`: load (or make the demo, or a scene file), preprocess, build, render, write
+//! the PNG or EXR and the stats.
 
 use std::time::Instant;
 
 use pointray::accel::NodeBounds;
 use pointray::camera::{Camera, Region};
-use pointray::film::{Film, ToneCurve, ToneMap};
+use pointray::film::{Film, ToneMap};
 use pointray::ground::{Checker, GroundPlane};
 use pointray::material::Material;
 use pointray::render::{Filter, Integrator, RenderConfig, Sampler};
@@ -17,7 +18,6 @@ use serde::Serialize;
 use crate::any_accel::AnyAccel;
 use crate::args::{
     AccelArg, AovArg, CullArg, FilterArg, IntegratorArg, MaterialArg, RenderArgs, SamplerArg, SurfaceArg, Switch,
-    ToneArg,
 };
 
 /// `--cull auto` culls when at most this fraction of rays from around the model meets a back
@@ -108,8 +108,7 @@ struct PreprocessSeconds {
     stages: pointray::preprocess::StageSeconds,
 }
 
-/// Largest frame accepted: 2²⁸ pixels (16k × 16k), so that films and PNG buffers fit.
-const MAX_PIXELS: u64 = 1 << 28;
+use pointray::film::MAX_PIXELS;
 
 pub fn run(a: &RenderArgs, quiet: bool) -> anyhow::Result<()> {
     check_args(a).map_err(crate::failure::usage)?;
@@ -156,7 +155,8 @@ pub fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     ensure!(a.diffuse_spread >= 0.0 && a.diffuse_spread.is_finite(), "--diffuse-spread must be non-negative");
     ensure!(a.light_radius.is_none_or(|r| r >= 0.0 && r.is_finite()), "--light-radius must be a non-negative number");
     ensure!(a.max_depth <= 64, "--max-depth must be at most 64");
-    ensure!(a.exposure.abs() <= 32.0, "--exposure must be between -32 and 32 stops");
+    let most = ToneMap::MAX_EXPOSURE;
+    ensure!(a.exposure.abs() <= most, "--exposure must be between -{most} and {most} stops");
     ensure!(a.up.length_squared() > 0.0, "--up must not be the zero vector");
     ensure!(a.view_dir.is_none_or(|v| v.length_squared() > 0.0), "--view-dir must not be the zero vector");
     ensure!(a.light_dir.is_none_or(|v| v.length_squared() > 0.0), "--light-dir must not be the zero vector");
@@ -383,11 +383,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         let channels = exr_channels(&film, &a.aov, a.width, a.height, config.environment.flat_color());
         pointray_io::write_exr(&a.output, a.width, a.height, channels).map_err(crate::failure::output)?;
     } else {
-        let curve = match a.tonemap {
-            ToneArg::Clamp => ToneCurve::Clamp,
-            ToneArg::Filmic => ToneCurve::Filmic,
-        };
-        let tone = ToneMap { exposure: a.exposure, curve };
+        let tone = ToneMap { exposure: a.exposure, curve: a.tonemap.into() };
         let frame = film.frame_srgb8(a.width, a.height, config.environment.flat_color(), tone);
         pointray_io::image::write_png(&a.output, a.width, a.height, &frame).map_err(crate::failure::output)?;
         let mut written = Vec::new();

@@ -105,12 +105,14 @@ fn a_plane_under_a_sun_shows_albedo_times_intensity_cos() {
 fn whitted_and_the_path_tracer_agree_on_direct_light() {
     // A Lambert surface (no ambient, no specular lobe) under a sun in the dark: Whitted's
     // Phong and the path tracer's next-event estimation must give the same radiance, so a
-    // scene keeps its brightness whichever integrator renders it. Each light of a kind.
+    // scene keeps its brightness whichever integrator renders it. Each kind of light; the
+    // sphere's shadow rays are random, but nothing is there to shadow.
     let lambert = Material::Phong(Phong { ambient: 0.0, specular: 0.0, shininess: 1.0 });
     let dark = Environment::Uniform { color: [0.0; 3] };
     let lights = [
         Light::Directional { direction: Vec3::new(0.3, -0.2, 1.0), intensity: 0.7 },
         Light::Point { position: Vec3::new(0.2, 0.1, 1.5), intensity: 0.9 },
+        Light::Sphere { center: Vec3::new(-0.3, 0.2, 1.2), radius: 0.2, intensity: 0.5 },
         Light::Spot {
             position: Vec3::new(0.0, 0.0, 2.0),
             direction: Vec3::NEG_Z,
