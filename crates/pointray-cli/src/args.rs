@@ -181,8 +181,9 @@ pub struct RenderArgs {
     /// for soft shadows (noisy at low --spp; they converge as it grows).
     #[arg(long, requires = "light_pos")]
     pub light_radius: Option<f32>,
-    /// Light intensity: the radiance a white surface facing the light shows, in every
-    /// integrator (a point light's falls off with the squared distance from 1).
+    /// Light intensity: the radiance a white Lambert surface facing the light shows, in every
+    /// integrator (Whitted's Phong shows 1 − ambient of it); a point light's falls off with
+    /// the squared distance from 1.
     #[arg(long, default_value_t = 1.0)]
     pub light_intensity: f32,
     /// No shadow rays.

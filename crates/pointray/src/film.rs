@@ -45,7 +45,7 @@ impl Film {
     /// The whole `width × height` frame as 8-bit sRGB (what a PNG stores), `background`
     /// (linear) outside the region, both through `tone`.
     pub fn frame_srgb8(&self, width: u32, height: u32, background: [f32; 3], tone: ToneMap) -> Vec<u8> {
-        let encode = |c: [f32; 3]| c.map(|v| (linear_to_srgb(tone.display(v)) * 255.0 + 0.5) as u8);
+        let encode = |c: [f32; 3]| c.map(|v| tone.srgb8(v));
         let bg = encode(background);
         let mut out = Vec::with_capacity(width as usize * height as usize * 3);
         for y in 0..height {
@@ -85,6 +85,11 @@ impl ToneMap {
     pub const CLAMP: ToneMap = ToneMap { exposure: 0.0, curve: ToneCurve::Clamp };
     /// Stops either way that an exposure may take (2^32 spans any radiance worth showing).
     pub const MAX_EXPOSURE: f32 = 32.0;
+
+    /// One linear channel as the 8-bit sRGB a PNG stores.
+    pub fn srgb8(&self, linear: f32) -> u8 {
+        (linear_to_srgb(self.display(linear)) * 255.0 + 0.5) as u8
+    }
 
     /// The display value in [0, 1] of one linear channel.
     pub fn display(&self, linear: f32) -> f32 {

@@ -22,7 +22,7 @@ use anyhow::Context;
 use glam::Vec3;
 use pointray::PointCloud;
 use pointray::camera::{Camera, Region};
-use pointray::film::{Film, ToneMap, linear_to_srgb};
+use pointray::film::{Film, ToneMap};
 use pointray::math::Aabb;
 use pointray::metrics::compare_rgb8;
 use pointray::render::RenderConfig;
@@ -341,8 +341,7 @@ fn config(e: &Experiment, camera: &Camera, region: Region, surface: SurfaceKind,
 
 /// The film's region as sRGB8, the pixels its comparisons and images hold.
 fn region_srgb8(film: &Film) -> Vec<u8> {
-    let encode = |v: f32| (linear_to_srgb(ToneMap::CLAMP.display(v)) * 255.0 + 0.5) as u8;
-    film.rgb.iter().flat_map(|c| c.map(encode)).collect()
+    film.rgb.iter().flat_map(|c| c.map(|v| ToneMap::CLAMP.srgb8(v))).collect()
 }
 
 /// An accelerator built for one variant and disk shape, with what the build cost.

@@ -5,7 +5,7 @@ use std::time::Instant;
 
 use pointray::accel::NodeBounds;
 use pointray::camera::{Camera, Region};
-use pointray::film::{Film, ToneMap};
+use pointray::film::{Film, MAX_PIXELS, ToneMap};
 use pointray::ground::{Checker, GroundPlane};
 use pointray::material::Material;
 use pointray::render::{Filter, Integrator, RenderConfig, Sampler};
@@ -107,8 +107,6 @@ struct PreprocessSeconds {
     #[serde(flatten)]
     stages: pointray::preprocess::StageSeconds,
 }
-
-use pointray::film::MAX_PIXELS;
 
 pub fn run(a: &RenderArgs, quiet: bool) -> anyhow::Result<()> {
     check_args(a).map_err(crate::failure::usage)?;

@@ -12,9 +12,10 @@ use pointray::render::{Integrator, RenderConfig, render};
 use pointray::shading::Environment;
 use pointray::splat::{Splat, pack_color};
 
-use crate::util::{plane_splats, render_config, sphere_splats, torus_splats};
 use pointray::material::{Material, Phong};
 use pointray::shading::Light;
+
+use crate::util::{plane_splats, render_config, sphere_splats, torus_splats};
 
 /// Mean and largest deviation from `expected` over the pixels wholly on the splats, rendered
 /// by the path tracer in a uniform environment of radiance 1.
