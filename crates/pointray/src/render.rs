@@ -181,10 +181,13 @@ fn render_pixel<A: Accel>(
     let mut first = FirstHits::default();
     let samples = config.samples.max(1);
     let footprint_scale = (samples as f32).sqrt().recip();
-    // The pixel's own shift of the R2 sequence (Cranley–Patterson rotation).
-    let pixel_shift = {
+    // The pixel's own shift of the R2 sequence (Cranley–Patterson rotation), drawn only
+    // where it is used: seeding a generator costs ~60 instructions.
+    let pixel_shift = if samples > 1 && config.sampler == Sampler::R2 {
         let mut rng = sample_rng(config.seed, x, y, u32::MAX);
         [rng.random::<f32>(), rng.random::<f32>()]
+    } else {
+        [0.0; 2]
     };
     for sample in 0..samples {
         // Each sample its own stream: how many numbers a path draws (roulette, total internal
