@@ -51,7 +51,7 @@ impl Accel for BruteForce {
     fn traverse<V: SplatVisitor>(&self, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
         for (i, s) in self.splats.iter().enumerate() {
             stats.splat_tests += 1;
-            visitor.visit(ray, s, i as u32);
+            super::test_disk(ray, s, i as u32, visitor);
             if visitor.done() {
                 return;
             }

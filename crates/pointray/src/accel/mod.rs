@@ -1,9 +1,9 @@
 //! Acceleration structures over splats, behind one interface.
 //!
 //! An accelerator knows the geometry of the disks but not how they become a surface: it walks
-//! the ray front to back and hands every splat whose bounds the ray may cross to a
-//! [`SplatVisitor`] (the surface scheme of `splat::scheme`), which decides what a hit is and how
-//! far the walk must still go (`t_max`). The same walk serves closest-hit, the SJ window and
+//! the ray front to back, tests the disks it meets exactly (as the visitor's [`DiskShape`]),
+//! and hands every crossing to a [`SplatVisitor`] (the surface scheme of `splat::scheme`),
+//! which decides what a hit is and how far the walk must still go (`t_max`). The same walk serves closest-hit, the SJ window and
 //! shadow rays. Level of detail hooks in here too: rays carry their footprint (`Ray::cone`) and
 //! a threshold, and a multiresolution accelerator hands the visitor a node's representative
 //! splat instead of descending when the node is smaller than the footprint.
@@ -13,9 +13,11 @@
 //!   normal cones in its nodes (thesis ch. 3).
 //! * [`KdTree`]: binned-SAH kd-tree with level of detail in its inner nodes (thesis ch. 4).
 
+mod block;
 mod brute;
 pub mod bvh;
 mod culling;
+pub mod isa;
 pub mod kdtree;
 mod packet;
 mod representative;
@@ -26,24 +28,40 @@ pub use culling::backfacing_fraction;
 pub use kdtree::{KdTree, KdTreeParams};
 
 use crate::math::{Aabb, Ray};
-use crate::splat::{DiskShape, Splat};
+use crate::splat::oriented_disk::DiskHit;
+use crate::splat::{DiskShape, Splat, oriented_disk, ray_facing_disk};
 use glam::Vec3;
 
-/// Receives the splats an accelerator finds along a ray.
+/// Receives the crossings an accelerator finds along a ray.
 pub trait SplatVisitor {
     /// Nodes and splats beyond this ray parameter cannot matter any more.
     fn t_max(&self) -> f32;
-    /// Tests one splat (`index` is what [`Accel::splat`] takes). An accelerator whose
-    /// `REPEATS_SPLATS` is true may hand the same splat over more than once; a visitor used
-    /// with it must then change nothing on the second visit.
-    fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32);
+    /// The ray crosses the disk of `splat` (`index` is what [`Accel::splat`] takes) at `hit`,
+    /// exactly as `splat::oriented_disk::intersect` (or `ray_facing_disk`, after `SHAPE`)
+    /// finds it, within `[ray.t_min, self.t_max()]`. An accelerator whose `REPEATS_SPLATS` is
+    /// true may hand the same splat over more than once; a visitor used with it must then
+    /// change nothing on the second visit.
+    fn hit(&mut self, ray: &Ray, splat: &Splat, index: u32, hit: DiskHit);
     /// True once the answer is known (any-hit queries stop early).
     fn done(&self) -> bool {
         false
     }
-    /// The disks `visit` tests; the accelerators pre-filter by the same shape, and their bounds
-    /// must hold it (`Accel::shape`).
+    /// The disks the accelerator tests for this visitor; its bounds must hold them
+    /// (`Accel::shape`).
     const SHAPE: DiskShape = DiskShape::Oriented;
+}
+
+/// Tests one disk exactly, as `V::SHAPE`, against the visitor's current `t_max`, and hands a
+/// crossing over: the scalar path (brute force, the kd-tree, representatives).
+#[inline(always)]
+pub(crate) fn test_disk<V: SplatVisitor>(ray: &Ray, splat: &Splat, index: u32, visitor: &mut V) {
+    let hit = match V::SHAPE {
+        DiskShape::Oriented => oriented_disk::intersect(ray, splat, visitor.t_max()),
+        DiskShape::RayFacing => ray_facing_disk::intersect(ray, splat, visitor.t_max()),
+    };
+    if let Some(h) = hit {
+        visitor.hit(ray, splat, index, h);
+    }
 }
 
 /// Work counters of traversals; summed over rays and threads (integers, so the sums do not
@@ -56,8 +74,8 @@ pub struct TraversalStats {
     pub box_tests: u64,
     /// Child bounding spheres tested.
     pub sphere_tests: u64,
-    /// Ray–disk tests: splats handed to the visitor (brute force), or splats in the packets
-    /// the BVH tested with its SIMD pre-filter; representative splats included.
+    /// Ray–disk tests: every disk tested (brute force), the disks of the blocks the BVH tested
+    /// eight at a time, or of the packets the kd-tree pre-filtered; representatives included.
     pub splat_tests: u64,
     /// Subtrees replaced by their representative splat (level of detail).
     pub lod_stops: u64,

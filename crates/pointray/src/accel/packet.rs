@@ -35,6 +35,7 @@ impl DiskLanes {
     }
 
     /// Lanes from up to four consecutive splats.
+    #[cfg(test)]
     pub(crate) fn from_slice(splats: &[Splat]) -> Self {
         debug_assert!(splats.len() <= LANES);
         Self::new(std::array::from_fn(|i| splats.get(i).unwrap_or(&NO_DISK)))

@@ -27,6 +27,7 @@
 use glam::Vec3;
 
 use super::window::Window;
+use super::oriented_disk::DiskHit;
 use super::{DiskShape, DiskTest, Oriented, RayFacing, Splat, pss};
 use crate::accel::{Accel, SplatVisitor, TraversalStats};
 use crate::math::Ray;
@@ -283,8 +284,7 @@ impl SplatVisitor for Nearest {
     }
 
     #[inline(always)]
-    fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32) {
-        let Some(h) = Oriented::intersect(ray, splat, self.t_max) else { return };
+    fn hit(&mut self, _ray: &Ray, splat: &Splat, index: u32, h: DiskHit) {
         let better = match self.best {
             Some((t, _)) => h.t < t || (h.t == t && tie_key(splat) < self.best_key),
             None => true,
@@ -311,10 +311,8 @@ impl<D: DiskTest> SplatVisitor for AnyHit<D> {
     }
 
     #[inline(always)]
-    fn visit(&mut self, ray: &Ray, splat: &Splat, _index: u32) {
-        if D::intersect(ray, splat, self.t_max).is_some() {
-            self.hit = true;
-        }
+    fn hit(&mut self, _ray: &Ray, _splat: &Splat, _index: u32, _hit: DiskHit) {
+        self.hit = true;
     }
 
     fn done(&self) -> bool {

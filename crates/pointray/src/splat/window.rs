@@ -9,6 +9,7 @@ use std::marker::PhantomData;
 use glam::Vec3;
 
 use super::scheme::{SurfaceHit, facing, tie_key};
+use super::oriented_disk::DiskHit;
 use super::{DiskShape, DiskTest, Splat};
 use crate::accel::{Accel, SplatVisitor};
 use crate::math::Ray;
@@ -145,8 +146,7 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
     }
 
     #[inline]
-    fn visit(&mut self, ray: &Ray, splat: &Splat, index: u32) {
-        let Some(h) = D::intersect(ray, splat, self.end) else { return };
+    fn hit(&mut self, _ray: &Ray, splat: &Splat, index: u32, h: DiskHit) {
         let first_t = self.first_t;
         if !self.fixed && h.t <= first_t {
             self.first_t = h.t;

@@ -8,12 +8,13 @@ use pointray::accel::{
 use pointray::camera::Camera;
 use pointray::math::Ray;
 use pointray::splat::Splat;
+use pointray::splat::oriented_disk::DiskHit;
 use pointray::splat::scheme::{self, SurfaceScheme};
 
 use crate::util::{random_rays, sphere_splats, torus_splats};
 
-/// Takes every splat handed over and never narrows the walk: the nodes it visits depend only
-/// on the ray and the level-of-detail rule, not on what was hit.
+/// Takes every crossing handed over and never narrows the walk: the nodes it visits depend
+/// only on the ray and the level-of-detail rule, not on what was hit.
 struct Everything(usize);
 
 impl SplatVisitor for Everything {
@@ -21,7 +22,7 @@ impl SplatVisitor for Everything {
         f32::INFINITY
     }
 
-    fn visit(&mut self, _: &Ray, _: &Splat, _: u32) {
+    fn hit(&mut self, _: &Ray, _: &Splat, _: u32, _: DiskHit) {
         self.0 += 1;
     }
 }

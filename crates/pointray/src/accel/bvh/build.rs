@@ -5,9 +5,8 @@
 use glam::Vec3;
 use rayon::join;
 
-use super::{
-    Bvh, LANES, MAX_LEAF_SIZE, MAX_SPLATS, MEDIAN_SPLIT_DEPTH, Node, NodeBounds, SplatPacket, WIDTH, leaf_ref,
-};
+use super::{Bvh, MAX_LEAF_SIZE, MAX_SPLATS, MEDIAN_SPLIT_DEPTH, Node, NodeBounds, WIDTH, leaf_ref};
+use crate::accel::block::{BLOCK, SplatBlock};
 use crate::accel::representative::{LOD_FLOOR_QUANTILE, radius_quantile};
 use crate::math::Aabb;
 use crate::splat::{DiskShape, Splat};
@@ -21,7 +20,7 @@ pub struct BvhParams {
     pub max_leaf_size: usize,
     /// SAH cost of one traversal step (four box tests), relative to `intersection_cost`.
     pub traversal_cost: f32,
-    /// SAH cost of testing one packet of up to four disks (leaves are priced in packets, as
+    /// SAH cost of testing one block of up to eight disks (leaves are priced in blocks, as
     /// they are tested).
     pub intersection_cost: f32,
     /// Which bounds the nodes test (it changes no hit, only the work).
@@ -104,12 +103,12 @@ impl Bvh {
         let splat_count = splats.len();
         let bounds = root.bounds();
         let mut nodes = Vec::with_capacity(splats.len() / params.max_leaf_size.max(2) + 1);
-        let mut packets = Vec::with_capacity(splats.len().div_ceil(LANES));
+        let mut blocks = Vec::with_capacity(splats.len().div_ceil(BLOCK));
         let depth = match root {
             BuildNode::Leaf { count: 0, .. } => 0, // no splats: no nodes
-            root => flatten(root, &splats, &mut nodes, &mut packets),
+            root => flatten(root, &splats, &mut nodes, &mut blocks),
         };
-        let (lod, representatives) = super::lod::build(&mut nodes, &splats, &packets, params.shape);
+        let (lod, representatives) = super::lod::build(&mut nodes, &splats, &blocks, params.shape);
         splats.extend(representatives);
         let lod_floor = radius_quantile(nodes.iter().map(|n| n.min_radius).collect(), LOD_FLOOR_QUANTILE);
         let mut bvh = Bvh {
@@ -117,7 +116,7 @@ impl Bvh {
             lod,
             splats,
             splat_count,
-            packets,
+            blocks,
             bounds,
             input_index,
             depth,
@@ -135,7 +134,7 @@ impl Bvh {
 /// The node's children are found by opening binary inner nodes, the largest surface first,
 /// until there are four (SAH-wise, the child most likely to be entered is the one worth
 /// replacing by its children). A root that is a single leaf becomes a node with one child.
-fn flatten(node: BuildNode, splats: &[Splat], nodes: &mut Vec<Node>, packets: &mut Vec<SplatPacket>) -> usize {
+fn flatten(node: BuildNode, splats: &[Splat], nodes: &mut Vec<Node>, blocks: &mut Vec<SplatBlock>) -> usize {
     let mut children = vec![node];
     while children.len() < WIDTH {
         let widest = children
@@ -155,16 +154,16 @@ fn flatten(node: BuildNode, splats: &[Splat], nodes: &mut Vec<Node>, packets: &m
     for (i, c) in children.into_iter().enumerate() {
         match c {
             BuildNode::Leaf { first, count, .. } => {
-                let first_packet = packets.len();
-                for start in (first..first + count).step_by(LANES) {
-                    let end = (start + LANES).min(first + count);
-                    packets.push(SplatPacket::new(&splats[start..end], start));
+                let first_block = blocks.len();
+                for start in (first..first + count).step_by(BLOCK) {
+                    let end = (start + BLOCK).min(first + count);
+                    blocks.push(SplatBlock::new(&splats[start..end], start));
                 }
-                nodes[at].child[i] = leaf_ref(first_packet, packets.len() - first_packet);
+                nodes[at].child[i] = leaf_ref(first_block, blocks.len() - first_block);
             }
             inner @ BuildNode::Inner { .. } => {
                 nodes[at].child[i] = nodes.len() as u32;
-                depth = depth.max(1 + flatten(inner, splats, nodes, packets));
+                depth = depth.max(1 + flatten(inner, splats, nodes, blocks));
             }
         }
     }
@@ -187,7 +186,7 @@ fn build_node(prims: &mut [Prim], offset: usize, params: &BvhParams, depth: usiz
         best_sah_split(prims, &bounds, params)
     };
     let mid = match split {
-        Some(s) if s.cost < packets(n) * params.intersection_cost || n > params.max_leaf_size => {
+        Some(s) if s.cost < blocks(n) * params.intersection_cost || n > params.max_leaf_size => {
             partition(prims, |p| s.bin_of(p.centroid) < s.bin)
         }
         None if n > params.max_leaf_size => median_split(prims),
@@ -218,9 +217,9 @@ impl Split {
     }
 }
 
-/// Packets a leaf of `n` splats takes (see `SplatPacket`).
-fn packets(n: usize) -> f32 {
-    n.div_ceil(LANES) as f32
+/// Blocks a leaf of `n` splats takes (see `SplatBlock`).
+fn blocks(n: usize) -> f32 {
+    n.div_ceil(BLOCK) as f32
 }
 
 fn bin_index(x: f32, lo: f32, scale: f32, bins: usize) -> usize {
@@ -269,7 +268,7 @@ fn best_sah_split(prims: &[Prim], bounds: &Aabb, params: &BvhParams) -> Option<S
             }
             let cost = params.traversal_cost
                 + params.intersection_cost
-                    * (left.half_area() * packets(left_count) + right_area[b] * packets(right_count))
+                    * (left.half_area() * blocks(left_count) + right_area[b] * blocks(right_count))
                     / parent_area;
             if best.as_ref().is_none_or(|s| cost < s.cost) {
                 best = Some(Split { axis, bin: b, bins, lo: lo[axis], scale: scale[axis], cost });

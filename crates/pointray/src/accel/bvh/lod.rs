@@ -15,7 +15,8 @@
 use glam::{DVec3, Vec3, Vec4};
 use rayon::prelude::*;
 
-use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, SplatPacket, WIDTH, leaf_packets};
+use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks};
+use crate::accel::block::SplatBlock;
 use crate::accel::representative::{Representative, representative};
 use crate::splat::{DiskShape, Splat};
 
@@ -49,11 +50,14 @@ pub enum NodeBounds {
     Auto,
 }
 
+/// Leaves of at most this many splats are never replaced by their representative.
+const ALWAYS_FULL_LEAF: usize = 4;
+
 /// Splat range below a child reference.
-fn child_range(child: u32, packets: &[SplatPacket], node_range: &[std::ops::Range<usize>]) -> std::ops::Range<usize> {
+fn child_range(child: u32, blocks: &[SplatBlock], node_range: &[std::ops::Range<usize>]) -> std::ops::Range<usize> {
     if child & LEAF != 0 {
-        let p = leaf_packets(child);
-        packets[p.start].first as usize..packets[p.end - 1].indices().end
+        let p = leaf_blocks(child);
+        blocks[p.start].first as usize..blocks[p.end - 1].indices().end
     } else {
         node_range[child as usize].clone()
     }
@@ -61,13 +65,13 @@ fn child_range(child: u32, packets: &[SplatPacket], node_range: &[std::ops::Rang
 
 /// The splat range below every node. Children are stored after their parent, so one pass
 /// from the back sees every child before its parent.
-fn node_ranges(nodes: &[Node], packets: &[SplatPacket]) -> Vec<std::ops::Range<usize>> {
+fn node_ranges(nodes: &[Node], blocks: &[SplatBlock]) -> Vec<std::ops::Range<usize>> {
     let mut ranges = vec![0..0; nodes.len()];
     for k in (0..nodes.len()).rev() {
         let n = &nodes[k];
         let (mut lo, mut hi) = (usize::MAX, 0);
         for i in (0..WIDTH).filter(|i| n.used & (1 << i) != 0) {
-            let r = child_range(n.child[i], packets, &ranges);
+            let r = child_range(n.child[i], blocks, &ranges);
             (lo, hi) = (lo.min(r.start), hi.max(r.end));
         }
         ranges[k] = lo.min(hi)..hi;
@@ -122,16 +126,16 @@ fn child_lod(box_center: Vec3, disks: &[Splat], shape: DiskShape) -> ChildLod {
 pub(super) fn build(
     nodes: &mut [Node],
     splats: &[Splat],
-    packets: &[SplatPacket],
+    blocks: &[SplatBlock],
     shape: DiskShape,
 ) -> (Vec<NodeLod>, Vec<Splat>) {
-    let ranges = node_ranges(nodes, packets);
+    let ranges = node_ranges(nodes, blocks);
     let per_node: Vec<(NodeLod, [Splat; WIDTH])> = nodes
         .par_iter()
         .map(|n| {
             let children: [Option<ChildLod>; WIDTH] = std::array::from_fn(|i| {
                 (n.used & (1 << i) != 0).then(|| {
-                    let disks = &splats[child_range(n.child[i], packets, &ranges)];
+                    let disks = &splats[child_range(n.child[i], blocks, &ranges)];
                     child_lod(n.child_bounds(i).center(), disks, shape)
                 })
             });
@@ -149,10 +153,11 @@ pub(super) fn build(
         })
         .collect();
     for (n, (l, _)) in nodes.iter_mut().zip(&per_node) {
-        // A leaf of one packet costs one SIMD test, no more than its representative: it is
-        // never replaced, and full detail there is free.
+        // A leaf of a few splats costs about what its representative does to test: it is never
+        // replaced, and full detail there is free.
+        let leaf_len = |child: u32| child_range(child, blocks, &ranges).len();
         let coarse: Vec<usize> = (0..WIDTH)
-            .filter(|&i| n.used & (1 << i) != 0 && (n.child[i] & LEAF == 0 || leaf_packets(n.child[i]).len() > 1))
+            .filter(|&i| n.used & (1 << i) != 0 && (n.child[i] & LEAF == 0 || leaf_len(n.child[i]) > ALWAYS_FULL_LEAF))
             .collect();
         n.used = n.used & !(SLOTS << LOD_SLOTS_SHIFT) | coarse.iter().fold(0, |m, i| m | 1 << i) << LOD_SLOTS_SHIFT;
         n.min_radius = coarse.iter().map(|&i| l.radius[i]).fold(f32::INFINITY, f32::min);
@@ -192,13 +197,13 @@ pub(super) fn choose_node_bounds(nodes: &mut [Node], lod: &[NodeLod], choice: No
 /// Checks the level-of-detail invariants: each child's sphere contains every disk below it
 /// and its cone every normal below it, and the representative's normal is the cone's axis.
 pub(super) fn check_invariants(bvh: &Bvh) -> Result<(), String> {
-    let ranges = node_ranges(&bvh.nodes, &bvh.packets);
+    let ranges = node_ranges(&bvh.nodes, &bvh.blocks);
     for (k, n) in bvh.nodes.iter().enumerate() {
         let l = &bvh.lod[k];
         for i in (0..WIDTH).filter(|i| n.used & (1 << i) != 0) {
             let center = Vec3::new(l.center[0][i], l.center[1][i], l.center[2][i]);
             let axis = Vec3::new(l.axis[0][i], l.axis[1][i], l.axis[2][i]);
-            for s in &bvh.splats[child_range(n.child[i], &bvh.packets, &ranges)] {
+            for s in &bvh.splats[child_range(n.child[i], &bvh.blocks, &ranges)] {
                 let far = farthest(center.as_dvec3(), s, bvh.shape);
                 if far > f64::from(l.radius[i]) {
                     return Err(format!("node {k} child {i}: sphere {center} r {} misses {s:?} ({far})", l.radius[i]));

@@ -4,7 +4,8 @@
 //! each node stores the boxes of its up to four children side by side, so one traversal step
 //! tests four boxes with SSE and never fetches a child the ray misses, and the tree is half
 //! as deep as the binary one. Leaves are ranges of the splat array, which the build reorders
-//! into leaf order.
+//! into leaf order, stored again as blocks of eight disks for the leaf kernel
+//! (`accel::block`).
 //!
 //! It is also the multiresolution BVH of thesis ch. 3: every child slot carries a bounding
 //! sphere, a normal cone and a representative splat (`lod`), so a ray whose footprint is wider
@@ -14,62 +15,38 @@
 
 mod build;
 mod lod;
-mod traverse;
+pub(super) mod traverse;
 
 pub use build::BvhParams;
 pub use lod::NodeBounds;
 
 use glam::{Vec3, Vec4};
 
-use crate::accel::packet::{DiskLanes, LANES};
+use crate::accel::block::{BLOCK, SplatBlock};
 use crate::math::Aabb;
 use crate::splat::{DiskShape, Splat};
 
 /// A child reference is a node index, or for a leaf
-/// `LEAF | (packets − 1) << FIRST_BITS | first packet`: one word on the traversal stack says
+/// `LEAF | (blocks − 1) << FIRST_BITS | first block`: one word on the traversal stack says
 /// everything about a child.
 const LEAF: u32 = 1 << 31;
 const FIRST_BITS: u32 = 27;
-/// Most splats a leaf can hold (its packet count takes the bits between `LEAF` and the index).
+/// Most splats a leaf can hold (its block count takes the bits between `LEAF` and the index).
 pub(crate) const MAX_LEAF_SIZE: usize = 16;
 /// Most splats a BVH can index (2²⁷ ≈ 134 million).
 pub const MAX_SPLATS: usize = 1 << FIRST_BITS;
 
-fn leaf_ref(first_packet: usize, packets: usize) -> u32 {
-    debug_assert!((1..=MAX_LEAF_SIZE / LANES).contains(&packets) && first_packet < MAX_SPLATS);
-    LEAF | ((packets - 1) as u32) << FIRST_BITS | first_packet as u32
+fn leaf_ref(first_block: usize, blocks: usize) -> u32 {
+    debug_assert!((1..=MAX_LEAF_SIZE / BLOCK).contains(&blocks) && first_block < MAX_SPLATS);
+    LEAF | ((blocks - 1) as u32) << FIRST_BITS | first_block as u32
 }
 
-/// The packet range of a leaf reference.
+/// The block range of a leaf reference.
 #[inline(always)]
-fn leaf_packets(child: u32) -> std::ops::Range<usize> {
+fn leaf_blocks(child: u32) -> std::ops::Range<usize> {
     let first = (child & ((1 << FIRST_BITS) - 1)) as usize;
     let count = ((child & !LEAF) >> FIRST_BITS) as usize + 1;
     first..first + count
-}
-
-/// Up to four consecutive splats of one leaf, in lanes for the SIMD pre-filter
-/// ([`DiskLanes`]), so that one SSE pass rejects the disks a ray misses (most of them) before
-/// the surface scheme sees the rest.
-#[repr(C, align(64))]
-#[derive(Clone, Copy, Debug)]
-pub(crate) struct SplatPacket {
-    pub(crate) disks: DiskLanes,
-    /// Index in `Bvh::splats` of the splat in lane 0; lane i holds splat `first + i`.
-    pub(crate) first: u32,
-    /// Lanes in use.
-    pub(crate) count: u32,
-}
-
-impl SplatPacket {
-    fn new(splats: &[Splat], first: usize) -> Self {
-        debug_assert!((1..=LANES).contains(&splats.len()));
-        Self { disks: DiskLanes::from_slice(splats), first: first as u32, count: splats.len() as u32 }
-    }
-
-    pub(crate) fn indices(&self) -> std::ops::Range<usize> {
-        self.first as usize..(self.first + self.count) as usize
-    }
 }
 
 /// From this depth of the binary build tree on, splits are object medians (see `build_node`),
@@ -144,8 +121,8 @@ pub struct Bvh {
     /// space for both.
     pub(crate) splats: Vec<Splat>,
     pub(crate) splat_count: usize,
-    /// The leaves' splats again, in packets (see [`SplatPacket`]).
-    pub(crate) packets: Vec<SplatPacket>,
+    /// The leaves' splats again, in blocks for the leaf kernel (see [`SplatBlock`]).
+    pub(crate) blocks: Vec<SplatBlock>,
     pub(crate) bounds: Aabb,
     /// For each splat of `splats`, its index in the input the BVH was built from.
     pub(crate) input_index: Vec<u32>,
@@ -257,7 +234,7 @@ impl super::Accel for Bvh {
                     stack.push(child);
                     continue;
                 }
-                for j in leaf_packets(child).flat_map(|p| self.packets[p].indices()) {
+                for j in leaf_blocks(child).flat_map(|b| self.blocks[b].indices()) {
                     let s = &self.splats[j];
                     stats.splat_tests += 1;
                     if (s.center - center).length_squared() <= r2 {
@@ -270,7 +247,7 @@ impl super::Accel for Bvh {
 
     fn memory_bytes(&self) -> usize {
         self.nodes.len() * Self::NODE_BYTES
-            + self.packets.len() * size_of::<SplatPacket>()
+            + self.blocks.len() * size_of::<SplatBlock>()
             + self.input_index.len() * size_of::<u32>()
     }
 
@@ -280,7 +257,7 @@ impl super::Accel for Bvh {
         visitor: &mut V,
         stats: &mut super::TraversalStats,
     ) {
-        traverse::traverse(self, ray, visitor, stats);
+        crate::accel::isa::bvh_traverse(self, ray, visitor, stats);
     }
 }
 
@@ -301,7 +278,7 @@ pub fn check_invariants(bvh: &Bvh) -> Result<(), String> {
             }
             let below = if n.child[i] & LEAF != 0 {
                 let mut b = Vec::new();
-                for j in leaf_packets(n.child[i]).flat_map(|p| bvh.packets[p].indices()) {
+                for j in leaf_blocks(n.child[i]).flat_map(|b| bvh.blocks[b].indices()) {
                     let flag = seen.get_mut(j).ok_or(format!("leaf of node {node} points past the splats"))?;
                     if std::mem::replace(flag, true) {
                         return Err(format!("splat {j} is in two leaves"));
@@ -335,8 +312,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn node_and_packet_are_two_cache_lines() {
+    fn node_is_two_cache_lines_and_a_block_four() {
         assert_eq!(size_of::<Node>(), 128);
-        assert_eq!(size_of::<SplatPacket>(), 128);
+        assert_eq!(size_of::<SplatBlock>(), 256);
     }
 }

@@ -11,9 +11,9 @@
 use glam::Vec4;
 
 use super::lod::NodeLod;
-use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_packets};
+use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks};
 use crate::accel::packet::{PacketRay, dot3};
-use crate::accel::{Accel, SplatVisitor, TraversalStats};
+use crate::accel::{Accel, SplatVisitor, TraversalStats, test_disk};
 use crate::math::Ray;
 
 /// The ray in the form the four-wide tests want: per axis the origin, direction and inverse
@@ -118,29 +118,31 @@ fn cull_limit(t_max: f32) -> f32 {
 
 thread_local! {
     /// Each thread's traversal stack, reused from ray to ray: a fresh array per ray would cost
-    /// a memset of the whole stack every time.
-    static STACK: std::cell::RefCell<Vec<(u32, f32)>> = const { std::cell::RefCell::new(Vec::new()) };
+    /// a memset of the whole stack every time. A traversal takes it out and puts it back, so
+    /// no closure stands between the instruction-set builds of `accel::isa` and the loop (a
+    /// closure would be compiled once, for the baseline), and a traversal started from inside
+    /// a visitor finds it empty and makes its own.
+    static STACK: std::cell::Cell<Vec<(u32, f32)>> = const { std::cell::Cell::new(Vec::new()) };
 }
 
-pub(super) fn traverse<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
+/// Inlined into each instruction-set build of `accel::isa`, which calls it.
+#[inline(always)]
+pub(crate) fn traverse<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
     if bvh.nodes.is_empty() {
         return;
     }
     // Each level pushes at most WIDTH − 1 entries.
     let need = (WIDTH - 1) * bvh.depth + 1;
-    STACK.with(|cell| match cell.try_borrow_mut() {
-        Ok(mut stack) => {
-            if stack.len() < need {
-                stack.resize(need, (0, 0.0));
-            }
-            dispatch(bvh, ray, visitor, stats, &mut stack);
-        }
-        // Re-entered from inside a visitor (a traversal that starts another): its own stack.
-        Err(_) => dispatch(bvh, ray, visitor, stats, &mut vec![(0, 0.0); need]),
-    });
+    let mut stack = STACK.take();
+    if stack.len() < need {
+        stack.resize(need, (0, 0.0));
+    }
+    dispatch(bvh, ray, visitor, stats, &mut stack);
+    STACK.set(stack);
 }
 
 /// Full-detail rays through a tree of boxes take the loop without the multiresolution steps.
+#[inline(always)]
 fn dispatch<V: SplatVisitor>(
     bvh: &Bvh,
     ray: &Ray,
@@ -201,13 +203,18 @@ fn traverse_from<V: SplatVisitor, const MULTIRES: bool>(
         let (child, entry) = current;
         if entry <= cull_limit(visitor.t_max()) {
             if child & LEAF != 0 {
-                for packet in &bvh.packets[leaf_packets(child)] {
-                    stats.splat_tests += u64::from(packet.count);
-                    let mut lanes = slab.ray.candidates_as(V::SHAPE, &packet.disks, ray.t_min, visitor.t_max());
+                for block in &bvh.blocks[leaf_blocks(child)] {
+                    stats.splat_tests += u64::from(block.count);
+                    let hits = block.hits(V::SHAPE, ray, visitor.t_max());
+                    let mut lanes = hits.mask;
                     while lanes != 0 {
-                        let i = packet.first as usize + lanes.trailing_zeros() as usize;
+                        let lane = lanes.trailing_zeros() as usize;
                         lanes &= lanes - 1;
-                        visitor.visit(ray, &bvh.splats[i], i as u32);
+                        // An earlier lane may have narrowed the walk since the block was tested.
+                        if hits.t[lane] <= visitor.t_max() {
+                            let i = block.first as usize + lane;
+                            visitor.hit(ray, &bvh.splats[i], i as u32, hits.hit(lane));
+                        }
                     }
                 }
                 if visitor.done() {
@@ -227,6 +234,9 @@ fn traverse_from<V: SplatVisitor, const MULTIRES: bool>(
                     stats.box_tests += slot_count(node.used);
                     slab.entries(node, ray.t_min, t1)
                 };
+                // An array, not a `Vec4`: indexing a vector register by a run-time lane
+                // compiles to a jump table (7 instructions a child, callgrind).
+                let t = t.to_array();
                 if mask.is_power_of_two() {
                     // One child hit (the common case deep in the tree): no stack traffic.
                     let i = mask.trailing_zeros() as usize;
@@ -307,7 +317,7 @@ fn multires_children<V: SplatVisitor>(
             let i = coarse.trailing_zeros() as usize;
             coarse &= coarse - 1;
             let index = bvh.representative_index(k, i);
-            visitor.visit(ray, bvh.splat(index), index);
+            test_disk(ray, bvh.splat(index), index, visitor);
         }
         if visitor.done() {
             return None;

@@ -10,7 +10,7 @@
 use super::KdTree;
 use super::build::MAX_DEPTH;
 use crate::accel::packet::{DiskLanes, LANES, PacketRay};
-use crate::accel::{SplatVisitor, TraversalStats};
+use crate::accel::{SplatVisitor, TraversalStats, test_disk};
 use crate::math::Ray;
 use glam::Vec3A;
 
@@ -103,7 +103,7 @@ fn walk<V: SplatVisitor, const MULTIRES: bool>(
                 }
                 counts.lod_stops += 1;
                 counts.splat_tests += 1;
-                visitor.visit(ray, &tree.reps[node], tree.padding() + node as u32);
+                test_disk(ray, &tree.reps[node], tree.padding() + node as u32, visitor);
                 if visitor.done() {
                     return;
                 }
@@ -125,7 +125,7 @@ fn walk<V: SplatVisitor, const MULTIRES: bool>(
                             continue;
                         }
                         *slot = r;
-                        visitor.visit(ray, &tree.disks[r as usize], r);
+                        test_disk(ray, &tree.disks[r as usize], r, visitor);
                     }
                     if visitor.done() {
                         counts.splat_tests -= count.saturating_sub((packet + 1) * LANES) as u64;
