@@ -8,12 +8,14 @@ use glam::Vec3;
 pub struct BruteForce {
     splats: Vec<Splat>,
     bounds: Aabb,
+    wide_radius: f32,
 }
 
 impl BruteForce {
     pub fn new(splats: Vec<Splat>) -> Self {
         let bounds = splats.iter().fold(Aabb::EMPTY, |b, s| b.union(s.bounds()));
-        Self { splats, bounds }
+        let wide_radius = super::representative::wide_radius(&splats);
+        Self { splats, bounds, wide_radius }
     }
 }
 
@@ -28,6 +30,10 @@ impl Accel for BruteForce {
 
     fn bounds(&self) -> Aabb {
         self.bounds
+    }
+
+    fn wide_radius(&self) -> f32 {
+        self.wide_radius
     }
 
     /// Every splat reaches the visitor, whatever its shape.

@@ -117,6 +117,12 @@ pub trait Accel: Send + Sync {
     }
     /// Bounds of all the disks.
     fn bounds(&self) -> Aabb;
+    /// The 99th percentile of the input splats' radii: how wide a disk a search that starts
+    /// from one crossing plans for. The SJ window collects this many window widths past its
+    /// first crossing, so that a nearer, wider first crossing found later seldom needs a
+    /// second walk; the few wider disks beyond it (stray points) cannot make every ray's
+    /// walk longer.
+    fn wide_radius(&self) -> f32;
     /// The disks the bounds were built to hold: a visitor of another shape may miss hits
     /// unless it is held too ([`DiskShape::holds`]).
     fn shape(&self) -> DiskShape;

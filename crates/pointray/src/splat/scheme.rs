@@ -201,7 +201,7 @@ fn windowed<A: Accel + ?Sized, D: DiskTest>(
     let mut ray = *ray;
     let mut weak = None;
     for _ in 0..MAX_WEAK_WINDOWS {
-        let mut v = Window::<D>::new(scheme.window, A::REPEATS_SPLATS);
+        let mut v = Window::<D>::new(scheme.window, accel.wide_radius(), A::REPEATS_SPLATS);
         accel.traverse(&ray, &mut v, stats);
         if v.grew {
             // Crossings beyond an earlier, shorter end were turned away: collect the final

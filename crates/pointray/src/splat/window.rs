@@ -32,7 +32,14 @@ struct Crossing {
 /// turn up.
 pub(crate) struct Window<D> {
     window: f32,
+    /// The window's end: `window` radii of the first crossing past it.
     pub(crate) end: f32,
+    /// How far crossings are collected (`t_max`): at least `end`, and at least `window` times
+    /// `reach_radius` (or the level-of-detail footprint, which bounds the representatives)
+    /// past the first crossing, so that a nearer first crossing found later, with a disk up
+    /// to that wide, finds its window collected already.
+    reach: f32,
+    reach_radius: f32,
     /// Nearest crossing so far (the window's start).
     first_t: f32,
     /// The end is known in advance and never moves (a second pass).
@@ -50,10 +57,12 @@ pub(crate) struct Window<D> {
 }
 
 impl<D: DiskTest> Window<D> {
-    pub(crate) fn new(window: f32, repeats: bool) -> Self {
+    pub(crate) fn new(window: f32, reach_radius: f32, repeats: bool) -> Self {
         Self {
             window,
             end: f32::INFINITY,
+            reach: f32::INFINITY,
+            reach_radius,
             first_t: f32::INFINITY,
             fixed: false,
             grew: false,
@@ -66,7 +75,7 @@ impl<D: DiskTest> Window<D> {
 
     /// A window that collects every crossing up to `end`.
     pub(crate) fn fixed(window: f32, repeats: bool, end: f32) -> Self {
-        Self { end, fixed: true, ..Self::new(window, repeats) }
+        Self { end, reach: end, fixed: true, ..Self::new(window, 0.0, repeats) }
     }
 
     /// The blended hit and the window's coverage Σ(1 − dᵢ/rᵢ) over the blended disks. With
@@ -78,7 +87,16 @@ impl<D: DiskTest> Window<D> {
         accel: &A,
         tangent_planes: bool,
     ) -> Option<(SurfaceHit, f32)> {
-        let list = &mut self.crossings[..self.len];
+        // Crossings between the end and the reach were collected in case the window grew.
+        let end = self.end;
+        let mut kept = 0;
+        for i in 0..self.len {
+            if self.crossings[i].t <= end {
+                self.crossings[kept] = self.crossings[i];
+                kept += 1;
+            }
+        }
+        let list = &mut self.crossings[..kept];
         // Sum in a fixed order (by t, then by splat contents) so that every accelerator, which
         // visits disks in its own order, blends to the same bits.
         list.sort_unstable_by(|a, b| {
@@ -142,11 +160,11 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
     const SHAPE: DiskShape = D::SHAPE;
 
     fn t_max(&self) -> f32 {
-        self.end
+        self.reach
     }
 
     #[inline]
-    fn hit(&mut self, _ray: &Ray, splat: &Splat, index: u32, h: DiskHit) {
+    fn hit(&mut self, ray: &Ray, splat: &Splat, index: u32, h: DiskHit) {
         let first_t = self.first_t;
         if !self.fixed && h.t <= first_t {
             self.first_t = h.t;
@@ -154,12 +172,14 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
             // first, the widest decides, whatever order they arrive in.
             let end = h.t + self.window * splat.radius;
             let end = if h.t == first_t { end.max(self.end) } else { end };
-            if end > self.end {
-                self.grew |= self.end.is_finite();
-            } else {
+            // Crossings beyond the reach so far were turned away.
+            self.grew |= end > self.reach;
+            let widest = self.reach_radius.max(ray.lod_threshold * ray.cone.width_at(h.t));
+            let reach = end.max(h.t + self.window * widest);
+            if reach < self.reach {
                 let mut kept = 0;
                 for i in 0..self.len {
-                    if self.crossings[i].t <= end {
+                    if self.crossings[i].t <= reach {
                         self.crossings[kept] = self.crossings[i];
                         kept += 1;
                     }
@@ -167,6 +187,7 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
                 self.len = kept;
             }
             self.end = end;
+            self.reach = reach;
         }
         // A kd-tree hands a disk that straddles cells over once per cell. (The window's start
         // and end above are the same for a repeat.)

@@ -7,7 +7,7 @@ use rayon::join;
 
 use super::{Bvh, MAX_LEAF_SIZE, MAX_SPLATS, MEDIAN_SPLIT_DEPTH, Node, NodeBounds, WIDTH, leaf_ref};
 use crate::accel::block::{BLOCK, SplatBlock};
-use crate::accel::representative::{LOD_FLOOR_QUANTILE, radius_quantile};
+use crate::accel::representative::{LOD_FLOOR_QUANTILE, radius_quantile, wide_radius};
 use crate::math::Aabb;
 use crate::splat::{DiskShape, Splat};
 
@@ -101,6 +101,7 @@ impl Bvh {
         let input_index: Vec<u32> = prims.iter().map(|p| p.index).collect();
         let mut splats: Vec<Splat> = input_index.iter().map(|&i| splats[i as usize]).collect();
         let splat_count = splats.len();
+        let wide_radius = wide_radius(&splats);
         let bounds = root.bounds();
         let mut nodes = Vec::with_capacity(splats.len() / params.max_leaf_size.max(2) + 1);
         let mut blocks = Vec::with_capacity(splats.len().div_ceil(BLOCK));
@@ -122,6 +123,7 @@ impl Bvh {
             depth,
             node_bounds: NodeBounds::Boxes,
             lod_floor,
+            wide_radius,
             shape: params.shape,
         };
         bvh.set_node_bounds(params.node_bounds);

@@ -133,6 +133,8 @@ pub struct Bvh {
     /// traversal, forgoing stops only at nodes among the smallest 5 %, where they would save
     /// little. Close up, that keeps level of detail free.
     pub(crate) lod_floor: f32,
+    /// See [`super::Accel::wide_radius`].
+    pub(crate) wide_radius: f32,
     /// The disks the bounds hold.
     pub(crate) shape: DiskShape,
 }
@@ -199,6 +201,10 @@ impl super::Accel for Bvh {
 
     fn bounds(&self) -> Aabb {
         self.bounds
+    }
+
+    fn wide_radius(&self) -> f32 {
+        self.wide_radius
     }
 
     fn shape(&self) -> DiskShape {

@@ -9,7 +9,7 @@ use rayon::prelude::*;
 
 use super::{KdNode, KdTree};
 use crate::accel::packet::{LANES, NO_DISK};
-use crate::accel::representative::{LOD_FLOOR_QUANTILE, radius_quantile, representative};
+use crate::accel::representative::{LOD_FLOOR_QUANTILE, radius_quantile, representative, wide_radius};
 use crate::math::Aabb;
 use crate::splat::{DiskShape, Splat};
 
@@ -109,7 +109,8 @@ impl KdTree {
         };
         if splats.is_empty() {
             let (nodes, refs, reps, disks) = (Vec::new(), Vec::new(), Vec::new(), with_padding(splats));
-            return Self { nodes, refs, disks, reps, lod_floor: f32::INFINITY, bounds, depth: 0, shape: params.shape };
+            let (lod_floor, wide_radius) = (f32::INFINITY, f32::INFINITY);
+            return Self { nodes, refs, disks, reps, lod_floor, wide_radius, bounds, depth: 0, shape: params.shape };
         }
         let n = splats.len();
         let max_depth =
@@ -124,7 +125,9 @@ impl KdTree {
         assert!(n + nodes.len() <= u32::MAX as usize, "too many splats for a kd-tree");
         let radii = reps.iter().map(|r| r.radius).filter(|&r| r > 0.0).collect();
         let lod_floor = radius_quantile(radii, LOD_FLOOR_QUANTILE);
-        Self { nodes, refs, disks: with_padding(splats), reps, lod_floor, bounds, depth, shape: params.shape }
+        let wide_radius = wide_radius(&splats);
+        let disks = with_padding(splats);
+        Self { nodes, refs, disks, reps, lod_floor, wide_radius, bounds, depth, shape: params.shape }
     }
 }
 

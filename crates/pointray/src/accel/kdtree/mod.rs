@@ -92,6 +92,8 @@ pub struct KdTree {
     reps: Vec<Splat>,
     /// A small quantile of the representatives' radii (see `representative::radius_quantile`).
     lod_floor: f32,
+    /// See [`Accel::wide_radius`].
+    wide_radius: f32,
     /// The root cell: the union of the splats' padded boxes.
     bounds: Aabb,
     depth: usize,
@@ -141,6 +143,10 @@ impl Accel for KdTree {
 
     fn bounds(&self) -> Aabb {
         self.bounds
+    }
+
+    fn wide_radius(&self) -> f32 {
+        self.wide_radius
     }
 
     fn shape(&self) -> DiskShape {
