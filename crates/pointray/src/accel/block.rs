@@ -92,9 +92,8 @@ impl SplatBlock {
             let to_center = [c[0][i] - o[0], c[1][i] - o[1], c[2][i] - o[2]];
             let nm = to_center[0] * n[0][i] + to_center[1] * n[1][i] + to_center[2] * n[2][i];
             let (num_s, den_a) = if dn < 0.0 { (-nm, -dn) } else { (nm, dn) };
-            let in_range = (num_s >= t_min * den_a * (1.0 - SLACK))
-                & (num_s <= t_max * den_a * (1.0 + SLACK))
-                & (den_a > 0.0);
+            let in_range =
+                (num_s >= t_min * den_a * (1.0 - SLACK)) & (num_s <= t_max * den_a * (1.0 + SLACK)) & (den_a > 0.0);
             let q = [d[0] * nm - to_center[0] * dn, d[1] * nm - to_center[1] * dn, d[2] * nm - to_center[2] * dn];
             let qq = q[0] * q[0] + q[1] * q[1] + q[2] * q[2];
             // NaN compares false: no hit, as in the scalar test.
@@ -166,7 +165,9 @@ pub(crate) mod tests {
 
     /// Random blocks and rays; every lane of `kernel`'s answer against the scalar test. Returns
     /// (hits, misses) seen.
-    pub(crate) fn check_against_scalar(kernel: impl Fn(&SplatBlock, DiskShape, &Ray, f32) -> BlockHits) -> (usize, usize) {
+    pub(crate) fn check_against_scalar(
+        kernel: impl Fn(&SplatBlock, DiskShape, &Ray, f32) -> BlockHits,
+    ) -> (usize, usize) {
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);
         let mut v =
             |lo: f32, hi: f32| Vec3::new(rng.random_range(lo..hi), rng.random_range(lo..hi), rng.random_range(lo..hi));
@@ -174,7 +175,12 @@ pub(crate) mod tests {
         for round in 0..20_000 {
             let lanes = 1 + round % BLOCK;
             let splats: Vec<Splat> = (0..lanes)
-                .map(|_| Splat { center: v(-1.0, 1.0), radius: v(0.05, 1.0).x, normal: v(-1.0, 1.0).normalize(), color: 0 })
+                .map(|_| Splat {
+                    center: v(-1.0, 1.0),
+                    radius: v(0.05, 1.0).x,
+                    normal: v(-1.0, 1.0).normalize(),
+                    color: 0,
+                })
                 .collect();
             let block = SplatBlock::new(&splats, 0);
             let origin = v(-3.0, 3.0);

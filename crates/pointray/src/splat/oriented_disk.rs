@@ -34,8 +34,9 @@ pub fn intersect(ray: &Ray, splat: &Splat, t_max: f32) -> Option<DiskHit> {
     let q = ray.dir * num - to_center * den;
     let r2_den2 = splat.radius * splat.radius * den * den;
     let q2 = q.length_squared();
-    // Not `q2 >= r2_den2`: a NaN on either side must miss.
-    if !(q2 < r2_den2) {
+    // Not `q2 >= r2_den2`: a NaN on either side must miss (as in `accel::block`).
+    let inside = q2 < r2_den2;
+    if !inside {
         return None;
     }
     let t = num / den;

@@ -26,8 +26,8 @@
 
 use glam::Vec3;
 
-use super::window::Window;
 use super::oriented_disk::DiskHit;
+use super::window::Window;
 use super::{DiskShape, DiskTest, Oriented, RayFacing, Splat, pss};
 use crate::accel::{Accel, SplatVisitor, TraversalStats};
 use crate::math::Ray;
@@ -204,10 +204,11 @@ fn windowed<A: Accel + ?Sized, D: DiskTest>(
         let mut v = Window::<D>::new(scheme.window, accel.wide_radius(), A::REPEATS_SPLATS);
         accel.traverse(&ray, &mut v, stats);
         if v.grew {
-            // Crossings beyond an earlier, shorter end were turned away: collect the final
-            // window again, now that its extent is known.
-            v = Window::fixed(scheme.window, A::REPEATS_SPLATS, v.end);
-            accel.traverse(&ray, &mut v, stats);
+            // A nearer, wider first crossing turned up late (a level-of-detail representative,
+            // or a disk wider than `wide_radius`): crossings past an earlier reach were turned
+            // away. Collect the rest of the final window.
+            let from = v.complete_from().max(ray.t_min);
+            accel.traverse(&ray.with_t_min(from), &mut v, stats);
         }
         // Nothing behind a weak window: it was the surface after all (a thinly covered spot),
         // not a disk sticking out in front of one.

@@ -8,8 +8,8 @@ use std::marker::PhantomData;
 
 use glam::Vec3;
 
-use super::scheme::{SurfaceHit, facing, tie_key};
 use super::oriented_disk::DiskHit;
+use super::scheme::{SurfaceHit, facing, tie_key};
 use super::{DiskShape, DiskTest, Splat};
 use crate::accel::{Accel, SplatVisitor};
 use crate::math::Ray;
@@ -35,11 +35,12 @@ pub(crate) struct Window<D> {
     /// The window's end: `window` radii of the first crossing past it.
     pub(crate) end: f32,
     /// How far crossings are collected (`t_max`): at least `end`, and at least `window` times
-    /// `reach_radius` (or the level-of-detail footprint, which bounds the representatives)
-    /// past the first crossing, so that a nearer first crossing found later, with a disk up
-    /// to that wide, finds its window collected already.
+    /// `reach_radius` past the first crossing, so that a nearer first crossing found later,
+    /// with a disk up to that wide, finds its window collected already.
     reach: f32,
     reach_radius: f32,
+    /// The least reach so far: every crossing up to it has been collected.
+    min_reach: f32,
     /// Nearest crossing so far (the window's start).
     first_t: f32,
     /// The end is known in advance and never moves (a second pass).
@@ -63,6 +64,7 @@ impl<D: DiskTest> Window<D> {
             end: f32::INFINITY,
             reach: f32::INFINITY,
             reach_radius,
+            min_reach: f32::INFINITY,
             first_t: f32::INFINITY,
             fixed: false,
             grew: false,
@@ -73,9 +75,13 @@ impl<D: DiskTest> Window<D> {
         }
     }
 
-    /// A window that collects every crossing up to `end`.
-    pub(crate) fn fixed(window: f32, repeats: bool, end: f32) -> Self {
-        Self { end, reach: end, fixed: true, ..Self::new(window, 0.0, repeats) }
+    /// After a walk in which the window grew: the window's end is final, and the crossings
+    /// up to the returned distance are all collected; a second walk from there (the rest of
+    /// the window, usually a short stretch) completes it. A crossing the first walk collected
+    /// too is recognised and not taken twice.
+    pub(crate) fn complete_from(&mut self) -> f32 {
+        (self.fixed, self.repeats, self.reach) = (true, true, self.end);
+        self.min_reach
     }
 
     /// The blended hit and the window's coverage Σ(1 − dᵢ/rᵢ) over the blended disks. With
@@ -164,7 +170,7 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
     }
 
     #[inline]
-    fn hit(&mut self, ray: &Ray, splat: &Splat, index: u32, h: DiskHit) {
+    fn hit(&mut self, _ray: &Ray, splat: &Splat, index: u32, h: DiskHit) {
         let first_t = self.first_t;
         if !self.fixed && h.t <= first_t {
             self.first_t = h.t;
@@ -174,8 +180,7 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
             let end = if h.t == first_t { end.max(self.end) } else { end };
             // Crossings beyond the reach so far were turned away.
             self.grew |= end > self.reach;
-            let widest = self.reach_radius.max(ray.lod_threshold * ray.cone.width_at(h.t));
-            let reach = end.max(h.t + self.window * widest);
+            let reach = end.max(h.t + self.window * self.reach_radius);
             if reach < self.reach {
                 let mut kept = 0;
                 for i in 0..self.len {
@@ -188,6 +193,7 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
             }
             self.end = end;
             self.reach = reach;
+            self.min_reach = self.min_reach.min(reach);
         }
         // A kd-tree hands a disk that straddles cells over once per cell. (The window's start
         // and end above are the same for a repeat.)

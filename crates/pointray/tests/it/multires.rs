@@ -60,13 +60,10 @@ fn check_coarser_threshold(accel: &impl Accel) {
         }
     }
     assert!(stops > 1_000, "{name}: the rays must stop at coarse nodes to test anything ({stops} stops)");
-    // The surface schemes narrow the walk as they find hits. The SJ window also reaches a
-    // footprint past its first crossing (where a representative may still turn up), so a
-    // coarser threshold may lengthen some windows a little (BVH: 4,138 nodes at τ = 0.25,
-    // 4,155 at 0.5; the window of the first crossing alone, with a second walk when it grew,
-    // took 4,860 at full detail and 4,564 at 0.5) while the subtrees it stops at save more: no
-    // threshold costs more than 1 % over the next finer one, and the coarse ones save much
-    // (τ = 16: 2,335).
+    // The surface schemes narrow the walk as they find hits. The SJ window of a representative
+    // is as long as the representative is wide, so a threshold that stops at a few of them may
+    // cost a little more than full detail (BVH: 4,141 nodes at full detail, 4,320 at τ = 0.5),
+    // while from a pixel on the totals fall, and the coarse thresholds save much (τ = 16: 2,335).
     let rays = far_camera_rays(&accel.bounds(), 3.0, 48);
     let totals: Vec<u64> = thresholds
         .iter()
@@ -78,7 +75,9 @@ fn check_coarser_threshold(accel: &impl Accel) {
             stats.nodes_visited
         })
         .collect();
-    assert!(totals.windows(2).all(|w| w[1] as f64 <= w[0] as f64 * 1.01), "{name}: nodes visited per threshold: {totals:?}");
+    let (full, coarse) = (totals[0] as f64, &totals[3..]);
+    assert!(totals.iter().all(|&t| t as f64 <= full * 1.05), "{name}: nodes visited per threshold: {totals:?}");
+    assert!(coarse.windows(2).all(|w| w[1] <= w[0]), "{name}: nodes visited per threshold: {totals:?}");
     assert!(
         totals[3] < totals[0] && totals[6] * 5 < totals[0] * 3,
         "{name}: level of detail must save work: {totals:?}"
@@ -130,7 +129,10 @@ fn check_sphere_hits(accel: &impl Accel) {
     }
     // (One window walk a ray: before the window reached past its first crossing, a second walk
     // counted its stops again.)
-    assert!(checked > 500 && stops * 2 > checked as u64, "{name}: {checked} rays, {stops} stops: level of detail unused");
+    assert!(
+        checked > 500 && stops * 2 > checked as u64,
+        "{name}: {checked} rays, {stops} stops: level of detail unused"
+    );
     normal_err.sort_by(f32::total_cmp);
     let mean = normal_err.iter().sum::<f32>() / normal_err.len() as f32;
     let p99 = normal_err[normal_err.len() * 99 / 100];
