@@ -52,15 +52,21 @@ impl SplatBlock {
     /// The block of `splats` (at most [`BLOCK`]), the first of which has index `first`.
     pub(crate) fn new(splats: &[Splat], first: usize) -> Self {
         debug_assert!((1..=BLOCK).contains(&splats.len()));
-        let lane = |i: usize| splats.get(i);
-        let coord = |f: &dyn Fn(&Splat) -> f32| std::array::from_fn(|i| lane(i).map_or(0.0, f));
-        Self {
-            center: [coord(&|s| s.center.x), coord(&|s| s.center.y), coord(&|s| s.center.z)],
-            normal: [coord(&|s| s.normal.x), coord(&|s| s.normal.y), coord(&|s| s.normal.z)],
-            radius: coord(&|s| s.radius),
+        let mut block = Self {
+            center: [[0.0; BLOCK]; 3],
+            normal: [[0.0; BLOCK]; 3],
+            radius: [0.0; BLOCK],
             first: first as u32,
             count: splats.len() as u32,
+        };
+        for (i, s) in splats.iter().enumerate() {
+            for k in 0..3 {
+                block.center[k][i] = s.center[k];
+                block.normal[k][i] = s.normal[k];
+            }
+            block.radius[i] = s.radius;
         }
+        block
     }
 
     pub(crate) fn indices(&self) -> std::ops::Range<usize> {
