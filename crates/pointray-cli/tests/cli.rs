@@ -125,6 +125,8 @@ fn demo_render_writes_png_and_complete_stats() {
     ] {
         assert!(s.get(key).is_some(), "stats lack {key:?}: {s:#}");
     }
+    let isa = s["isa"].as_str();
+    assert!(matches!(isa, Some("baseline" | "avx2")), "stats name the kernels' instruction set: {isa:?}");
     let points = stat_u64(&s, "points");
     assert!((19_000..=20_000).contains(&points), "demo with 20000 points has {points}");
     let primary = stat_u64(&s, "primary_rays");

@@ -90,6 +90,8 @@ struct StatsReport {
     /// system tells it (Linux).
     peak_memory_bytes: Option<u64>,
     peak_memory_bytes_per_point: Option<f64>,
+    /// The instruction-set path the kernels ran on (`pointray::accel::isa`).
+    isa: pointray::accel::isa::Isa,
     counters: RenderStats,
 }
 
@@ -469,6 +471,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
             camera_distance: a.eye.is_none().then(|| distance * bounds.diagonal()),
             peak_memory_bytes,
             peak_memory_bytes_per_point: peak_memory_bytes.map(|b| b as f64 / points_read.max(1) as f64),
+            isa: pointray::accel::isa::active(),
             counters: stats,
         };
         let json = serde_json::to_string_pretty(&report)?;

@@ -58,6 +58,7 @@ pub(crate) struct PacketRay {
 }
 
 impl PacketRay {
+    #[inline(always)]
     pub(crate) fn new(ray: &Ray) -> Self {
         Self {
             origin: std::array::from_fn(|k| Vec4::splat(ray.origin[k])),

@@ -31,6 +31,7 @@ struct SlabRay {
 }
 
 impl SlabRay {
+    #[inline(always)]
     fn new(ray: &Ray) -> Self {
         let tau = ray.lod_threshold;
         Self {
