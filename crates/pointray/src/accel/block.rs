@@ -159,7 +159,6 @@ pub(crate) mod tests {
 
     use super::*;
     use crate::math::RayCone;
-    use crate::splat::{oriented_disk, ray_facing_disk};
 
     /// The block test gives exactly the scalar tests' hits, bit for bit, on the path this
     /// build runs (`accel::isa` runs it again compiled for AVX2).
@@ -196,10 +195,7 @@ pub(crate) mod tests {
                 let got = kernel(&block, shape, &ray, t_max);
                 assert_eq!(got.mask >> lanes, 0, "an unused lane hit");
                 for (lane, s) in splats.iter().enumerate() {
-                    let exact = match shape {
-                        DiskShape::Oriented => oriented_disk::intersect(&ray, s, t_max),
-                        DiskShape::RayFacing => ray_facing_disk::intersect(&ray, s, t_max),
-                    };
+                    let exact = shape.intersect(&ray, s, t_max);
                     let lane_hit = (got.mask & (1 << lane) != 0).then(|| got.hit(lane));
                     let bits = |h: Option<DiskHit>| h.map(|h| (h.t.to_bits(), h.dist2.to_bits()));
                     assert_eq!(bits(lane_hit), bits(exact), "{shape:?} lane {lane} of {s:?}, {ray:?} up to {t_max}");

@@ -29,7 +29,7 @@ pub use kdtree::{KdTree, KdTreeParams};
 
 use crate::math::{Aabb, Ray};
 use crate::splat::oriented_disk::DiskHit;
-use crate::splat::{DiskShape, Splat, oriented_disk, ray_facing_disk};
+use crate::splat::{DiskShape, Splat};
 use glam::Vec3;
 
 /// Receives the crossings an accelerator finds along a ray.
@@ -55,11 +55,7 @@ pub trait SplatVisitor {
 /// crossing over: the scalar path (brute force, the kd-tree, representatives).
 #[inline(always)]
 pub(crate) fn test_disk<V: SplatVisitor>(ray: &Ray, splat: &Splat, index: u32, visitor: &mut V) {
-    let hit = match V::SHAPE {
-        DiskShape::Oriented => oriented_disk::intersect(ray, splat, visitor.t_max()),
-        DiskShape::RayFacing => ray_facing_disk::intersect(ray, splat, visitor.t_max()),
-    };
-    if let Some(h) = hit {
+    if let Some(h) = V::SHAPE.intersect(ray, splat, visitor.t_max()) {
         visitor.hit(ray, splat, index, h);
     }
 }

@@ -35,12 +35,21 @@ impl DiskShape {
     pub fn holds(self, other: DiskShape) -> bool {
         self == other || self == DiskShape::RayFacing
     }
+
+    /// The exact test of this shape: [`oriented_disk::intersect`] or [`ray_facing_disk::intersect`].
+    #[inline(always)]
+    pub fn intersect(self, ray: &Ray, splat: &Splat, t_max: f32) -> Option<DiskHit> {
+        match self {
+            DiskShape::Oriented => oriented_disk::intersect(ray, splat, t_max),
+            DiskShape::RayFacing => ray_facing_disk::intersect(ray, splat, t_max),
+        }
+    }
 }
 
-/// A ray–disk test, chosen at compile time by the visitors of the surface schemes.
+/// A disk shape as a type, for the visitors of the surface schemes, which are generic over the
+/// disks the accelerator tests for them.
 pub trait DiskTest {
     const SHAPE: DiskShape;
-    fn intersect(ray: &Ray, splat: &Splat, t_max: f32) -> Option<DiskHit>;
 }
 
 /// The disk in the splat's tangent plane ([`oriented_disk`]).
@@ -51,18 +60,10 @@ pub struct RayFacing;
 
 impl DiskTest for Oriented {
     const SHAPE: DiskShape = DiskShape::Oriented;
-    #[inline(always)]
-    fn intersect(ray: &Ray, splat: &Splat, t_max: f32) -> Option<DiskHit> {
-        oriented_disk::intersect(ray, splat, t_max)
-    }
 }
 
 impl DiskTest for RayFacing {
     const SHAPE: DiskShape = DiskShape::RayFacing;
-    #[inline(always)]
-    fn intersect(ray: &Ray, splat: &Splat, t_max: f32) -> Option<DiskHit> {
-        ray_facing_disk::intersect(ray, splat, t_max)
-    }
 }
 
 /// One surface element: a disk of `radius` around `center`, perpendicular to the unit `normal`.
