@@ -154,11 +154,8 @@ fn lane_mask(lanes: &[u32; BLOCK]) -> u32 {
 
 #[cfg(test)]
 pub(crate) mod tests {
-    use glam::Vec3;
-    use rand::{RngExt, SeedableRng};
-
     use super::*;
-    use crate::math::RayCone;
+    use crate::accel::lane_cases::random_disks_and_rays;
 
     /// The block test gives exactly the scalar tests' hits, bit for bit, on the path this
     /// build runs (`accel::isa` runs it again compiled for AVX2).
@@ -173,24 +170,10 @@ pub(crate) mod tests {
     pub(crate) fn check_against_scalar(
         kernel: impl Fn(&SplatBlock, DiskShape, &Ray, f32) -> BlockHits,
     ) -> (usize, usize) {
-        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);
-        let mut v =
-            |lo: f32, hi: f32| Vec3::new(rng.random_range(lo..hi), rng.random_range(lo..hi), rng.random_range(lo..hi));
         let (mut hits, mut misses) = (0, 0);
-        for round in 0..20_000 {
-            let lanes = 1 + round % BLOCK;
-            let splats: Vec<Splat> = (0..lanes)
-                .map(|_| Splat {
-                    center: v(-1.0, 1.0),
-                    radius: v(0.05, 1.0).x,
-                    normal: v(-1.0, 1.0).normalize(),
-                    color: 0,
-                })
-                .collect();
+        for (splats, ray, t_max) in random_disks_and_rays(11, BLOCK, 20_000) {
+            let lanes = splats.len();
             let block = SplatBlock::new(&splats, 0);
-            let origin = v(-3.0, 3.0);
-            let ray = Ray::new(origin, v(-1.0, 1.0) - origin, RayCone::default()).with_t_min(v(0.0, 0.5).x);
-            let t_max = if v(0.0, 1.0).x < 0.5 { f32::INFINITY } else { v(0.5, 6.0).x };
             for shape in [DiskShape::Oriented, DiskShape::RayFacing] {
                 let got = kernel(&block, shape, &ray, t_max);
                 assert_eq!(got.mask >> lanes, 0, "an unused lane hit");

@@ -132,3 +132,38 @@ pub trait Accel: Send + Sync {
     /// roughly front to back, until the visitor is `done`.
     fn traverse<V: SplatVisitor>(&self, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats);
 }
+
+/// Cases for the tests of the lane kernels (`block`, `packet`).
+#[cfg(test)]
+pub(crate) mod lane_cases {
+    use glam::Vec3;
+    use rand::{RngExt, SeedableRng};
+
+    use crate::math::{Ray, RayCone};
+    use crate::splat::Splat;
+
+    /// `rounds` sets of 1 to `max_lanes` random disks around the origin (round `i` has
+    /// `1 + i % max_lanes`), each with a ray from around them, a `t_min` up to 0.5 and a
+    /// `t_max` (∞ half the time).
+    pub(crate) fn random_disks_and_rays(seed: u64, max_lanes: usize, rounds: usize) -> Vec<(Vec<Splat>, Ray, f32)> {
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
+        let mut v =
+            |lo: f32, hi: f32| Vec3::new(rng.random_range(lo..hi), rng.random_range(lo..hi), rng.random_range(lo..hi));
+        (0..rounds)
+            .map(|round| {
+                let splats = (0..1 + round % max_lanes)
+                    .map(|_| Splat {
+                        center: v(-1.0, 1.0),
+                        radius: v(0.05, 1.0).x,
+                        normal: v(-1.0, 1.0).normalize(),
+                        color: 0,
+                    })
+                    .collect();
+                let origin = v(-3.0, 3.0);
+                let ray = Ray::new(origin, v(-1.0, 1.0) - origin, RayCone::default()).with_t_min(v(0.0, 0.5).x);
+                let t_max = if v(0.0, 1.0).x < 0.5 { f32::INFINITY } else { v(0.5, 6.0).x };
+                (splats, ray, t_max)
+            })
+            .collect()
+    }
+}

@@ -112,11 +112,8 @@ impl PacketRay {
 
 #[cfg(test)]
 mod tests {
-    use glam::Vec3;
-    use rand::{RngExt, SeedableRng};
-
     use super::*;
-    use crate::math::RayCone;
+    use crate::accel::lane_cases::random_disks_and_rays;
     use crate::splat::{oriented_disk, ray_facing_disk};
 
     /// The pre-filter may pass disks the exact test rejects, never the other way round:
@@ -128,24 +125,10 @@ mod tests {
     }
 
     fn check_prefilter(shape: DiskShape) {
-        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(5);
-        let mut v =
-            |lo: f32, hi: f32| Vec3::new(rng.random_range(lo..hi), rng.random_range(lo..hi), rng.random_range(lo..hi));
         let (mut hits, mut rejected) = (0, 0);
-        for round in 0..20_000 {
-            let lanes = 1 + round % LANES;
-            let splats: Vec<Splat> = (0..lanes)
-                .map(|_| Splat {
-                    center: v(-1.0, 1.0),
-                    radius: v(0.05, 1.0).x,
-                    normal: v(-1.0, 1.0).normalize(),
-                    color: 0,
-                })
-                .collect();
+        for (splats, ray, t_max) in random_disks_and_rays(5, LANES, 20_000) {
+            let lanes = splats.len();
             let disks = DiskLanes::from_slice(&splats);
-            let origin = v(-3.0, 3.0);
-            let ray = Ray::new(origin, v(-1.0, 1.0) - origin, RayCone::default()).with_t_min(v(0.0, 0.5).x);
-            let t_max = if v(0.0, 1.0).x < 0.5 { f32::INFINITY } else { v(0.5, 6.0).x };
             let candidates = PacketRay::new(&ray).candidates_as(shape, &disks, ray.t_min, t_max);
             assert_eq!(candidates >> lanes, 0, "an unused lane passed");
             for (lane, s) in splats.iter().enumerate() {
