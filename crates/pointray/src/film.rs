@@ -118,7 +118,7 @@ impl ToneCurve {
 /// the byte steps up. `powf` per channel cost ~110 instructions a pixel of a 512² render
 /// (callgrind, `docs/RESULTS.md`); the search costs eight compares.
 #[inline]
-pub fn srgb8_of_display(display: f32) -> u8 {
+pub(crate) fn srgb8_of_display(display: f32) -> u8 {
     let steps = srgb8_steps();
     let mut code = 0;
     for half in [128, 64, 32, 16, 8, 4, 2, 1] {

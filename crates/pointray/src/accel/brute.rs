@@ -36,6 +36,11 @@ impl Accel for BruteForce {
         self.wide_radius
     }
 
+    /// No level of detail.
+    fn may_stop_at_representatives(&self, _ray: &Ray) -> bool {
+        false
+    }
+
     /// Every splat reaches the visitor, whatever its shape.
     fn shape(&self) -> DiskShape {
         DiskShape::RayFacing

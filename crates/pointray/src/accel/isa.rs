@@ -1,8 +1,8 @@
 //! The instruction set the hot loops run on, chosen once per process.
 //!
 //! On x86-64 the BVH's traversal and leaf kernel ([`super::block`]) are compiled twice: for
-//! the baseline every x86-64 CPU has (SSE2) and for x86-64-v3 (AVX2 and FMA), taken when the
-//! CPU reports it. Elsewhere (aarch64, …) there is one path, for the target's own baseline.
+//! the baseline every x86-64 CPU has (SSE2) and with AVX2 and FMA enabled, taken when the CPU
+//! reports both (the kernels use no fused multiply-add; FMA comes with every AVX2 CPU). Elsewhere (aarch64, …) there is one path, for the target's own baseline.
 //! `POINTRAY_ISA=baseline` forces the baseline; CI runs the oracle tests that way too.
 //!
 //! Both paths give the same bits: the kernels are written without fused multiply-adds, so
@@ -21,7 +21,7 @@ use crate::math::Ray;
 pub enum Isa {
     /// The target's baseline: SSE2 on x86-64, NEON on aarch64.
     Baseline,
-    /// x86-64-v3: AVX2 and FMA, eight lanes per instruction.
+    /// AVX2 (and FMA): eight lanes per instruction.
     Avx2,
 }
 

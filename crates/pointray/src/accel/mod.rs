@@ -119,6 +119,10 @@ pub trait Accel: Send + Sync {
     /// second walk; the few wider disks beyond it (stray points) cannot make every ray's
     /// walk longer.
     fn wide_radius(&self) -> f32;
+    /// Whether `traverse` may hand this ray level-of-detail representatives. A representative
+    /// may reach outside its subtree's bounds, so a walk that starts past `t_min` can miss one
+    /// that crosses the ray later; the SJ window's completing walk asks.
+    fn may_stop_at_representatives(&self, ray: &Ray) -> bool;
     /// The disks the bounds were built to hold: a visitor of another shape may miss hits
     /// unless it is held too ([`DiskShape::holds`]).
     fn shape(&self) -> DiskShape;

@@ -205,9 +205,12 @@ fn windowed<A: Accel + ?Sized, D: DiskTest>(
         accel.traverse(&ray, &mut v, stats);
         if v.grew {
             // A nearer, wider first crossing turned up late (a level-of-detail representative,
-            // or a disk wider than `wide_radius`): crossings past an earlier reach were turned
-            // away. Collect the rest of the final window.
-            let from = v.complete_from().max(ray.t_min);
+            // or a disk wider than `wide_radius`): crossings past an earlier `collect_to` were
+            // turned away. Collect the rest of the final window. A representative may reach
+            // outside its subtree's bounds, so for a ray that may stop at one, a crossing of the
+            // rest may belong to a node that ends before it: that walk starts at the ray's start.
+            let collected = v.start_completion();
+            let from = if accel.may_stop_at_representatives(&ray) { ray.t_min } else { collected.max(ray.t_min) };
             accel.traverse(&ray.with_t_min(from), &mut v, stats);
         }
         // Nothing behind a weak window: it was the surface after all (a thinly covered spot),

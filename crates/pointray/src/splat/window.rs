@@ -27,27 +27,27 @@ struct Crossing {
 }
 
 /// Collects the disks (of shape `D`) crossed within `[t₀, t₀ + δ]` of the nearest crossing t₀
-/// found so far. The accelerator culls against `t_max() = t₀ + δ`, so it keeps delivering
-/// every disk that may still belong to the window, and the window shrinks as nearer crossings
-/// turn up.
+/// found so far. The accelerator culls against `t_max() = collect_to` (at least t₀ + δ), so it
+/// keeps delivering every disk that may still belong to the window, and the window shrinks as
+/// nearer crossings turn up.
 pub(crate) struct Window<D> {
     window: f32,
     /// The window's end: `window` radii of the first crossing past it.
     pub(crate) end: f32,
     /// How far crossings are collected (`t_max`): at least `end`, and at least `window` times
-    /// `reach_radius` past the first crossing, so that a nearer first crossing found later,
+    /// `wide_radius` past the first crossing, so that a nearer first crossing found later,
     /// with a disk up to that wide, finds its window collected already.
-    reach: f32,
-    reach_radius: f32,
-    /// The least reach so far: every crossing up to it has been collected.
-    min_reach: f32,
+    collect_to: f32,
+    wide_radius: f32,
+    /// The least `collect_to` so far: every crossing up to it has been collected.
+    collected_to: f32,
     /// Nearest crossing so far (the window's start).
     first_t: f32,
-    /// The end is known in advance and never moves (a second pass).
+    /// The end is final (the completing walk, see [`Self::start_completion`]).
     fixed: bool,
-    /// The end moved outwards during the walk (a tie at the first crossing with a wider disk,
-    /// or a nearer first crossing with a wider disk): crossings may have been turned away
-    /// against the shorter end, so the window must be collected again.
+    /// The end moved past `collect_to` during the walk (a nearer first crossing with a disk
+    /// wider than `wide_radius`, or a tie at the first crossing with one): crossings may have
+    /// been turned away, so the window must be completed.
     pub(crate) grew: bool,
     /// The accelerator may hand a splat over again (`Accel::REPEATS_SPLATS`): repeats are
     /// looked for and ignored.
@@ -58,13 +58,13 @@ pub(crate) struct Window<D> {
 }
 
 impl<D: DiskTest> Window<D> {
-    pub(crate) fn new(window: f32, reach_radius: f32, repeats: bool) -> Self {
+    pub(crate) fn new(window: f32, wide_radius: f32, repeats: bool) -> Self {
         Self {
             window,
             end: f32::INFINITY,
-            reach: f32::INFINITY,
-            reach_radius,
-            min_reach: f32::INFINITY,
+            collect_to: f32::INFINITY,
+            wide_radius,
+            collected_to: f32::INFINITY,
             first_t: f32::INFINITY,
             fixed: false,
             grew: false,
@@ -75,13 +75,25 @@ impl<D: DiskTest> Window<D> {
         }
     }
 
-    /// After a walk in which the window grew: the window's end is final, and the crossings
-    /// up to the returned distance are all collected; a second walk from there (the rest of
-    /// the window, usually a short stretch) completes it. A crossing the first walk collected
+    /// After a walk in which the window grew: fixes the window's end and returns the distance
+    /// up to which every crossing is collected already. A second walk from there (the rest of
+    /// the window, usually a short stretch) completes it; a crossing the first walk collected
     /// too is recognised and not taken twice.
-    pub(crate) fn complete_from(&mut self) -> f32 {
-        (self.fixed, self.repeats, self.reach) = (true, true, self.end);
-        self.min_reach
+    pub(crate) fn start_completion(&mut self) -> f32 {
+        (self.fixed, self.repeats, self.collect_to) = (true, true, self.end);
+        self.collected_to
+    }
+
+    /// Drops the crossings beyond `t`.
+    fn keep_until(&mut self, t: f32) {
+        let mut kept = 0;
+        for i in 0..self.len {
+            if self.crossings[i].t <= t {
+                self.crossings[kept] = self.crossings[i];
+                kept += 1;
+            }
+        }
+        self.len = kept;
     }
 
     /// The blended hit and the window's coverage Σ(1 − dᵢ/rᵢ) over the blended disks. With
@@ -93,16 +105,9 @@ impl<D: DiskTest> Window<D> {
         accel: &A,
         tangent_planes: bool,
     ) -> Option<(SurfaceHit, f32)> {
-        // Crossings between the end and the reach were collected in case the window grew.
-        let end = self.end;
-        let mut kept = 0;
-        for i in 0..self.len {
-            if self.crossings[i].t <= end {
-                self.crossings[kept] = self.crossings[i];
-                kept += 1;
-            }
-        }
-        let list = &mut self.crossings[..kept];
+        // Crossings past the end were collected in case the window grew.
+        self.keep_until(self.end);
+        let list = &mut self.crossings[..self.len];
         // Sum in a fixed order (by t, then by splat contents) so that every accelerator, which
         // visits disks in its own order, blends to the same bits.
         list.sort_unstable_by(|a, b| {
@@ -166,7 +171,7 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
     const SHAPE: DiskShape = D::SHAPE;
 
     fn t_max(&self) -> f32 {
-        self.reach
+        self.collect_to
     }
 
     #[inline]
@@ -178,22 +183,15 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
             // first, the widest decides, whatever order they arrive in.
             let end = h.t + self.window * splat.radius;
             let end = if h.t == first_t { end.max(self.end) } else { end };
-            // Crossings beyond the reach so far were turned away.
-            self.grew |= end > self.reach;
-            let reach = end.max(h.t + self.window * self.reach_radius);
-            if reach < self.reach {
-                let mut kept = 0;
-                for i in 0..self.len {
-                    if self.crossings[i].t <= reach {
-                        self.crossings[kept] = self.crossings[i];
-                        kept += 1;
-                    }
-                }
-                self.len = kept;
+            // Crossings past `collect_to` so far were turned away.
+            self.grew |= end > self.collect_to;
+            let collect_to = end.max(h.t + self.window * self.wide_radius);
+            if collect_to < self.collect_to {
+                self.keep_until(collect_to);
             }
             self.end = end;
-            self.reach = reach;
-            self.min_reach = self.min_reach.min(reach);
+            self.collect_to = collect_to;
+            self.collected_to = self.collected_to.min(collect_to);
         }
         // A kd-tree hands a disk that straddles cells over once per cell. (The window's start
         // and end above are the same for a repeat.)

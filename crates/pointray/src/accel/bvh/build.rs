@@ -31,7 +31,8 @@ pub struct BvhParams {
 
 impl BvhParams {
     /// The default: 16 bins, leaves of up to 16 splats, a traversal step priced at two
-    /// packet tests (measured fastest on the dragon among 1/2/4 and leaves of 8/16).
+    /// leaf-block tests. Measured with callgrind on the dragon with blocks of eight (first hit):
+    /// leaves of 8 or 16 and traversal costs of 1, 2 or 4 all within 0.3 % of each other.
     pub fn standard() -> Self {
         Self {
             bins: 16,

@@ -71,8 +71,8 @@ pub(crate) struct Node {
     /// Bit i set iff slot i holds a child. Traversal masks hits with it: a ray with NaN
     /// components "enters" even empty boxes, and must not follow an unused slot. Plus the flag
     /// [`SPHERE_NODE`], and from bit [`LOD_SLOTS_SHIFT`] the children a ray may replace by their
-    /// representatives: all but leaves of one packet, whose test costs no more than the
-    /// representative's.
+    /// representatives: all but leaves of at most four splats, whose test costs no more than
+    /// the representative's.
     pub(crate) used: u32,
     /// The smallest bounding-sphere radius of those children: where a ray's footprint stays
     /// narrower, no child can stop it, and the level-of-detail test is skipped.
@@ -205,6 +205,10 @@ impl super::Accel for Bvh {
 
     fn wide_radius(&self) -> f32 {
         self.wide_radius
+    }
+
+    fn may_stop_at_representatives(&self, ray: &crate::math::Ray) -> bool {
+        traverse::lod_reach(self, ray) > 0.0
     }
 
     fn shape(&self) -> DiskShape {

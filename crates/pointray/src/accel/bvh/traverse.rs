@@ -151,18 +151,8 @@ fn dispatch<V: SplatVisitor>(
     stats: &mut TraversalStats,
     stack: &mut [(u32, f32)],
 ) {
-    // The widest the footprint gets (scaled by τ) before the ray leaves the model: subtrees
-    // no narrower than this never stop it.
-    let lod_reach = if ray.lod_threshold > 0.0 {
-        let b = &bvh.bounds;
-        let exit = ((b.min - ray.origin) * ray.inv_dir).max((b.max - ray.origin) * ray.inv_dir).min_element();
-        ray.lod_threshold * ray.cone.width_at(if exit.is_nan() { f32::INFINITY } else { exit })
-    } else {
-        0.0
-    };
-    // Close up, only the smallest nodes could stop a ray: it takes the full-detail loop.
-    let lod = lod_reach > bvh.lod_floor;
-    let lod_reach = if lod { lod_reach } else { 0.0 };
+    let lod_reach = lod_reach(bvh, ray);
+    let lod = lod_reach > 0.0;
     // A node takes the multiresolution step when `reach` exceeds its `multires_below`: always
     // for culling rays, at sphere nodes, and where a child may be narrower than the footprint.
     let reach = if ray.cull_backfaces { f32::INFINITY } else { lod_reach };
@@ -176,6 +166,20 @@ fn dispatch<V: SplatVisitor>(
         traverse_from::<V, false>(bvh, ray, &slab, visitor, &mut counts, stack, &levels);
     }
     *stats += counts;
+}
+
+/// The widest the ray's footprint gets (scaled by τ) before it leaves the model: subtrees no
+/// narrower than this never stop it. 0 where no subtree can: τ = 0, or close up, where only
+/// the smallest nodes could (below `lod_floor`), and the ray takes the full-detail loop.
+#[inline(always)]
+pub(super) fn lod_reach(bvh: &Bvh, ray: &Ray) -> f32 {
+    if ray.lod_threshold <= 0.0 {
+        return 0.0;
+    }
+    let b = &bvh.bounds;
+    let exit = ((b.min - ray.origin) * ray.inv_dir).max((b.max - ray.origin) * ray.inv_dir).min_element();
+    let reach = ray.lod_threshold * ray.cone.width_at(if exit.is_nan() { f32::INFINITY } else { exit });
+    if reach > bvh.lod_floor { reach } else { 0.0 }
 }
 
 /// Where the multiresolution steps apply, per ray (see `dispatch`).

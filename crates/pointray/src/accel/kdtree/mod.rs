@@ -149,6 +149,10 @@ impl Accel for KdTree {
         self.wide_radius
     }
 
+    fn may_stop_at_representatives(&self, ray: &Ray) -> bool {
+        traverse::multires_reach(self, ray).is_some()
+    }
+
     fn shape(&self) -> DiskShape {
         self.shape
     }

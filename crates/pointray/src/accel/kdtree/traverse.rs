@@ -29,20 +29,30 @@ pub(super) fn traverse<V: SplatVisitor>(tree: &KdTree, ray: &Ray, visitor: &mut 
         return;
     }
     let Some((t0, t1)) = clip(tree, ray) else { return };
-    // The widest the footprint gets (scaled by τ) before the ray leaves the model: wider
-    // representatives never stop it. Close up, that is below nearly all of them (`lod_floor`):
-    // the full-detail loop.
-    let lod_reach = ray.lod_threshold * ray.cone.width_at(t1);
     let mut counts = TraversalStats::default();
     // Each inner level stacks at most one cell. (Zeroing this array costs fewer instructions
     // than borrowing a stack kept per thread.)
     let stack = &mut [(0u32, 0f32, 0f32); MAX_DEPTH + 1];
-    if ray.lod_threshold > 0.0 && lod_reach > tree.lod_floor {
+    if let Some(lod_reach) = lod_reach(tree, ray, t1) {
         walk::<V, true>(tree, ray, (t0, t1), lod_reach, visitor, &mut counts, stack);
     } else {
         walk::<V, false>(tree, ray, (t0, t1), 0.0, visitor, &mut counts, stack);
     }
     *stats += counts;
+}
+
+/// The widest the footprint gets (scaled by τ) before the ray leaves the model at `t1`: wider
+/// representatives never stop it. `None` where none can: τ = 0, or close up, where that is
+/// below nearly all of them (`lod_floor`), and the ray takes the full-detail loop.
+fn lod_reach(tree: &KdTree, ray: &Ray, t1: f32) -> Option<f32> {
+    let reach = ray.lod_threshold * ray.cone.width_at(t1);
+    (ray.lod_threshold > 0.0 && reach > tree.lod_floor).then_some(reach)
+}
+
+/// [`lod_reach`] for a ray not yet clipped to the tree (`None` also when it misses it).
+pub(super) fn multires_reach(tree: &KdTree, ray: &Ray) -> Option<f32> {
+    let (_, t1) = clip(tree, ray)?;
+    lod_reach(tree, ray, t1)
 }
 
 /// The walk over the cells the ray crosses in `(t0, t1)`; with `MULTIRES`, inner nodes whose
