@@ -154,8 +154,11 @@ fn lane_mask(lanes: &[u32; BLOCK]) -> u32 {
 
 #[cfg(test)]
 pub(crate) mod tests {
+    use glam::Vec3;
+
     use super::*;
     use crate::accel::lane_cases::random_disks_and_rays;
+    use crate::math::RayCone;
 
     /// The block test gives exactly the scalar tests' hits, bit for bit, on the path this
     /// build runs (`accel::isa` runs it again compiled for AVX2).
@@ -163,6 +166,34 @@ pub(crate) mod tests {
     fn block_equals_the_scalar_tests() {
         let (hits, misses) = check_against_scalar(|block, shape, ray, t_max| block.hits(shape, ray, t_max));
         assert!(hits > 5_000 && misses > 50_000, "the test must see both: {hits} hits, {misses} misses");
+    }
+
+    /// The edges random cases never reach: a ray in the disk's plane (den = 0), crossings exactly
+    /// at t_min and at t_max, a NaN radius, a ray with a zero direction component.
+    #[test]
+    fn block_equals_the_scalar_tests_at_the_edges() {
+        let disk = |z: f32, radius: f32| Splat { center: Vec3::new(0.0, 0.0, z), radius, normal: Vec3::Z, color: 0 };
+        let down = Ray::new(Vec3::new(0.1, 0.0, 5.0), -Vec3::Z, RayCone::default());
+        let cases = [
+            (disk(0.0, 0.5), Ray::new(Vec3::new(-2.0, 0.0, 0.0), Vec3::X, RayCone::default()), f32::INFINITY),
+            (disk(0.0, 0.5), down, 5.0),
+            (disk(0.0, 0.5), down.with_t_min(5.0), f32::INFINITY),
+            (disk(0.0, f32::NAN), down, f32::INFINITY),
+            (disk(1.0, 0.5), Ray::new(Vec3::new(0.5, 0.0, 5.0), -Vec3::Z, RayCone::default()), f32::INFINITY),
+        ];
+        let mut hits = 0;
+        for (s, ray, t_max) in cases {
+            let block = SplatBlock::new(&[s], 0);
+            for shape in [DiskShape::Oriented, DiskShape::RayFacing] {
+                let got = block.hits(shape, &ray, t_max);
+                let lane = (got.mask & 1 != 0).then(|| got.hit(0));
+                let exact = shape.intersect(&ray, &s, t_max);
+                let bits = |h: Option<DiskHit>| h.map(|h| (h.t.to_bits(), h.dist2.to_bits()));
+                assert_eq!(bits(lane), bits(exact), "{shape:?}: {s:?}, {ray:?} up to {t_max}");
+                hits += usize::from(exact.is_some());
+            }
+        }
+        assert!(hits >= 4, "the edge cases must include hits at t_min and t_max, got {hits}");
     }
 
     /// Random blocks and rays; every lane of `kernel`'s answer against the scalar test. Returns
