@@ -215,7 +215,9 @@ fn traverse_from<V: SplatVisitor, const MULTIRES: bool>(
                     while lanes != 0 {
                         let lane = lanes.trailing_zeros() as usize;
                         lanes &= lanes - 1;
-                        // An earlier lane may have narrowed the walk since the block was tested.
+                        // An earlier lane may have narrowed the walk since the block was tested:
+                        // this is then the scalar test against the new t_max (its range check on
+                        // t·den, 2⁻¹⁶ wide, holds wherever t does but where t_max·den underflows).
                         if hits.t[lane] <= visitor.t_max() {
                             let i = block.first as usize + lane;
                             visitor.hit(ray, &bvh.splats[i], i as u32, hits.hit(lane));
