@@ -45,8 +45,8 @@ impl Film {
     /// The whole `width × height` frame as 8-bit sRGB (what a PNG stores), `background`
     /// (linear) outside the region, both through `tone`.
     pub fn frame_srgb8(&self, width: u32, height: u32, background: [f32; 3], tone: ToneMap) -> Vec<u8> {
-        let scale = tone.exposure.exp2();
-        let encode = |c: [f32; 3]| c.map(|v| srgb8_of_display(tone.curve.apply(v * scale)));
+        let srgb8 = tone.encoder();
+        let encode = |c: [f32; 3]| c.map(&srgb8);
         let bg = encode(background);
         let mut out = Vec::with_capacity(width as usize * height as usize * 3);
         for y in 0..height {
@@ -89,7 +89,13 @@ impl ToneMap {
 
     /// One linear channel as the 8-bit sRGB a PNG stores.
     pub fn srgb8(&self, linear: f32) -> u8 {
-        srgb8_of_display(self.display(linear))
+        self.encoder()(linear)
+    }
+
+    /// [`Self::srgb8`] for many channels: the exposure's scale computed once.
+    pub fn encoder(&self) -> impl Fn(f32) -> u8 + use<> {
+        let (scale, curve) = (self.exposure.exp2(), self.curve);
+        move |linear| srgb8_of_display(curve.apply(linear * scale))
     }
 
     /// The display value in [0, 1] of one linear channel.

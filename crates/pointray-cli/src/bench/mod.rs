@@ -341,7 +341,8 @@ fn config(e: &Experiment, camera: &Camera, region: Region, surface: SurfaceKind,
 
 /// The film's region as sRGB8, the pixels its comparisons and images hold.
 fn region_srgb8(film: &Film) -> Vec<u8> {
-    film.rgb.iter().flat_map(|c| c.map(|v| ToneMap::CLAMP.srgb8(v))).collect()
+    let srgb8 = ToneMap::CLAMP.encoder();
+    film.rgb.iter().flat_map(|c| c.map(&srgb8)).collect()
 }
 
 /// An accelerator built for one variant and disk shape, with what the build cost.

@@ -95,11 +95,11 @@ mod tests {
     /// AVX2, as this machine and CI's do; the baseline build is tested in `block`.)
     #[test]
     fn avx2_block_equals_the_scalar_tests() {
-        if !(std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")) {
+        if super::detect() != super::Isa::Avx2 {
             eprintln!("no AVX2 on this CPU: the AVX2 kernel cannot run here");
             return;
         }
-        // SAFETY: the CPU has AVX2 and FMA (checked above).
+        // SAFETY: `detect` saw the CPU report AVX2 and FMA.
         #[allow(unsafe_code)]
         let (hits, misses) = check_against_scalar(|b, s, r, t| unsafe { block_hits_avx2(b, s, r, t) });
         assert!(hits > 5_000 && misses > 50_000, "{hits} hits, {misses} misses");
