@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! PointCloud ──preprocess──▶ PointCloud with normals + radii ──splats_from_cloud──▶ [Splat]
-//!     ──accel (BruteForce | Bvh)──▶ Accel ──render (camera, surface scheme, shading)──▶ Film + Stats
+//!     ──accel (BruteForce | Bvh | KdTree)──▶ Accel ──render (camera, surface scheme, shading)──▶ Film + Stats
 //! ```
 //!
 //! File formats live in `pointray-io`, the command line in `pointray-cli`; this crate has no

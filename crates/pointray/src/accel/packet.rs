@@ -1,5 +1,6 @@
-//! Four disks against one ray at once (SSE): the pre-filter that both the BVH and the kd-tree
-//! run over their leaves, so that the surface scheme only sees the few disks a ray may cross.
+//! Four disks against one ray at once (SSE): the pre-filter the kd-tree runs over its leaves, so
+//! that only the few disks a ray may cross get the exact test. (The BVH's leaves have their own
+//! exact eight-lane kernel, `accel::block`.)
 
 use glam::{Mat4, Vec4};
 
