@@ -6,6 +6,7 @@
 
 use std::marker::PhantomData;
 
+use arrayvec::ArrayVec;
 use glam::Vec3;
 
 use super::oriented_disk::DiskHit;
@@ -19,7 +20,7 @@ use crate::math::Ray;
 /// order in which disks arrive matter (with more than this many crossings, ties for last).
 const WINDOW_CAPACITY: usize = 24;
 
-#[derive(Clone, Copy, Default)]
+#[derive(Clone, Copy)]
 struct Crossing {
     t: f32,
     dist2: f32,
@@ -52,8 +53,11 @@ pub(crate) struct Window<D> {
     /// The accelerator may hand a splat over again (`Accel::REPEATS_SPLATS`): repeats are
     /// looked for and ignored.
     repeats: bool,
-    len: usize,
-    crossings: [Crossing; WINDOW_CAPACITY],
+    /// Kept in order of `t` as they arrive (crossings of equal `t` in arrival order, put in
+    /// a fixed order by `blend`), so that pruning is a truncation and blending needs no sort:
+    /// on the dragon this, the list's uninitialised storage and `hit` and the colour lookup
+    /// inlined took SJ from 1,491 to 1,337 instructions a pixel (callgrind, 512²).
+    crossings: ArrayVec<Crossing, WINDOW_CAPACITY>,
     disk: PhantomData<D>,
 }
 
@@ -69,8 +73,7 @@ impl<D: DiskTest> Window<D> {
             fixed: false,
             grew: false,
             repeats,
-            len: 0,
-            crossings: [Crossing::default(); WINDOW_CAPACITY],
+            crossings: ArrayVec::new(),
             disk: PhantomData,
         }
     }
@@ -86,14 +89,33 @@ impl<D: DiskTest> Window<D> {
 
     /// Drops the crossings beyond `t`.
     fn keep_until(&mut self, t: f32) {
-        let mut kept = 0;
-        for i in 0..self.len {
-            if self.crossings[i].t <= t {
-                self.crossings[kept] = self.crossings[i];
-                kept += 1;
+        let kept = self.crossings.iter().rposition(|c| c.t <= t).map_or(0, |i| i + 1);
+        self.crossings.truncate(kept);
+    }
+
+    /// Inserts `c` after the crossings of no greater `t`; when the window is full, the
+    /// farthest crossing makes room (or `c` is dropped, if it is the farthest).
+    #[inline(always)]
+    fn insert(&mut self, c: Crossing) {
+        // Front to back, crossings mostly arrive in order: the common case is a push.
+        if self.crossings.last().is_none_or(|last| last.t <= c.t) {
+            if !self.crossings.is_full() {
+                self.crossings.push(c);
             }
+            return;
         }
-        self.len = kept;
+        if self.crossings.is_full() {
+            self.crossings.pop();
+        }
+        // Shift the later crossings up by one, as an insertion sort does.
+        self.crossings.push(c);
+        let list = &mut self.crossings[..];
+        let mut i = list.len() - 1;
+        while i > 0 && list[i - 1].t > c.t {
+            list[i] = list[i - 1];
+            i -= 1;
+        }
+        list[i] = c;
     }
 
     /// The blended hit and the window's coverage Σ(1 − dᵢ/rᵢ) over the blended disks. With
@@ -107,12 +129,15 @@ impl<D: DiskTest> Window<D> {
     ) -> Option<(SurfaceHit, f32)> {
         // Crossings past the end were collected in case the window grew.
         self.keep_until(self.end);
-        let list = &mut self.crossings[..self.len];
+        let list = &mut self.crossings[..];
         // Sum in a fixed order (by t, then by splat contents) so that every accelerator, which
-        // visits disks in its own order, blends to the same bits.
-        list.sort_unstable_by(|a, b| {
-            a.t.total_cmp(&b.t).then_with(|| tie_key(accel.splat(a.index)).cmp(&tie_key(accel.splat(b.index))))
-        });
+        // visits disks in its own order, blends to the same bits. The list is in order of t
+        // already; crossings of equal t are put in order of their splats.
+        if list.windows(2).any(|w| w[0].t == w[1].t) {
+            list.sort_by(|a, b| {
+                a.t.total_cmp(&b.t).then_with(|| tie_key(accel.splat(a.index)).cmp(&tie_key(accel.splat(b.index))))
+            });
+        }
         let first = *list.first()?;
         let first_splat = accel.splat(first.index);
         // Blend the disks facing the same way as the first, and of its material: the back of a
@@ -174,7 +199,7 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
         self.collect_to
     }
 
-    #[inline]
+    #[inline(always)]
     fn hit(&mut self, _ray: &Ray, splat: &Splat, index: u32, h: DiskHit) {
         let first_t = self.first_t;
         if !self.fixed && h.t <= first_t {
@@ -195,17 +220,9 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
         }
         // A kd-tree hands a disk that straddles cells over once per cell. (The window's start
         // and end above are the same for a repeat.)
-        if self.repeats && self.crossings[..self.len].iter().any(|c| c.index == index) {
+        if self.repeats && self.crossings.iter().any(|c| c.index == index) {
             return;
         }
-        let c = Crossing { t: h.t, dist2: h.dist2, index };
-        if self.len < WINDOW_CAPACITY {
-            self.crossings[self.len] = c;
-            self.len += 1;
-        } else if let Some(far) = self.crossings.iter_mut().max_by(|a, b| a.t.total_cmp(&b.t))
-            && c.t < far.t
-        {
-            *far = c;
-        }
+        self.insert(Crossing { t: h.t, dist2: h.dist2, index });
     }
 }

@@ -282,9 +282,10 @@ fn traverse_from<V: SplatVisitor, const MULTIRES: bool>(
 /// The children of node `k` that the ray must enter, with their entry distances, after the
 /// multiresolution steps: spheres instead of boxes for sphere nodes, culling of subtrees that
 /// face away, and representatives handed to the visitor for subtrees narrower than the
-/// footprint. `None` when the visitor is done. Out of line: close up, few nodes need it, and
-/// the loop without it keeps the full-detail loop's registers.
-#[inline(never)]
+/// footprint. `None` when the visitor is done. Inlined into the multiresolution loop only
+/// (the full-detail one is a separate instance, see `dispatch`), so that it is compiled for
+/// each instruction set of `accel::isa` with the rest of the traversal.
+#[inline(always)]
 #[allow(clippy::too_many_arguments)]
 fn multires_children<V: SplatVisitor>(
     bvh: &Bvh,
