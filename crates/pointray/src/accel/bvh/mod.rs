@@ -116,11 +116,13 @@ pub struct Bvh {
     pub(crate) nodes: Vec<Node>,
     /// Per node, its children's spheres and cones.
     pub(crate) lod: Vec<lod::NodeLod>,
-    /// The input splats in leaf order (`splat_count` of them), then the representative splats:
-    /// child `i` of node `k` at `splat_count + WIDTH·k + i`, so that a visitor gets one index
-    /// space for both.
+    /// The input splats in leaf order.
     pub(crate) splats: Vec<Splat>,
-    pub(crate) splat_count: usize,
+    /// The representative splats: child `i` of node `k` at `WIDTH·k + i`, with index
+    /// `splats.len() + WIDTH·k + i` for a visitor, which gets one index space for both.
+    /// (Apart, so that neither array is ever copied to grow: at 20 million splats that copy
+    /// was the build's peak.)
+    pub(crate) representatives: Vec<Splat>,
     /// The leaves' splats again, in blocks for the leaf kernel (see [`SplatBlock`]).
     pub(crate) blocks: Vec<SplatBlock>,
     pub(crate) bounds: Aabb,
@@ -144,11 +146,11 @@ impl Bvh {
     /// node `node`.
     #[inline(always)]
     pub(crate) fn representative_index(&self, node: usize, slot: usize) -> u32 {
-        (self.splat_count + WIDTH * node + slot) as u32
+        (self.splats.len() + WIDTH * node + slot) as u32
     }
 
     pub(crate) fn representative(&self, node: usize, slot: usize) -> &Splat {
-        &self.splats[self.representative_index(node, slot) as usize]
+        &self.representatives[WIDTH * node + slot]
     }
 
     /// Bytes per node: its boxes and child references, its spheres and cones, and its
@@ -191,12 +193,13 @@ impl super::Accel for Bvh {
     }
 
     fn splats(&self) -> &[Splat] {
-        &self.splats[..self.splat_count]
+        &self.splats
     }
 
     #[inline(always)]
     fn splat(&self, index: u32) -> &Splat {
-        &self.splats[index as usize]
+        let i = index as usize;
+        self.splats.get(i).unwrap_or_else(|| &self.representatives[i - self.splats.len()])
     }
 
     fn bounds(&self) -> Aabb {
@@ -309,7 +312,7 @@ pub fn check_invariants(bvh: &Bvh) -> Result<(), String> {
     if bvh.nodes.is_empty() {
         return if bvh.splats.is_empty() { Ok(()) } else { Err("splats but no root node".into()) };
     }
-    let mut seen = vec![false; bvh.splat_count];
+    let mut seen = vec![false; bvh.splats.len()];
     walk(bvh, 0, &mut seen)?;
     if let Some(j) = seen.iter().position(|s| !s) {
         return Err(format!("splat {j} is in no leaf"));
