@@ -4,6 +4,7 @@
 
 use glam::{Vec3, Vec3A};
 use rayon::join;
+use rayon::prelude::*;
 
 use super::{Bvh, MAX_LEAF_SIZE, MAX_SPLATS, MEDIAN_SPLIT_DEPTH, Node, NodeBounds, WIDTH, leaf_ref};
 use crate::accel::block::{BLOCK, SplatBlock};
@@ -123,8 +124,7 @@ impl BuildNode {
         }
     }
 
-    /// The leaf blocks below (leaves hold 3.8 splats a block on the dragon: a guess of full
-    /// blocks would grow the array, and a copy of it would be the build's peak).
+    /// The leaf blocks below.
     fn block_count(&self) -> usize {
         match self {
             BuildNode::Leaf { count, .. } => count.div_ceil(BLOCK),
@@ -140,11 +140,10 @@ impl Bvh {
     /// # Panics
     /// With more than [`MAX_SPLATS`] splats, or parameters out of range.
     ///
-    /// Memory: the input is reordered in place, each array is allocated once at its final size
-    /// and every temporary is dropped as soon as it is used, so that the peak is about the
-    /// input and the finished BVH (with the representatives apart and the leaf blocks counted
-    /// ahead, a render of a 2-million-point torus peaked at 266 MB where it took 408 MB,
-    /// `/usr/bin/time`).
+    /// Memory: each array is allocated once at its final size and every temporary is dropped
+    /// as soon as it is used, so that the peak is about the input and the finished BVH (with
+    /// the representatives apart and the leaf blocks counted ahead, a render of a
+    /// 2-million-point torus peaked at 266 MB where it took 408 MB, `/usr/bin/time`).
     pub fn build(input: Vec<Splat>, params: &BvhParams) -> Bvh {
         assert!((2..=MAX_BINS).contains(&params.bins) && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
         assert!(input.len() <= MAX_SPLATS, "a BVH indexes at most {MAX_SPLATS} splats");
@@ -159,15 +158,19 @@ impl Bvh {
         let root = build_node(&mut prims, 0, params, 0);
         let input_index: Vec<u32> = prims.iter().map(|p| p.index).collect();
         drop(prims);
-        let mut splats = input;
-        gather_in_place(&mut splats, &input_index);
+        let splats: Vec<Splat> = input_index.par_iter().map(|&i| input[i as usize]).collect();
+        drop(input);
         let bounds = root.bounds();
         let mut nodes = Vec::with_capacity(splats.len() / params.max_leaf_size.max(2) + 1);
-        let mut blocks = Vec::with_capacity(root.block_count());
+        let mut spans = Vec::with_capacity(root.block_count());
         let depth = match root {
             BuildNode::Leaf { count: 0, .. } => 0, // no splats: no nodes
-            root => flatten(root, &splats, &mut nodes, &mut blocks),
+            root => flatten(root, &mut nodes, &mut spans),
         };
+        // The blocks in parallel (serially they took an eighth of the dragon's build).
+        let blocks: Vec<SplatBlock> =
+            spans.par_iter().map(|&(first, count)| SplatBlock::new(&splats[first..first + count], first)).collect();
+        drop(spans);
         let wide_radius = wide_radius(&splats);
         let (lod, representatives) = super::lod::build(&mut nodes, &splats, &blocks, params.shape);
         let lod_floor = radius_quantile(nodes.iter().map(|n| n.min_radius).collect(), LOD_FLOOR_QUANTILE);
@@ -195,7 +198,8 @@ impl Bvh {
 /// The node's children are found by opening binary inner nodes, the largest surface first,
 /// until there are four (SAH-wise, the child most likely to be entered is the one worth
 /// replacing by its children). A root that is a single leaf becomes a node with one child.
-fn flatten(node: BuildNode, splats: &[Splat], nodes: &mut Vec<Node>, blocks: &mut Vec<SplatBlock>) -> usize {
+/// `spans` gets each leaf block's first splat and splat count, in the order of the blocks.
+fn flatten(node: BuildNode, nodes: &mut Vec<Node>, spans: &mut Vec<(usize, usize)>) -> usize {
     let mut children = vec![node];
     while children.len() < WIDTH {
         let widest = children
@@ -215,16 +219,15 @@ fn flatten(node: BuildNode, splats: &[Splat], nodes: &mut Vec<Node>, blocks: &mu
     for (i, c) in children.into_iter().enumerate() {
         match c {
             BuildNode::Leaf { first, count, .. } => {
-                let first_block = blocks.len();
-                for start in (first..first + count).step_by(BLOCK) {
-                    let end = (start + BLOCK).min(first + count);
-                    blocks.push(SplatBlock::new(&splats[start..end], start));
-                }
-                nodes[at].child[i] = leaf_ref(first_block, blocks.len() - first_block);
+                let first_block = spans.len();
+                spans.extend(
+                    (first..first + count).step_by(BLOCK).map(|start| (start, BLOCK.min(first + count - start))),
+                );
+                nodes[at].child[i] = leaf_ref(first_block, spans.len() - first_block);
             }
             inner @ BuildNode::Inner { .. } => {
                 nodes[at].child[i] = nodes.len() as u32;
-                depth = depth.max(1 + flatten(inner, splats, nodes, blocks));
+                depth = depth.max(1 + flatten(inner, nodes, spans));
             }
         }
     }
@@ -278,30 +281,6 @@ struct Split {
 impl Split {
     fn bin_of(&self, c: Vec3A) -> usize {
         bin_index(c[self.axis], self.lo, self.scale, self.bins)
-    }
-}
-
-/// `v[k] = v_before[from[k]]` for every k, in place: following each cycle of the permutation
-/// (`from` holds every index of `v` once), so that no second array of splats is needed.
-fn gather_in_place<T: Copy>(v: &mut [T], from: &[u32]) {
-    assert_eq!(v.len(), from.len());
-    let mut done = vec![false; v.len()];
-    for start in 0..v.len() {
-        if done[start] {
-            continue;
-        }
-        let first = v[start];
-        let mut k = start;
-        loop {
-            done[k] = true;
-            let src = from[k] as usize;
-            if src == start {
-                v[k] = first;
-                break;
-            }
-            v[k] = v[src];
-            k = src;
-        }
     }
 }
 
@@ -392,26 +371,4 @@ fn median_split(prims: &mut [Prim]) -> usize {
         a.centroid()[axis].total_cmp(&b.centroid()[axis]).then(a.index.cmp(&b.index))
     });
     mid
-}
-
-#[cfg(test)]
-mod tests {
-    use rand::SeedableRng;
-    use rand::seq::SliceRandom;
-
-    use super::gather_in_place;
-
-    #[test]
-    fn gather_in_place_equals_a_gathered_copy() {
-        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
-        for n in [0, 1, 2, 7, 1000] {
-            let mut from: Vec<u32> = (0..n).collect();
-            from.shuffle(&mut rng);
-            let before: Vec<u64> = (0..u64::from(n)).map(|i| i * 31 + 7).collect();
-            let copy: Vec<u64> = from.iter().map(|&i| before[i as usize]).collect();
-            let mut v = before.clone();
-            gather_in_place(&mut v, &from);
-            assert_eq!(v, copy, "n = {n}");
-        }
-    }
 }
