@@ -242,7 +242,10 @@ fn build_node(prims: &mut [Prim], offset: usize, params: &BvhParams, depth: usiz
     let bounds = bounds.aabb();
     let n = prims.len();
     let leaf = || BuildNode::Leaf { bounds, first: offset, count: n };
-    if n <= 1 {
+    // A split costs more than a traversal step, so a leaf that costs no more stays a leaf:
+    // the same tree without binning it (with the default costs, every node of up to 16 splats;
+    // loading the prepared dragon and building its BVH 2.54 → 2.28 billion instructions).
+    if n <= 1 || n <= params.max_leaf_size && blocks(n) * params.intersection_cost <= params.traversal_cost {
         return leaf();
     }
     let split = if depth >= MEDIAN_SPLIT_DEPTH {
