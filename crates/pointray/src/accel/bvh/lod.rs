@@ -128,25 +128,29 @@ fn child_lod(box_center: Vec3, disks: &[Splat], moments: &Moments, shape: DiskSh
     ChildLod { center: box_center, radius: round_up(far), axis: rep.normal, cos_angle, rep }
 }
 
-/// The moments of the disks below every node, merged from the leaves up (children are
-/// stored after their parent).
+/// The moments of the disks below every node: its leaf children's summed in parallel, then its
+/// inner children's merged in from the leaves up (children are stored after their parent).
+/// Serially, this took a sixth of the dragon's level-of-detail build.
 fn node_moments(
     nodes: &[Node],
     splats: &[Splat],
     blocks: &[SplatBlock],
     ranges: &[std::ops::Range<usize>],
 ) -> Vec<Moments> {
-    let mut moments = vec![Moments::default(); nodes.len()];
+    let leaves = |n: &Node| {
+        let mut m = Moments::default();
+        for i in (0..WIDTH).filter(|i| n.used & (1 << i) != 0 && n.child[*i] & LEAF != 0) {
+            m.merge(&Moments::of(splats[child_range(n.child[i], blocks, ranges)].iter()));
+        }
+        m
+    };
+    let mut moments: Vec<Moments> = nodes.par_iter().map(leaves).collect();
     for k in (0..nodes.len()).rev() {
         let n = &nodes[k];
-        let mut m = Moments::default();
-        for i in (0..WIDTH).filter(|i| n.used & (1 << i) != 0) {
-            match n.child[i] {
-                child if child & LEAF != 0 => m.merge(&Moments::of(splats[child_range(child, blocks, ranges)].iter())),
-                child => m.merge(&moments[child as usize]),
-            }
+        let (this, below) = moments.split_at_mut(k + 1);
+        for i in (0..WIDTH).filter(|i| n.used & (1 << i) != 0 && n.child[*i] & LEAF == 0) {
+            this[k].merge(&below[n.child[i] as usize - k - 1]);
         }
-        moments[k] = m;
     }
     moments
 }
