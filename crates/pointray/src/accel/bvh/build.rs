@@ -237,8 +237,15 @@ fn flatten(node: BuildNode, nodes: &mut Vec<Node>, spans: &mut Vec<(usize, usize
 /// Builds the subtree over `prims`, which start at `offset` in the final splat order.
 fn build_node(prims: &mut [Prim], offset: usize, params: &BvhParams, depth: usize) -> BuildNode {
     // The bounds and the centroids' bounds in one pass.
-    let (bounds, centroids) =
-        prims.iter().fold((Box3::EMPTY, Box3::EMPTY), |(b, c), p| (b.union(p.bounds()), c.grow(p.centroid())));
+    let bounds_of = |prims: &[Prim]| {
+        prims.iter().fold((Box3::EMPTY, Box3::EMPTY), |(b, c), p| (b.union(p.bounds()), c.grow(p.centroid())))
+    };
+    let (bounds, centroids) = if prims.len() >= PARALLEL_BINNING {
+        let union = |(b0, c0): (Box3, Box3), (b1, c1): (Box3, Box3)| (b0.union(b1), c0.union(c1));
+        prims.par_chunks(PARALLEL_BINNING / 2).map(bounds_of).reduce(|| (Box3::EMPTY, Box3::EMPTY), union)
+    } else {
+        bounds_of(prims)
+    };
     let bounds = bounds.aabb();
     let n = prims.len();
     let leaf = || BuildNode::Leaf { bounds, first: offset, count: n };
@@ -299,6 +306,59 @@ fn bin_index(x: f32, lo: f32, scale: f32, bins: usize) -> usize {
 /// Most bins per axis (the binning arrays live on the stack).
 pub(crate) const MAX_BINS: usize = 32;
 
+/// Nodes of this many primitives and more are binned, and their bounds found, in parallel
+/// chunks: the top of the tree holds every primitive and has only one node to work on. The
+/// union of boxes and the sum of counts do not depend on the chunks: the same tree. (The
+/// dragon's build 0.094 → 0.092 s, 2 threads, medians of five.)
+const PARALLEL_BINNING: usize = 64 * 1024;
+
+/// Where a centroid falls: bin ⌊(c − lo)·scale⌋ per axis, at most `last`.
+struct Binning {
+    lo: Vec3A,
+    scale: Vec3A,
+    last: Vec3A,
+}
+
+/// Per axis and bin, the bounds and the number of the primitives whose centroids fall there.
+struct Bins {
+    boxes: [[Box3; MAX_BINS]; 3],
+    counts: [[usize; MAX_BINS]; 3],
+}
+
+impl Bins {
+    fn empty() -> Self {
+        Bins { boxes: [[Box3::EMPTY; MAX_BINS]; 3], counts: [[0; MAX_BINS]; 3] }
+    }
+
+    fn merge(mut self, other: Bins) -> Bins {
+        for axis in 0..3 {
+            for b in 0..MAX_BINS {
+                self.boxes[axis][b] = self.boxes[axis][b].union(other.boxes[axis][b]);
+                self.counts[axis][b] += other.counts[axis][b];
+            }
+        }
+        self
+    }
+}
+
+impl Binning {
+    /// All three axes in one pass.
+    fn bin(&self, prims: &[Prim]) -> Bins {
+        let mut bins = Bins::empty();
+        for p in prims {
+            // `bin_index` on the three axes at once: the centroids lie at or above `lo`, so the
+            // clamp before the conversion is the clamp after it.
+            let b = ((p.centroid() - self.lo) * self.scale).min(self.last).as_uvec3();
+            for axis in 0..3 {
+                let b = b[axis] as usize;
+                bins.boxes[axis][b] = bins.boxes[axis][b].union(p.bounds());
+                bins.counts[axis][b] += 1;
+            }
+        }
+        bins
+    }
+}
+
 /// The cheapest binned SAH split over all three axes, or `None` when all centroids coincide.
 /// One pass over the primitives bins all three axes at once (`cb`: the centroids' bounds).
 fn best_sah_split(prims: &[Prim], bounds: &Aabb, cb: &Aabb, params: &BvhParams) -> Option<Split> {
@@ -306,19 +366,12 @@ fn best_sah_split(prims: &[Prim], bounds: &Aabb, cb: &Aabb, params: &BvhParams) 
     let lo = cb.min;
     let extent = cb.extent();
     let scale = Vec3::select(extent.cmpgt(Vec3::ZERO), Vec3::splat(bins as f32) / extent, Vec3::ZERO);
-    let mut bin_boxes = [[Box3::EMPTY; MAX_BINS]; 3];
-    let mut bin_counts = [[0usize; MAX_BINS]; 3];
-    let (lo_a, scale_a, last) = (Vec3A::from(lo), Vec3A::from(scale), Vec3A::splat((bins - 1) as f32));
-    for p in prims {
-        // `bin_index` on the three axes at once: the centroids lie at or above `lo`, so the
-        // clamp before the conversion is the clamp after it.
-        let b = ((p.centroid() - lo_a) * scale_a).min(last).as_uvec3();
-        for axis in 0..3 {
-            let b = b[axis] as usize;
-            bin_boxes[axis][b] = bin_boxes[axis][b].union(p.bounds());
-            bin_counts[axis][b] += 1;
-        }
-    }
+    let binning = Binning { lo: Vec3A::from(lo), scale: Vec3A::from(scale), last: Vec3A::splat((bins - 1) as f32) };
+    let Bins { boxes: bin_boxes, counts: bin_counts } = if prims.len() >= PARALLEL_BINNING {
+        prims.par_chunks(PARALLEL_BINNING / 2).map(|c| binning.bin(c)).reduce(Bins::empty, Bins::merge)
+    } else {
+        binning.bin(prims)
+    };
     let bin_bounds = bin_boxes.map(|axis| axis.map(Box3::aabb));
     let parent_area = bounds.half_area().max(f32::MIN_POSITIVE);
     let mut best: Option<Split> = None;
