@@ -12,6 +12,7 @@ use glam::Vec4;
 
 use super::lod::NodeLod;
 use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks};
+use crate::accel::block::LeafKernel;
 use crate::accel::packet::{PacketRay, dot3};
 use crate::accel::{Accel, SplatVisitor, TraversalStats, test_disk};
 use crate::math::Ray;
@@ -128,7 +129,13 @@ thread_local! {
 
 /// Inlined into each instruction-set build of `accel::isa`, which calls it.
 #[inline(always)]
-pub(crate) fn traverse<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
+pub(crate) fn traverse<V: SplatVisitor, K: LeafKernel>(
+    bvh: &Bvh,
+    ray: &Ray,
+    visitor: &mut V,
+    stats: &mut TraversalStats,
+    kernel: K,
+) {
     if bvh.nodes.is_empty() {
         return;
     }
@@ -138,18 +145,19 @@ pub(crate) fn traverse<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut V, s
     if stack.len() < need {
         stack.resize(need, (0, 0.0));
     }
-    dispatch(bvh, ray, visitor, stats, &mut stack);
+    dispatch(bvh, ray, visitor, stats, &mut stack, kernel);
     STACK.set(stack);
 }
 
 /// Full-detail rays through a tree of boxes take the loop without the multiresolution steps.
 #[inline(always)]
-fn dispatch<V: SplatVisitor>(
+fn dispatch<V: SplatVisitor, K: LeafKernel>(
     bvh: &Bvh,
     ray: &Ray,
     visitor: &mut V,
     stats: &mut TraversalStats,
     stack: &mut [(u32, f32)],
+    kernel: K,
 ) {
     let lod_reach = lod_reach(bvh, ray);
     let lod = lod_reach > 0.0;
@@ -161,9 +169,9 @@ fn dispatch<V: SplatVisitor>(
     // Counted in a local, which can live in registers, and added once.
     let mut counts = TraversalStats::default();
     if lod || ray.cull_backfaces || bvh.node_bounds != super::NodeBounds::Boxes {
-        traverse_from::<V, true>(bvh, ray, &slab, visitor, &mut counts, stack, &levels);
+        traverse_from::<V, K, true>(bvh, ray, &slab, visitor, &mut counts, stack, &levels, kernel);
     } else {
-        traverse_from::<V, false>(bvh, ray, &slab, visitor, &mut counts, stack, &levels);
+        traverse_from::<V, K, false>(bvh, ray, &slab, visitor, &mut counts, stack, &levels, kernel);
     }
     *stats += counts;
 }
@@ -193,7 +201,8 @@ struct Levels {
 /// The traversal proper, with `stack` large enough for the tree: entries are (child
 /// reference, entry distance).
 #[inline(always)]
-fn traverse_from<V: SplatVisitor, const MULTIRES: bool>(
+#[allow(clippy::too_many_arguments)]
+fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
     bvh: &Bvh,
     ray: &Ray,
     slab: &SlabRay,
@@ -201,6 +210,7 @@ fn traverse_from<V: SplatVisitor, const MULTIRES: bool>(
     stats: &mut TraversalStats,
     stack: &mut [(u32, f32)],
     levels: &Levels,
+    kernel: K,
 ) {
     let mut sp = 0;
     let mut current = (0, ray.t_min);
@@ -210,7 +220,7 @@ fn traverse_from<V: SplatVisitor, const MULTIRES: bool>(
             if child & LEAF != 0 {
                 for block in &bvh.blocks[leaf_blocks(child)] {
                     stats.splat_tests += u64::from(block.count);
-                    let hits = block.hits(V::SHAPE, ray, visitor.t_max());
+                    let hits = kernel.hits(block, V::SHAPE, ray, visitor.t_max());
                     let mut lanes = hits.mask;
                     while lanes != 0 {
                         let lane = lanes.trailing_zeros() as usize;
