@@ -97,7 +97,9 @@ impl<D: DiskTest> Window<D> {
     /// farthest crossing makes room (or `c` is dropped, if it is the farthest).
     #[inline(always)]
     fn insert(&mut self, c: Crossing) {
-        // Front to back, crossings mostly arrive in order: the common case is a push.
+        // Crossings in order are a push. Only about a quarter arrive so on the dragon (leaves
+        // overlap), but shifting the others in costs less than sorting at the end did: SJ took
+        // 1,380 instructions a pixel with the list sorted by `blend`, 1,322 so (callgrind).
         if self.crossings.last().is_none_or(|last| last.t <= c.t) {
             if !self.crossings.is_full() {
                 self.crossings.push(c);
