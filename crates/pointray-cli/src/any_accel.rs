@@ -4,7 +4,7 @@
 use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, backfacing_fraction};
 use pointray::camera::Camera;
 use pointray::film::Film;
-use pointray::render::{RenderConfig, render};
+use pointray::render::{RenderConfig, render, render_into};
 use pointray::splat::{DiskShape, Splat};
 use pointray::stats::RenderStats;
 
@@ -82,6 +82,21 @@ impl AnyAccel {
             AnyAccel::Bvh(a) => render(a, camera, config, progress),
             AnyAccel::KdTree(a) => render(a, camera, config, progress),
             AnyAccel::Brute(a) => render(a, camera, config, progress),
+        }
+    }
+
+    /// `pointray::render::render_into` on whichever accelerator this is.
+    pub fn render_into(
+        &self,
+        camera: &Camera,
+        config: &RenderConfig,
+        film: &mut Film,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> RenderStats {
+        match self {
+            AnyAccel::Bvh(a) => render_into(a, camera, config, film, progress),
+            AnyAccel::KdTree(a) => render_into(a, camera, config, film, progress),
+            AnyAccel::Brute(a) => render_into(a, camera, config, film, progress),
         }
     }
 }

@@ -109,17 +109,34 @@ pub fn render<A: Accel>(
     config: &RenderConfig,
     progress: &(dyn Fn(u64) + Sync),
 ) -> (Film, RenderStats) {
+    let mut film = Film::new(config.region.clamp_to(camera.width, camera.height));
+    let stats = render_into(accel, camera, config, &mut film, progress);
+    (film, stats)
+}
+
+/// [`render`] into a film made before, which every pixel of is written: frame after frame,
+/// one film serves (a fresh one per frame, its pages faulted in anew, cost 7 % of a frame of
+/// the dragon at 1024², first hits).
+///
+/// # Panics
+/// If the film's region is not `config.region` within the camera's frame.
+pub fn render_into<A: Accel>(
+    accel: &A,
+    camera: &Camera,
+    config: &RenderConfig,
+    film: &mut Film,
+    progress: &(dyn Fn(u64) + Sync),
+) -> RenderStats {
     let region = config.region.clamp_to(camera.width, camera.height);
-    let mut film = Film::new(region);
+    assert_eq!(film.region, region, "a film for another region");
     let width = region.width() as usize;
     if width == 0 || region.height() == 0 {
-        return (film, RenderStats::default());
+        return RenderStats::default();
     }
     // One task per band of TILE rows, written straight into the film; within a band, pixels
     // go tile by tile (TILE × TILE) so that neighbouring rays share nodes in cache.
     let band = TILE as usize * width;
-    let total = film
-        .rgb
+    film.rgb
         .par_chunks_mut(band)
         .zip(film.nodes_visited.par_chunks_mut(band))
         .zip(film.normal.par_chunks_mut(band))
@@ -146,8 +163,7 @@ pub fn render<A: Accel>(
         .reduce(RenderStats::default, |mut a, b| {
             a += b;
             a
-        });
-    (film, total)
+        })
 }
 
 /// One pixel's values (see [`Film`]).

@@ -3,7 +3,7 @@
 use glam::Vec3;
 use pointray::accel::{Bvh, BvhParams};
 use pointray::camera::Camera;
-use pointray::render::{RenderConfig, render};
+use pointray::render::{RenderConfig, render, render_into};
 use pointray::shading::Environment;
 
 use crate::util::torus_splats;
@@ -43,4 +43,13 @@ fn image_is_identical_with_one_and_two_threads() {
     // And the seed matters when jittering: another seed gives another image.
     let (c, _) = render(&bvh, &cam, &RenderConfig { seed: 43, ..config.clone() }, &|_| {});
     assert!(a.rgb.iter().zip(&c.rgb).any(|(x, y)| x != y));
+    // A film used before (here for the other seed's image) is written over completely.
+    let mut reused = c;
+    let sr = render_into(&bvh, &cam, &config, &mut reused, &|_| {});
+    assert_eq!(sa, sr);
+    let bits = |f: &pointray::film::Film| {
+        let v3 = |v: &[[f32; 3]]| v.iter().flat_map(|x| x.map(f32::to_bits)).collect::<Vec<_>>();
+        (v3(&f.rgb), v3(&f.normal), v3(&f.albedo), f.depth.iter().map(|d| d.to_bits()).collect::<Vec<_>>())
+    };
+    assert!(bits(&a) == bits(&reused) && a.nodes_visited == reused.nodes_visited);
 }
