@@ -222,12 +222,15 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         splats.iter_mut().zip(&scene.point_materials).for_each(|(s, &m)| s.set_material(m));
     }
     let mean_radius = splats.iter().map(|s| f64::from(s.radius)).sum::<f64>() / splats.len() as f64;
+    // The splats hold all the rest needs of the points: free them before the build's peak.
+    let (origin, point_count) = (cloud.origin, cloud.len());
+    drop(cloud);
     let t = Instant::now();
     let shape = surface_kind(a.surface).shape();
     let accel =
         crate::progress::spinning("build", quiet, || AnyAccel::build(a.accel, splats, a.sphere_from_level, shape));
     let build_seconds = t.elapsed().as_secs_f64();
-    tracing::info!("built {} over {} splats in {build_seconds:.3} s", accel.name(), cloud.len());
+    tracing::info!("built {} over {point_count} splats in {build_seconds:.3} s", accel.name());
 
     // 3. Camera, light, region.
     let (default_view, default_distance) = match a.input {
@@ -246,7 +249,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
     };
     // Positions the user gives are in the file's coordinates; the cloud is stored relative to
     // its origin (see `PointCloud`).
-    let local = |p: glam::DVec3| (p - cloud.origin).as_vec3();
+    let local = |p: glam::DVec3| (p - origin).as_vec3();
     let camera = match (a.eye.map(local), a.look_at.map(local)) {
         (Some(eye), Some(target)) => Camera::look_at(eye, target, a.up, a.fov, a.width, a.height),
         _ => Camera::orbit(&bounds, a.view_dir.unwrap_or(default_view), a.up, distance, a.fov, a.width, a.height),
@@ -406,7 +409,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         eprintln!(
             "{}: {} points, {} {}x{} px, {:.3} s ({:.2} Mrays/s), hits {:.1}%, wrote {}",
             input_name,
-            cloud.len(),
+            point_count,
             accel.name(),
             region.width(),
             region.height(),
@@ -425,7 +428,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         let report = StatsReport {
             input: input_name,
             points_read,
-            points: cloud.len(),
+            points: point_count,
             width: a.width,
             height: a.height,
             region,
@@ -467,8 +470,8 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
             pss_steps_per_hit: per_hit(stats.traversal.pss_steps),
             pss_fallback_fraction: per_hit(stats.traversal.pss_fallbacks),
             accel_bytes: accel.memory_bytes(),
-            bytes_per_splat: accel.memory_bytes() as f64 / cloud.len() as f64,
-            splat_bytes: cloud.len() * size_of::<Splat>(),
+            bytes_per_splat: accel.memory_bytes() as f64 / point_count as f64,
+            splat_bytes: point_count * size_of::<Splat>(),
             mean_radius,
             bounds_diagonal: bounds.diagonal(),
             camera_distance: a.eye.is_none().then(|| distance * bounds.diagonal()),
