@@ -97,16 +97,17 @@ mod avx2 {
     use crate::math::Ray;
     use crate::splat::DiskShape;
 
-    /// The AVX2 kernel. Only `bvh_traverse_avx2` makes one, on a CPU that has AVX2 (the
-    /// private field keeps the rest of the crate from making one).
+    /// The AVX2 kernel. Made only where `detect` saw AVX2 and FMA: by `bvh_traverse_avx2`,
+    /// which runs only there, and by `kernel_for_tests` (the field, private to `isa`, keeps the
+    /// rest of the crate from making one).
     #[derive(Clone, Copy)]
     pub(super) struct Kernel(pub(super) ());
 
     impl LeafKernel for Kernel {
         #[inline(always)]
         fn hits(self, block: &SplatBlock, shape: DiskShape, ray: &Ray, t_max: f32) -> BlockHits {
-            // SAFETY: a `Kernel` exists only inside `bvh_traverse_avx2`, which runs only where
-            // `detect` saw AVX2 and FMA.
+            // SAFETY: a `Kernel` exists only where `detect` saw AVX2 and FMA (see above), the
+            // features these functions are compiled for.
             #[allow(unsafe_code)]
             unsafe {
                 match shape {

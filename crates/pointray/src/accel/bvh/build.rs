@@ -143,7 +143,7 @@ impl Bvh {
     /// Memory: each array is allocated once at its final size and every temporary is dropped
     /// as soon as it is used, so that the peak is about the input and the finished BVH (with
     /// the representatives apart and the leaf blocks counted ahead, a render of a
-    /// 2-million-point torus peaked at 266 MB where it took 408 MB, `/usr/bin/time`).
+    /// 2-million-point torus peaked at 274 MB where it took 408 MB, `/usr/bin/time`).
     pub fn build(input: Vec<Splat>, params: &BvhParams) -> Bvh {
         assert!((2..=MAX_BINS).contains(&params.bins) && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
         assert!(input.len() <= MAX_SPLATS, "a BVH indexes at most {MAX_SPLATS} splats");

@@ -120,8 +120,8 @@ pub struct Bvh {
     pub(crate) splats: Vec<Splat>,
     /// The representative splats: child `i` of node `k` at `WIDTH·k + i`, with index
     /// `splats.len() + WIDTH·k + i` for a visitor, which gets one index space for both.
-    /// (Apart, so that neither array is ever copied to grow: at 20 million splats that copy
-    /// was the build's peak.)
+    /// (Apart, so that neither array is copied to grow: appending them doubled the splats'
+    /// capacity, the build's peak on a 2-million-point torus, massif.)
     pub(crate) representatives: Vec<Splat>,
     /// The leaves' splats again, in blocks for the leaf kernel (see [`SplatBlock`]).
     pub(crate) blocks: Vec<SplatBlock>,
