@@ -156,17 +156,19 @@ fn node_moments(
 }
 
 /// Level-of-detail payload of every node (`lod[k]` for `nodes[k]`) and the representative
-/// splats, four per node: child `i` of node `k` is `reps[WIDTH * k + i]`.
+/// splats, four per node: child `i` of node `k` is `reps[k][i]`.
 /// Also sets every node's level-of-detail slots and `min_radius`.
 pub(super) fn build(
     nodes: &mut [Node],
     splats: &[Splat],
     blocks: &[SplatBlock],
     shape: DiskShape,
-) -> (Vec<NodeLod>, Vec<Splat>) {
+) -> (Vec<NodeLod>, Vec<[Splat; WIDTH]>) {
     let ranges = node_ranges(nodes, blocks);
     let moments = node_moments(nodes, splats, blocks, &ranges);
-    let per_node: Vec<(NodeLod, [Splat; WIDTH])> = nodes
+    // Unzipped straight into the two arrays: collected as pairs and then split, the pairs took
+    // 256 bytes a node beside both.
+    let (lod, reps): (Vec<NodeLod>, Vec<[Splat; WIDTH]>) = nodes
         .par_iter()
         .map(|n| {
             let children: [Option<ChildLod>; WIDTH] = std::array::from_fn(|i| {
@@ -195,8 +197,9 @@ pub(super) fn build(
             let unused = Splat { center: Vec3::ZERO, radius: 0.0, normal: Vec3::Z, color: 0 };
             (lod, std::array::from_fn(|i| children[i].as_ref().map_or(unused, |c| c.rep)))
         })
-        .collect();
-    for (n, (l, _)) in nodes.iter_mut().zip(&per_node) {
+        .unzip();
+    drop(moments);
+    for (n, l) in nodes.iter_mut().zip(&lod) {
         // A leaf of a few splats costs about what its representative does to test: it is never
         // replaced, and full detail there is free.
         let leaf_len = |child: u32| child_range(child, blocks, &ranges).len();
@@ -206,8 +209,6 @@ pub(super) fn build(
         n.used = n.used & !(SLOTS << LOD_SLOTS_SHIFT) | coarse.iter().fold(0, |m, i| m | 1 << i) << LOD_SLOTS_SHIFT;
         n.min_radius = coarse.iter().map(|&i| l.radius[i]).fold(f32::INFINITY, f32::min);
     }
-    let lod = per_node.iter().map(|(l, _)| *l).collect();
-    let reps = per_node.iter().flat_map(|(_, r)| *r).collect();
     (lod, reps)
 }
 
