@@ -174,6 +174,9 @@ pub(super) fn build(
             let children: [Option<ChildLod>; WIDTH] = std::array::from_fn(|i| {
                 (n.used & (1 << i) != 0).then(|| {
                     let disks = &splats[child_range(n.child[i], blocks, &ranges)];
+                    // A leaf child's moments are summed again here (`node_moments` summed them
+                    // into its parent's): one pass over the leaves, where keeping them would
+                    // take a `Moments` per leaf.
                     let leaf_moments;
                     let m = match n.child[i] {
                         child if child & LEAF != 0 => {

@@ -155,7 +155,7 @@ impl Bvh {
     #[cold]
     #[inline(never)]
     fn representative_at(&self, r: usize) -> &Splat {
-        &self.representatives[r / WIDTH][r % WIDTH]
+        self.representative(r / WIDTH, r % WIDTH)
     }
 
     pub(crate) fn representative(&self, node: usize, slot: usize) -> &Splat {
