@@ -44,16 +44,22 @@ impl Film {
 
     /// The whole `width × height` frame as 8-bit sRGB (what a PNG stores), `background`
     /// (linear) outside the region, both through `tone`.
+    ///
+    /// The background first, then the region row by row (a test per frame pixel of whether it
+    /// lay in the region, and the encoder called through a reference, cost as much as the
+    /// encoding: callgrind, 80 → 42 instructions a pixel of the dragon at 512², first hit).
     pub fn frame_srgb8(&self, width: u32, height: u32, background: [f32; 3], tone: ToneMap) -> Vec<u8> {
         let srgb8 = tone.encoder();
-        let encode = |c: [f32; 3]| c.map(&srgb8);
-        let bg = encode(background);
-        let mut out = Vec::with_capacity(width as usize * height as usize * 3);
-        for y in 0..height {
-            for x in 0..width {
-                let inside =
-                    (self.region.x0..self.region.x1).contains(&x) && (self.region.y0..self.region.y1).contains(&y);
-                out.extend_from_slice(&if inside { encode(self.rgb[self.index(x, y)]) } else { bg });
+        let mut out = background.map(&srgb8).repeat(width as usize * height as usize);
+        let r = self.region;
+        let row_bytes = 3 * r.width() as usize;
+        if row_bytes == 0 {
+            return out;
+        }
+        for (y, row) in (r.y0..r.y1).zip(self.rgb.chunks_exact(r.width() as usize)) {
+            let start = 3 * (y as usize * width as usize + r.x0 as usize);
+            for (px, rgb) in out[start..start + row_bytes].chunks_exact_mut(3).zip(row) {
+                px.copy_from_slice(&rgb.map(&srgb8));
             }
         }
         out
@@ -94,8 +100,8 @@ impl ToneMap {
 
     /// [`Self::srgb8`] for many channels: the exposure's scale computed once.
     pub fn encoder(&self) -> impl Fn(f32) -> u8 + use<> {
-        let (scale, curve) = (self.exposure.exp2(), self.curve);
-        move |linear| srgb8_of_display(curve.apply(linear * scale))
+        let (scale, curve, table) = (self.exposure.exp2(), self.curve, srgb8_table());
+        move |linear| table.byte(curve.apply(linear * scale))
     }
 
     /// The display value in [0, 1] of one linear channel.
@@ -119,26 +125,7 @@ impl ToneCurve {
     }
 }
 
-/// A display value in [0, 1] as 8-bit sRGB: the same byte as rounding
-/// [`linear_to_srgb`]` × 255`. `powf` per channel cost ~110 instructions a pixel of a 512²
-/// render, a binary search over the steps where the byte goes up ~48 (callgrind,
-/// `docs/RESULTS.md`); a first guess from the display value's bucket and one compare ~42
-/// (`Film::frame_srgb8` as a whole 86 → 80 on the dragon at 512², first hit).
-#[inline]
-pub(crate) fn srgb8_of_display(display: f32) -> u8 {
-    let table = srgb8_table();
-    // Display values are in [0, 1]; the clamp puts anything else into a bucket. (A cast to
-    // `i32` is 3 instructions, to `usize` 15.)
-    let bucket = ((display * BUCKETS as f32) as i32).clamp(0, BUCKETS as i32 - 1) as usize;
-    let mut code = usize::from(table.bucket_start[bucket]);
-    // The guess is never above the byte (the byte is monotonic); one step at most is left.
-    while code < 255 && display >= table.steps[code + 1] {
-        code += 1;
-    }
-    code as u8
-}
-
-/// Buckets of the display range for [`srgb8_of_display`]'s first guess. The steps lie at least
+/// Buckets of the display range for [`Srgb8Table::byte`]'s first guess. The steps lie at least
 /// 1 / (255 · 12.92) ≈ 3.0e-4 apart (the curve's steepest slope), more than a bucket's width
 /// (2.4e-4), so a bucket holds at most one step.
 const BUCKETS: usize = 4096;
@@ -149,8 +136,9 @@ fn srgb8_by_formula(display: f32) -> u8 {
 }
 
 struct Srgb8Table {
-    /// `steps[k]` is the least display value whose byte is at least k (`steps[0]` = −∞).
-    steps: [f32; 256],
+    /// `steps[k]` is the least display value whose byte is at least k (`steps[0]` = −∞), and
+    /// `steps[256]` NaN, which no value reaches.
+    steps: [f32; 257],
     /// The byte at the start of each bucket, `i / BUCKETS`.
     bucket_start: [u8; BUCKETS],
 }
@@ -162,8 +150,10 @@ fn srgb8_table() -> &'static Srgb8Table {
     static TABLE: std::sync::OnceLock<Srgb8Table> = std::sync::OnceLock::new();
     TABLE.get_or_init(|| {
         let steps = std::array::from_fn(|k| {
-            if k == 0 {
-                return f32::NEG_INFINITY;
+            match k {
+                0 => return f32::NEG_INFINITY,
+                256 => return f32::NAN,
+                _ => {}
             }
             let (mut lo, mut hi) = (0u32, 1f32.to_bits());
             while lo < hi {
@@ -178,6 +168,24 @@ fn srgb8_table() -> &'static Srgb8Table {
         });
         Srgb8Table { steps, bucket_start }
     })
+}
+
+impl Srgb8Table {
+    /// A display value in [0, 1] as 8-bit sRGB: the same byte as rounding
+    /// [`linear_to_srgb`]` × 255`. `powf` per channel cost ~110 instructions a pixel of a 512²
+    /// render, a binary search over the steps where the byte goes up ~48 (callgrind,
+    /// `docs/RESULTS.md`); a first guess from the display value's bucket and one compare ~42
+    /// (`Film::frame_srgb8` as a whole 86 → 80 on the dragon at 512², first hit).
+    #[inline(always)]
+    fn byte(&self, display: f32) -> u8 {
+        // Display values are in [0, 1]; the clamp puts anything else into a bucket. (A cast to
+        // `i32` is 3 instructions, to `usize` 15.)
+        let bucket = ((display * BUCKETS as f32) as i32).clamp(0, BUCKETS as i32 - 1) as usize;
+        let code = usize::from(self.bucket_start[bucket]);
+        // The guess is never above the byte (the byte is monotonic) and a bucket holds one
+        // step at most; past 255 the step is NaN, which no value reaches.
+        (code + usize::from(display >= self.steps[code + 1])) as u8
+    }
 }
 
 impl Default for ToneMap {
@@ -216,10 +224,10 @@ mod tests {
         let mut checked = 0;
         let mut check = |bits: u32| {
             let d = f32::from_bits(bits);
-            assert_eq!(srgb8_of_display(d), srgb8_by_formula(d), "display {d}");
+            assert_eq!(srgb8_table().byte(d), srgb8_by_formula(d), "display {d}");
             checked += 1;
         };
-        for &step in &steps[1..] {
+        for &step in &steps[1..256] {
             (step.to_bits().saturating_sub(3)..=step.to_bits() + 3).for_each(&mut check);
         }
         // Around every bucket's start.
@@ -229,7 +237,10 @@ mod tests {
         }
         (0..=1f32.to_bits()).step_by(4099).for_each(&mut check);
         assert!(checked > 250_000);
-        assert_eq!((srgb8_of_display(0.0), srgb8_of_display(1.0), srgb8_of_display(0.5)), (0, 255, 188));
+        assert_eq!((srgb8_table().byte(0.0), srgb8_table().byte(1.0), srgb8_table().byte(0.5)), (0, 255, 188));
+        // Outside [0, 1], where the last bucket's step is the NaN sentinel.
+        let outside = [-1.0, f32::NEG_INFINITY, 1.5, f32::INFINITY, f32::NAN].map(|d| srgb8_table().byte(d));
+        assert_eq!(outside, [0, 0, 255, 255, 0]);
     }
 
     /// Every float in [0, 1] (6 s in release here: `cargo test --release -- --ignored`).
@@ -238,7 +249,7 @@ mod tests {
     fn srgb8_table_matches_the_formula_everywhere() {
         for bits in 0..=1f32.to_bits() {
             let d = f32::from_bits(bits);
-            assert_eq!(srgb8_of_display(d), srgb8_by_formula(d), "display {d}");
+            assert_eq!(srgb8_table().byte(d), srgb8_by_formula(d), "display {d}");
         }
     }
 
