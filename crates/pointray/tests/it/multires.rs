@@ -63,9 +63,9 @@ fn check_coarser_threshold(accel: &impl Accel) {
     // The surface schemes narrow the walk as they find hits. The SJ window of a representative
     // is as long as the representative is wide, and a window that grows to one found late is
     // walked again, so a threshold that stops at a few of them may cost more than full detail,
-    // which seldom walks twice (BVH: 4,141 nodes at full detail, 4,449 at τ = 0.5; when every
-    // grown window was walked twice, 4,860 and 4,564), while from a pixel on the totals fall,
-    // and the coarse thresholds save much (τ = 16: 2,335).
+    // which seldom walks twice (8-wide BVH: 3,370 nodes at full detail, 3,552 at τ = 0.5),
+    // while from a pixel on the totals fall, and the coarse thresholds save much (τ = 16:
+    // 2,332; the 4-wide BVH saved more nodes, 4,141 → 2,335, but each was a smaller step).
     let rays = far_camera_rays(&accel.bounds(), 3.0, 48);
     let totals: Vec<u64> = thresholds
         .iter()
@@ -81,7 +81,7 @@ fn check_coarser_threshold(accel: &impl Accel) {
     assert!(totals.iter().all(|&t| t as f64 <= full * 1.1), "{name}: nodes visited per threshold: {totals:?}");
     assert!(coarse.windows(2).all(|w| w[1] <= w[0]), "{name}: nodes visited per threshold: {totals:?}");
     assert!(
-        totals[3] < totals[0] && totals[6] * 5 < totals[0] * 3,
+        totals[3] < totals[0] && totals[6] * 4 < totals[0] * 3,
         "{name}: level of detail must save work: {totals:?}"
     );
 }

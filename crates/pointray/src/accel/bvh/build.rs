@@ -19,7 +19,7 @@ pub struct BvhParams {
     pub bins: usize,
     /// A node with more splats than this is always split.
     pub max_leaf_size: usize,
-    /// SAH cost of one traversal step (four box tests), relative to `intersection_cost`.
+    /// SAH cost of one traversal step (eight box tests), relative to `intersection_cost`.
     pub traversal_cost: f32,
     /// SAH cost of testing one block of up to eight disks (leaves are priced in blocks, as
     /// they are tested).
@@ -193,10 +193,10 @@ impl Bvh {
     }
 }
 
-/// Writes the 4-wide node for `node` and, depth first, the nodes below it; returns the depth.
+/// Writes the 8-wide node for `node` and, depth first, the nodes below it; returns the depth.
 ///
 /// The node's children are found by opening binary inner nodes, the largest surface first,
-/// until there are four (SAH-wise, the child most likely to be entered is the one worth
+/// until there are eight (SAH-wise, the child most likely to be entered is the one worth
 /// replacing by its children). A root that is a single leaf becomes a node with one child.
 /// `spans` gets each leaf block's first splat and splat count, in the order of the blocks.
 fn flatten(node: BuildNode, nodes: &mut Vec<Node>, spans: &mut Vec<(usize, usize)>) -> usize {

@@ -15,28 +15,29 @@
 //!   as normal, the area-weighted mean colour, and a radius between covering every disk below
 //!   and matching their spread (see `accel::representative`).
 
-use glam::{DVec3, Vec3, Vec4};
+use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
+use super::lanes::Lanes;
 use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks};
 use crate::accel::block::SplatBlock;
 use crate::accel::representative::{Moments, Representative, Spread};
 use crate::splat::{DiskShape, Splat};
 
-/// What the multiresolution traversal knows of a node's four children besides their boxes,
-/// four lanes side by side like [`Node`]'s planes. Unused slots have radius 0 and a cone that
+/// What the multiresolution traversal knows of a node's eight children besides their boxes,
+/// eight lanes side by side like [`Node`]'s planes. Unused slots have radius 0 and a cone that
 /// never culls.
 #[repr(C, align(64))]
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct NodeLod {
     /// Bounding sphere centres (x, y, z lanes) …
-    pub(crate) center: [Vec4; 3],
+    pub(crate) center: [Lanes; 3],
     /// … and radii.
-    pub(crate) radius: Vec4,
+    pub(crate) radius: Lanes,
     /// Normal-cone axes …
-    pub(crate) axis: [Vec4; 3],
+    pub(crate) axis: [Lanes; 3],
     /// … and the cosine of their half-angles (−1: the normals below point every way).
-    pub(crate) cos_angle: Vec4,
+    pub(crate) cos_angle: Lanes,
 }
 
 /// The bounds every node uses for its children.
@@ -45,7 +46,7 @@ pub(crate) struct NodeLod {
 pub enum NodeBounds {
     /// Boxes everywhere: the foundation's BVH.
     Boxes,
-    /// Boxes above this depth of the 4-wide tree (the root is depth 0), spheres from it down
+    /// Boxes above this depth of the 8-wide tree (the root is depth 0), spheres from it down
     /// (the thesis's mixed volumes).
     SpheresFrom(u32),
     /// Per node, whichever of the children's spheres or boxes has the smaller total surface
@@ -156,7 +157,7 @@ fn node_moments(
 }
 
 /// Level-of-detail payload of every node (`lod[k]` for `nodes[k]`) and the representative
-/// splats, four per node: child `i` of node `k` is `reps[k][i]`.
+/// splats, one per child: child `i` of node `k` is `reps[k][i]`.
 /// Also sets every node's level-of-detail slots and `min_radius`.
 pub(super) fn build(
     nodes: &mut [Node],
@@ -189,7 +190,7 @@ pub(super) fn build(
                 })
             });
             let lane = |f: &dyn Fn(&ChildLod) -> f32, unused: f32| {
-                Vec4::from_array(std::array::from_fn(|i| children[i].as_ref().map_or(unused, f)))
+                Lanes::from_array(std::array::from_fn(|i| children[i].as_ref().map_or(unused, f)))
             };
             let lod = NodeLod {
                 center: [lane(&|c| c.center.x, 0.0), lane(&|c| c.center.y, 0.0), lane(&|c| c.center.z, 0.0)],
@@ -274,8 +275,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn node_lod_is_two_cache_lines() {
-        assert_eq!(size_of::<NodeLod>(), 128);
+    fn node_lod_is_four_cache_lines() {
+        assert_eq!(size_of::<NodeLod>(), 256);
     }
 
     #[test]

@@ -1,9 +1,9 @@
-//! Bounding volume hierarchy over splats: binned SAH build, four children per node.
+//! Bounding volume hierarchy over splats: binned SAH build, eight children per node.
 //!
-//! The build makes a binary SAH tree and collapses it into a 4-wide one (as Embree's BVH4):
-//! each node stores the boxes of its up to four children side by side, so one traversal step
-//! tests four boxes with SSE and never fetches a child the ray misses, and the tree is half
-//! as deep as the binary one. Leaves are ranges of the splat array, which the build reorders
+//! The build makes a binary SAH tree and collapses it into an 8-wide one (as Embree's BVH8):
+//! each node stores the boxes of its up to eight children side by side (`lanes`), so one
+//! traversal step tests eight boxes and never fetches a child the ray misses, and the tree is
+//! a third as deep as the binary one. Leaves are ranges of the splat array, which the build reorders
 //! into leaf order, stored again as blocks of eight disks for the leaf kernel
 //! (`accel::block`).
 //!
@@ -14,13 +14,16 @@
 //! level of detail off, culling off and boxes only, the traversal is the full-detail one.
 
 mod build;
+mod lanes;
 mod lod;
 pub(super) mod traverse;
 
 pub use build::BvhParams;
 pub use lod::NodeBounds;
 
-use glam::{Vec3, Vec4};
+use glam::Vec3;
+
+use lanes::Lanes;
 
 use crate::accel::block::{BLOCK, SplatBlock};
 use crate::math::Aabb;
@@ -54,18 +57,17 @@ fn leaf_blocks(child: u32) -> std::ops::Range<usize> {
 pub(crate) const MEDIAN_SPLIT_DEPTH: usize = 88;
 
 /// Children per node.
-pub(crate) const WIDTH: usize = 4;
+pub(crate) const WIDTH: usize = lanes::LANES;
 
-/// An inner node: the bounds of its up to four children and how to reach them.
+/// An inner node: the bounds of its up to eight children and how to reach them.
 ///
-/// Structure of arrays: `planes[k]` holds the four children's minimum along axis `k`,
-/// `planes[3 + k]` the maxima, so one SSE subtract and multiply per plane give the slab
-/// distances of all four, and a ray picks its near and far planes by index, without branches.
-/// Unused slots have empty bounds (minimum +∞, maximum −∞), which no ray enters.
+/// Structure of arrays: `planes[k]` holds the eight children's minima along axis `k`,
+/// `planes[3 + k]` the maxima, so one subtract and multiply per plane give the slab distances
+/// of all eight. Unused slots have empty bounds (minimum +∞, maximum −∞).
 #[repr(C, align(64))]
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Node {
-    pub(crate) planes: [Vec4; 6],
+    pub(crate) planes: [Lanes; 6],
     /// Inner child: its node index. Leaf child: see [`leaf_ref`].
     pub(crate) child: [u32; WIDTH],
     /// Bit i set iff slot i holds a child. Traversal masks hits with it: a ray with NaN
@@ -88,14 +90,14 @@ pub(crate) const SPHERE_NODE: u32 = 1 << WIDTH;
 /// The bits of `Node::used` that mark slots in use.
 pub(crate) const SLOTS: u32 = (1 << WIDTH) - 1;
 /// Where the mask of children that may stop a ray starts in `Node::used`.
-pub(crate) const LOD_SLOTS_SHIFT: u32 = 8;
+pub(crate) const LOD_SLOTS_SHIFT: u32 = 16;
 
 impl Node {
     pub(crate) fn new(b: &[Aabb]) -> Self {
         debug_assert!(b.len() <= WIDTH);
         let get = |i: usize| b.get(i).copied().unwrap_or(Aabb::EMPTY);
-        let lo = |k: usize| Vec4::from_array(std::array::from_fn(|i| get(i).min[k]));
-        let hi = |k: usize| Vec4::from_array(std::array::from_fn(|i| get(i).max[k]));
+        let lo = |k: usize| Lanes::from_array(std::array::from_fn(|i| get(i).min[k]));
+        let hi = |k: usize| Lanes::from_array(std::array::from_fn(|i| get(i).max[k]));
         Self {
             planes: [lo(0), lo(1), lo(2), hi(0), hi(1), hi(2)],
             child: [0; WIDTH],
@@ -247,11 +249,11 @@ impl super::Accel for Bvh {
             stats.nodes_visited += 1;
             // Squared distance from the centre to each child's box (unused slots: infinite).
             let gap = |axis: usize| {
-                let c = Vec4::splat(center[axis]);
-                (n.planes[axis] - c).max(c - n.planes[3 + axis]).max(Vec4::ZERO)
+                let c = Lanes::splat(center[axis]);
+                (n.planes[axis] - c).max(c - n.planes[3 + axis]).max(Lanes::ZERO)
             };
             let (gx, gy, gz) = (gap(0), gap(1), gap(2));
-            let mut near = (gx * gx + gy * gy + gz * gz).cmple(Vec4::splat(r2)).bitmask() & (n.used & SLOTS);
+            let mut near = (gx * gx + gy * gy + gz * gz).cmple(Lanes::splat(r2)).bitmask() & (n.used & SLOTS);
             while near != 0 {
                 let child = n.child[near.trailing_zeros() as usize];
                 near &= near - 1;
@@ -337,8 +339,8 @@ mod tests {
     use super::*;
 
     #[test]
-    fn node_is_two_cache_lines_and_a_block_four() {
-        assert_eq!(size_of::<Node>(), 128);
+    fn node_and_block_are_four_cache_lines() {
+        assert_eq!(size_of::<Node>(), 256);
         assert_eq!(size_of::<SplatBlock>(), 256);
     }
 }

@@ -1,4 +1,4 @@
-//! Front-to-back traversal: test a node's four child bounds at once, go on with the nearest
+//! Front-to-back traversal: test a node's eight child bounds at once, go on with the nearest
 //! child hit, and keep the others on a stack with their entry distances, so that they can be
 //! culled later when the visitor's `t_max` has shrunk below them.
 //!
@@ -8,26 +8,26 @@
 //! visitor instead of being entered. Rays that use none of it (and trees without sphere nodes)
 //! run the full-detail loop, compiled without those steps.
 
-use glam::Vec4;
 
+use super::lanes::{Lanes, dot3};
 use super::lod::NodeLod;
 use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks};
 use crate::accel::block::LeafKernel;
-use crate::accel::packet::{PacketRay, dot3};
 use crate::accel::{Accel, SplatVisitor, TraversalStats, test_disk};
 use crate::math::Ray;
 
-/// The ray in the form the four-wide tests want: per axis the origin, direction and negated
-/// inverse direction splatted to four lanes, and the footprint scaled by the level-of-detail
+/// The ray in the form the eight-wide tests want: per axis the origin, direction and negated
+/// inverse direction splatted to all lanes, and the footprint scaled by the level-of-detail
 /// threshold.
 struct SlabRay {
-    ray: PacketRay,
+    origin: [Lanes; 3],
+    dir: [Lanes; 3],
     /// −1/d per axis, held within ±[`MAX_INV_DIR`]: finite, so no slab distance is NaN (0·∞)
     /// and [`Self::entries`] needs no rule for one.
-    neg_inv_dir: [Vec4; 3],
+    neg_inv_dir: [Lanes; 3],
     /// τ·width0 and τ·spread: a child is below the footprint when R < lod0 + lod_spread·t.
-    lod0: Vec4,
-    lod_spread: Vec4,
+    lod0: Lanes,
+    lod_spread: Lanes,
 }
 
 impl SlabRay {
@@ -35,18 +35,19 @@ impl SlabRay {
     fn new(ray: &Ray) -> Self {
         let tau = ray.lod_threshold;
         Self {
-            ray: PacketRay::new(ray),
-            neg_inv_dir: std::array::from_fn(|k| Vec4::splat((-ray.inv_dir[k]).clamp(-MAX_INV_DIR, MAX_INV_DIR))),
-            lod0: Vec4::splat(tau * ray.cone.width0),
-            lod_spread: Vec4::splat(tau * ray.cone.spread),
+            origin: std::array::from_fn(|k| Lanes::splat(ray.origin[k])),
+            dir: std::array::from_fn(|k| Lanes::splat(ray.dir[k])),
+            neg_inv_dir: std::array::from_fn(|k| Lanes::splat((-ray.inv_dir[k]).clamp(-MAX_INV_DIR, MAX_INV_DIR))),
+            lod0: Lanes::splat(tau * ray.cone.width0),
+            lod_spread: Lanes::splat(tau * ray.cone.spread),
         }
     }
 
     /// Distances along the ray of the projections of the children's sphere centres.
     #[inline(always)]
-    fn center_distances(&self, lod: &NodeLod) -> Vec4 {
-        let oc: [Vec4; 3] = std::array::from_fn(|k| lod.center[k] - self.ray.origin[k]);
-        dot3(&oc, &self.ray.dir)
+    fn center_distances(&self, lod: &NodeLod) -> Lanes {
+        let oc: [Lanes; 3] = std::array::from_fn(|k| lod.center[k] - self.origin[k]);
+        dot3(&oc, &self.dir)
     }
 
     /// Like [`Self::entries`] for the children's bounding spheres (QSplat's test, A4), given
@@ -55,19 +56,19 @@ impl SlabRay {
     /// ulps of the distance, the rounding error of the perpendicular distance, so that a disk
     /// touching its sphere is never missed (hits must not depend on the bounds chosen).
     #[inline(always)]
-    fn sphere_entries(&self, lod: &NodeLod, tc: Vec4, used: u32, t0: f32, t1: f32) -> (Vec4, u32) {
-        let perp: [Vec4; 3] = std::array::from_fn(|k| lod.center[k] - self.ray.origin[k] - tc * self.ray.dir[k]);
-        let r = lod.radius + tc.abs() * Vec4::splat(1.0 / 262_144.0);
-        let near = (tc - r).max(Vec4::splat(t0));
-        let far = (tc + r).min(Vec4::splat(t1));
+    fn sphere_entries(&self, lod: &NodeLod, tc: Lanes, used: u32, t0: f32, t1: f32) -> (Lanes, u32) {
+        let perp: [Lanes; 3] = std::array::from_fn(|k| lod.center[k] - self.origin[k] - tc * self.dir[k]);
+        let r = lod.radius + tc.abs() * Lanes::splat(1.0 / 262_144.0);
+        let near = (tc - r).max(Lanes::splat(t0));
+        let far = (tc + r).min(Lanes::splat(t1));
         (near, (dot3(&perp, &perp).cmple(r * r) & near.cmple(far)).bitmask() & used)
     }
 
     /// Children whose bounding sphere is narrower than the footprint at its centre, scaled by
     /// the threshold: R < τ·(width0 + spread·tc).
     #[inline(always)]
-    fn below_footprint(&self, lod: &NodeLod, tc: Vec4) -> u32 {
-        lod.radius.cmplt(self.lod0 + self.lod_spread * tc.max(Vec4::ZERO)).bitmask()
+    fn below_footprint(&self, lod: &NodeLod, tc: Lanes) -> u32 {
+        lod.radius.cmplt(self.lod0 + self.lod_spread * tc.max(Lanes::ZERO)).bitmask()
     }
 
     /// Children all of whose disks face away from the ray's origin from every point of their
@@ -78,16 +79,16 @@ impl SlabRay {
     /// (|v|² − s²)·sin²θ < (R + s·cos θ)². Cones of 90° or more never cull.
     #[inline(always)]
     fn facing_away(&self, lod: &NodeLod) -> u32 {
-        let v: [Vec4; 3] = std::array::from_fn(|k| self.ray.origin[k] - lod.center[k]);
+        let v: [Lanes; 3] = std::array::from_fn(|k| self.origin[k] - lod.center[k]);
         let s = dot3(&v, &lod.axis);
         let cos = lod.cos_angle;
         // A slightly larger sphere: rounding must not cull a subtree that just faces the ray.
-        let gap = lod.radius * (1.0 + 1.0 / 1024.0) + s * cos;
-        let spread = (dot3(&v, &v) - s * s).max(Vec4::ZERO) * (Vec4::ONE - cos * cos);
-        (gap.cmplt(Vec4::ZERO) & spread.cmplt(gap * gap) & cos.cmpgt(Vec4::ZERO)).bitmask()
+        let gap = lod.radius * Lanes::splat(1.0 + 1.0 / 1024.0) + s * cos;
+        let spread = (dot3(&v, &v) - s * s).max(Lanes::ZERO) * (Lanes::ONE - cos * cos);
+        (gap.cmplt(Lanes::ZERO) & spread.cmplt(gap * gap) & cos.cmpgt(Lanes::ZERO)).bitmask()
     }
 
-    /// Entry distances of the four children of `node` within `[t0, t1]`, and a bit mask of
+    /// Entry distances of the eight children of `node` within `[t0, t1]`, and a bit mask of
     /// the children the ray enters.
     ///
     /// Each axis gives the distances to both planes, (o − p)·(−1/d), which is (p − o)/d to the
@@ -95,15 +96,15 @@ impl SlabRay {
     /// indices cost a load and a shift per plane (callgrind on the dragon: 62 → 50 instructions
     /// a node). Unused slots (minimum +∞, maximum −∞) come out entered and are masked off.
     #[inline(always)]
-    fn entries(&self, node: &Node, t0: f32, t1: f32) -> (Vec4, u32) {
+    fn entries(&self, node: &Node, t0: f32, t1: f32) -> (Lanes, u32) {
         let slab = |k: usize| {
-            let lo = (self.ray.origin[k] - node.planes[k]) * self.neg_inv_dir[k];
-            let hi = (self.ray.origin[k] - node.planes[3 + k]) * self.neg_inv_dir[k];
+            let lo = (self.origin[k] - node.planes[k]) * self.neg_inv_dir[k];
+            let hi = (self.origin[k] - node.planes[3 + k]) * self.neg_inv_dir[k];
             (lo.min(hi), lo.max(hi))
         };
         let ((near0, far0), (near1, far1), (near2, far2)) = (slab(0), slab(1), slab(2));
-        let near = near0.max(near1).max(near2).max(Vec4::splat(t0));
-        let far = far0.min(far1).min(far2).min(Vec4::splat(t1));
+        let near = near0.max(near1).max(near2).max(Lanes::splat(t0));
+        let far = far0.min(far1).min(far2).min(Lanes::splat(t1));
         (near, near.cmple(far).bitmask() & node.used & SLOTS)
     }
 }
@@ -119,7 +120,15 @@ const MAX_INV_DIR: f32 = 18_446_744_073_709_551_616.0;
 /// cost a dozen instructions per node.
 #[inline(always)]
 fn slot_count(used: u32) -> u64 {
-    const COUNT: [u8; 16] = [0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4];
+    const COUNT: [u8; 1 << WIDTH] = {
+        let mut count = [0; 1 << WIDTH];
+        let mut i = 0;
+        while i < count.len() {
+            count[i] = (i as u32).count_ones() as u8;
+            i += 1;
+        }
+        count
+    };
     u64::from(COUNT[(used & SLOTS) as usize])
 }
 
@@ -264,7 +273,7 @@ fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
                     stats.box_tests += slot_count(node.used);
                     slab.entries(node, ray.t_min, t1)
                 };
-                // An array, not a `Vec4`: indexing a vector register by a run-time lane
+                // An array, not a `Lanes`: indexing a vector register by a run-time lane
                 // compiles to a jump table (7 instructions a child, callgrind).
                 let t = t.to_array();
                 if mask.is_power_of_two() {
@@ -323,13 +332,13 @@ fn multires_children<V: SplatVisitor>(
     lod_reach: f32,
     visitor: &mut V,
     stats: &mut TraversalStats,
-) -> Option<(Vec4, u32)> {
+) -> Option<(Lanes, u32)> {
     let node = &bvh.nodes[k];
     let node_lod = &bvh.lod[k];
     let slots = slot_count(node.used);
     let spheres = node.used & SPHERE_NODE != 0;
     let lod = node.min_radius < lod_reach;
-    let tc = if spheres || lod { slab.center_distances(node_lod) } else { Vec4::ZERO };
+    let tc = if spheres || lod { slab.center_distances(node_lod) } else { Lanes::ZERO };
     let (t, mut mask) = if spheres {
         stats.sphere_tests += slots;
         slab.sphere_entries(node_lod, tc, node.used & SLOTS, ray.t_min, t1)

@@ -1,0 +1,145 @@
+//! Eight `f32` lanes, one per child of a node: the BVH's node tests, written once for all
+//! eight children.
+//!
+//! Two SSE vectors (glam's `Vec4`) side by side, so the baseline x86-64 build, the AVX2 build
+//! (VEX-encoded, `accel::isa`) and other targets all run the same operations in the same order
+//! and give the same bits. Comparisons give a [`Mask`], whose `bitmask` has bit i for lane i.
+//! Minimum and maximum are glam's, on x86-64 SSE's: where either lane is NaN, the second
+//! operand.
+
+use std::ops::{Add, BitAnd, Index, Mul, Sub};
+
+use glam::{BVec4A, Vec4};
+
+/// Lanes per value.
+pub(crate) const LANES: usize = 8;
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Lanes {
+    lo: Vec4,
+    hi: Vec4,
+}
+
+/// The lanes where a comparison held.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Mask {
+    lo: BVec4A,
+    hi: BVec4A,
+}
+
+impl Lanes {
+    pub(crate) const ZERO: Lanes = Lanes::splat(0.0);
+    pub(crate) const ONE: Lanes = Lanes::splat(1.0);
+
+    #[inline(always)]
+    pub(crate) const fn splat(x: f32) -> Self {
+        Self { lo: Vec4::splat(x), hi: Vec4::splat(x) }
+    }
+
+    #[inline(always)]
+    pub(crate) fn from_array(a: [f32; LANES]) -> Self {
+        Self { lo: Vec4::new(a[0], a[1], a[2], a[3]), hi: Vec4::new(a[4], a[5], a[6], a[7]) }
+    }
+
+    #[inline(always)]
+    pub(crate) fn to_array(self) -> [f32; LANES] {
+        let (lo, hi) = (self.lo.to_array(), self.hi.to_array());
+        [lo[0], lo[1], lo[2], lo[3], hi[0], hi[1], hi[2], hi[3]]
+    }
+
+    #[inline(always)]
+    pub(crate) fn min(self, o: Self) -> Self {
+        Self { lo: self.lo.min(o.lo), hi: self.hi.min(o.hi) }
+    }
+
+    #[inline(always)]
+    pub(crate) fn max(self, o: Self) -> Self {
+        Self { lo: self.lo.max(o.lo), hi: self.hi.max(o.hi) }
+    }
+
+    #[inline(always)]
+    pub(crate) fn abs(self) -> Self {
+        Self { lo: self.lo.abs(), hi: self.hi.abs() }
+    }
+
+    #[inline(always)]
+    pub(crate) fn cmplt(self, o: Self) -> Mask {
+        Mask { lo: self.lo.cmplt(o.lo), hi: self.hi.cmplt(o.hi) }
+    }
+
+    #[inline(always)]
+    pub(crate) fn cmple(self, o: Self) -> Mask {
+        Mask { lo: self.lo.cmple(o.lo), hi: self.hi.cmple(o.hi) }
+    }
+
+    #[inline(always)]
+    pub(crate) fn cmpgt(self, o: Self) -> Mask {
+        Mask { lo: self.lo.cmpgt(o.lo), hi: self.hi.cmpgt(o.hi) }
+    }
+}
+
+impl Mask {
+    /// Bit i set where lane i held.
+    #[inline(always)]
+    pub(crate) fn bitmask(self) -> u32 {
+        self.lo.bitmask() | self.hi.bitmask() << 4
+    }
+}
+
+impl BitAnd for Mask {
+    type Output = Mask;
+    #[inline(always)]
+    fn bitand(self, o: Mask) -> Mask {
+        Mask { lo: self.lo & o.lo, hi: self.hi & o.hi }
+    }
+}
+
+macro_rules! lanewise {
+    ($trait:ident, $f:ident) => {
+        impl $trait for Lanes {
+            type Output = Lanes;
+            #[inline(always)]
+            fn $f(self, o: Lanes) -> Lanes {
+                Lanes { lo: self.lo.$f(o.lo), hi: self.hi.$f(o.hi) }
+            }
+        }
+    };
+}
+lanewise!(Add, add);
+lanewise!(Sub, sub);
+lanewise!(Mul, mul);
+
+impl Index<usize> for Lanes {
+    type Output = f32;
+    fn index(&self, i: usize) -> &f32 {
+        if i < 4 { &self.lo[i] } else { &self.hi[i - 4] }
+    }
+}
+
+/// `a·b` for three axes of lanes, in the scalar code's order: `(x·x' + y·y') + z·z'`.
+#[inline(always)]
+pub(crate) fn dot3(a: &[Lanes; 3], b: &[Lanes; 3]) -> Lanes {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lanes_keep_their_places() {
+        let a = Lanes::from_array(std::array::from_fn(|i| i as f32));
+        let b = Lanes::splat(3.5);
+        assert_eq!(a.to_array(), [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]);
+        assert_eq!((a[2], a[6]), (2.0, 6.0));
+        assert_eq!(a.cmplt(b).bitmask(), 0b0000_1111);
+        assert_eq!(a.cmpgt(b).bitmask(), 0b1111_0000);
+        assert_eq!((a.cmple(Lanes::splat(5.0)) & a.cmpgt(Lanes::ONE)).bitmask(), 0b0011_1100);
+        assert_eq!((a - b).abs().min(Lanes::ONE).max(Lanes::ZERO).to_array()[3], 0.5);
+        assert_eq!((a * a + a).to_array()[7], 56.0);
+        // SSE's minimum: the second operand where either is NaN.
+        let nan = Lanes::splat(f32::NAN);
+        assert_eq!(nan.min(Lanes::ONE).to_array(), [1.0; 8]);
+        assert!(Lanes::ONE.max(nan).to_array().iter().all(|x| x.is_nan()));
+    }
+}
