@@ -13,6 +13,7 @@
 //! hit: ~75 instructions per 4-wide packet for the SSE pre-filter plus the visitor's scalar
 //! re-test of the candidates before, ~45 per 8-wide block after (`docs/RESULTS.md`).
 
+use super::bvh::lanes::{Lanes, Wide};
 use crate::math::Ray;
 use crate::splat::oriented_disk::DiskHit;
 use crate::splat::{DiskShape, Splat};
@@ -38,6 +39,8 @@ pub(crate) struct SplatBlock {
 /// The leaf kernel a traversal runs: [`Portable`], or one written for an instruction set
 /// (`accel::isa`). All give the same bits.
 pub(crate) trait LeafKernel: Copy {
+    /// How the same instruction set computes a node's eight lanes.
+    type Lanes: Wide;
     fn hits(self, block: &SplatBlock, shape: DiskShape, ray: &Ray, t_max: f32) -> BlockHits;
 }
 
@@ -46,6 +49,8 @@ pub(crate) trait LeafKernel: Copy {
 pub(crate) struct Portable;
 
 impl LeafKernel for Portable {
+    type Lanes = Lanes;
+
     #[inline(always)]
     fn hits(self, block: &SplatBlock, shape: DiskShape, ray: &Ray, t_max: f32) -> BlockHits {
         block.hits(shape, ray, t_max)

@@ -1,9 +1,10 @@
 //! Eight `f32` lanes, one per child of a node: the BVH's node tests, written once for all
 //! eight children.
 //!
-//! Two SSE vectors (glam's `Vec4`) side by side, so the baseline x86-64 build, the AVX2 build
-//! (VEX-encoded, `accel::isa`) and other targets all run the same operations in the same order
-//! and give the same bits. Comparisons give a [`Mask`], whose `bitmask` has bit i for lane i.
+//! Stored as two SSE vectors (glam's `Vec4`) side by side, and computed so on the baseline
+//! x86-64 build and other targets; the AVX2 build (`accel::isa`) loads the same eight floats
+//! into one register. Through [`Wide`], the traversal is written once for both, and both give
+//! the same bits. Comparisons give a [`Mask`], whose `bitmask` has bit i for lane i.
 //! Minimum and maximum are glam's, on x86-64 SSE's: where either lane is NaN, the second
 //! operand.
 
@@ -14,7 +15,9 @@ use glam::{BVec4A, Vec4};
 /// Lanes per value.
 pub(crate) const LANES: usize = 8;
 
+/// As stored in the nodes: eight consecutive floats, 32-byte aligned (what an AVX load takes).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(32))]
 pub(crate) struct Lanes {
     lo: Vec4,
     hi: Vec4,
@@ -29,7 +32,6 @@ pub(crate) struct Mask {
 
 impl Lanes {
     pub(crate) const ZERO: Lanes = Lanes::splat(0.0);
-    pub(crate) const ONE: Lanes = Lanes::splat(1.0);
 
     #[inline(always)]
     pub(crate) const fn splat(x: f32) -> Self {
@@ -116,9 +118,82 @@ impl Index<usize> for Lanes {
     }
 }
 
+/// Eight lanes as an instruction set computes them: [`Lanes`] itself, two SSE vectors, or one
+/// AVX register (`accel::isa`), loaded from the `Lanes` a node stores. Every implementation
+/// runs each operation lane by lane with the same rounding and the same NaN rules (SSE's
+/// minimum and maximum), so all give the same bits.
+pub(crate) trait Wide: Copy + Add<Output = Self> + Sub<Output = Self> + Mul<Output = Self> {
+    type Mask: Copy + BitAnd<Output = Self::Mask>;
+    fn splat(x: f32) -> Self;
+    fn load(lanes: &Lanes) -> Self;
+    fn to_array(self) -> [f32; LANES];
+    fn min(self, o: Self) -> Self;
+    fn max(self, o: Self) -> Self;
+    fn abs(self) -> Self;
+    fn cmplt(self, o: Self) -> Self::Mask;
+    fn cmple(self, o: Self) -> Self::Mask;
+    fn cmpgt(self, o: Self) -> Self::Mask;
+    /// Bit i set where lane i of `mask` held.
+    fn bitmask(mask: Self::Mask) -> u32;
+}
+
+impl Wide for Lanes {
+    type Mask = Mask;
+
+    #[inline(always)]
+    fn splat(x: f32) -> Self {
+        Lanes::splat(x)
+    }
+
+    #[inline(always)]
+    fn load(lanes: &Lanes) -> Self {
+        *lanes
+    }
+
+    #[inline(always)]
+    fn to_array(self) -> [f32; LANES] {
+        Lanes::to_array(self)
+    }
+
+    #[inline(always)]
+    fn min(self, o: Self) -> Self {
+        Lanes::min(self, o)
+    }
+
+    #[inline(always)]
+    fn max(self, o: Self) -> Self {
+        Lanes::max(self, o)
+    }
+
+    #[inline(always)]
+    fn abs(self) -> Self {
+        Lanes::abs(self)
+    }
+
+    #[inline(always)]
+    fn cmplt(self, o: Self) -> Mask {
+        Lanes::cmplt(self, o)
+    }
+
+    #[inline(always)]
+    fn cmple(self, o: Self) -> Mask {
+        Lanes::cmple(self, o)
+    }
+
+    #[inline(always)]
+    fn cmpgt(self, o: Self) -> Mask {
+        Lanes::cmpgt(self, o)
+    }
+
+    #[inline(always)]
+    fn bitmask(mask: Mask) -> u32 {
+        mask.bitmask()
+    }
+}
+
 /// `a·b` for three axes of lanes, in the scalar code's order: `(x·x' + y·y') + z·z'`.
 #[inline(always)]
-pub(crate) fn dot3(a: &[Lanes; 3], b: &[Lanes; 3]) -> Lanes {
+pub(crate) fn dot3<W: Wide>(a: &[W; 3], b: &[W; 3]) -> W {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
@@ -134,12 +209,12 @@ mod tests {
         assert_eq!((a[2], a[6]), (2.0, 6.0));
         assert_eq!(a.cmplt(b).bitmask(), 0b0000_1111);
         assert_eq!(a.cmpgt(b).bitmask(), 0b1111_0000);
-        assert_eq!((a.cmple(Lanes::splat(5.0)) & a.cmpgt(Lanes::ONE)).bitmask(), 0b0011_1100);
-        assert_eq!((a - b).abs().min(Lanes::ONE).max(Lanes::ZERO).to_array()[3], 0.5);
+        assert_eq!((a.cmple(Lanes::splat(5.0)) & a.cmpgt(Lanes::splat(1.0))).bitmask(), 0b0011_1100);
+        assert_eq!((a - b).abs().min(Lanes::splat(1.0)).max(Lanes::ZERO).to_array()[3], 0.5);
         assert_eq!((a * a + a).to_array()[7], 56.0);
         // SSE's minimum: the second operand where either is NaN.
         let nan = Lanes::splat(f32::NAN);
-        assert_eq!(nan.min(Lanes::ONE).to_array(), [1.0; 8]);
-        assert!(Lanes::ONE.max(nan).to_array().iter().all(|x| x.is_nan()));
+        assert_eq!(nan.min(Lanes::splat(1.0)).to_array(), [1.0; 8]);
+        assert!(Lanes::splat(1.0).max(nan).to_array().iter().all(|x| x.is_nan()));
     }
 }

@@ -14,7 +14,7 @@
 //! level of detail off, culling off and boxes only, the traversal is the full-detail one.
 
 mod build;
-mod lanes;
+pub(crate) mod lanes;
 mod lod;
 pub(super) mod traverse;
 

@@ -9,7 +9,7 @@
 //! run the full-detail loop, compiled without those steps.
 
 
-use super::lanes::{Lanes, dot3};
+use super::lanes::{Wide, dot3};
 use super::lod::NodeLod;
 use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks};
 use crate::accel::block::LeafKernel;
@@ -19,34 +19,34 @@ use crate::math::Ray;
 /// The ray in the form the eight-wide tests want: per axis the origin, direction and negated
 /// inverse direction splatted to all lanes, and the footprint scaled by the level-of-detail
 /// threshold.
-struct SlabRay {
-    origin: [Lanes; 3],
-    dir: [Lanes; 3],
+struct SlabRay<W> {
+    origin: [W; 3],
+    dir: [W; 3],
     /// −1/d per axis, held within ±[`MAX_INV_DIR`]: finite, so no slab distance is NaN (0·∞)
     /// and [`Self::entries`] needs no rule for one.
-    neg_inv_dir: [Lanes; 3],
+    neg_inv_dir: [W; 3],
     /// τ·width0 and τ·spread: a child is below the footprint when R < lod0 + lod_spread·t.
-    lod0: Lanes,
-    lod_spread: Lanes,
+    lod0: W,
+    lod_spread: W,
 }
 
-impl SlabRay {
+impl<W: Wide> SlabRay<W> {
     #[inline(always)]
     fn new(ray: &Ray) -> Self {
         let tau = ray.lod_threshold;
         Self {
-            origin: std::array::from_fn(|k| Lanes::splat(ray.origin[k])),
-            dir: std::array::from_fn(|k| Lanes::splat(ray.dir[k])),
-            neg_inv_dir: std::array::from_fn(|k| Lanes::splat((-ray.inv_dir[k]).clamp(-MAX_INV_DIR, MAX_INV_DIR))),
-            lod0: Lanes::splat(tau * ray.cone.width0),
-            lod_spread: Lanes::splat(tau * ray.cone.spread),
+            origin: std::array::from_fn(|k| W::splat(ray.origin[k])),
+            dir: std::array::from_fn(|k| W::splat(ray.dir[k])),
+            neg_inv_dir: std::array::from_fn(|k| W::splat((-ray.inv_dir[k]).clamp(-MAX_INV_DIR, MAX_INV_DIR))),
+            lod0: W::splat(tau * ray.cone.width0),
+            lod_spread: W::splat(tau * ray.cone.spread),
         }
     }
 
     /// Distances along the ray of the projections of the children's sphere centres.
     #[inline(always)]
-    fn center_distances(&self, lod: &NodeLod) -> Lanes {
-        let oc: [Lanes; 3] = std::array::from_fn(|k| lod.center[k] - self.origin[k]);
+    fn center_distances(&self, lod: &NodeLod) -> W {
+        let oc: [W; 3] = std::array::from_fn(|k| W::load(&lod.center[k]) - self.origin[k]);
         dot3(&oc, &self.dir)
     }
 
@@ -56,19 +56,19 @@ impl SlabRay {
     /// ulps of the distance, the rounding error of the perpendicular distance, so that a disk
     /// touching its sphere is never missed (hits must not depend on the bounds chosen).
     #[inline(always)]
-    fn sphere_entries(&self, lod: &NodeLod, tc: Lanes, used: u32, t0: f32, t1: f32) -> (Lanes, u32) {
-        let perp: [Lanes; 3] = std::array::from_fn(|k| lod.center[k] - self.origin[k] - tc * self.dir[k]);
-        let r = lod.radius + tc.abs() * Lanes::splat(1.0 / 262_144.0);
-        let near = (tc - r).max(Lanes::splat(t0));
-        let far = (tc + r).min(Lanes::splat(t1));
-        (near, (dot3(&perp, &perp).cmple(r * r) & near.cmple(far)).bitmask() & used)
+    fn sphere_entries(&self, lod: &NodeLod, tc: W, used: u32, t0: f32, t1: f32) -> (W, u32) {
+        let perp: [W; 3] = std::array::from_fn(|k| W::load(&lod.center[k]) - self.origin[k] - tc * self.dir[k]);
+        let r = W::load(&lod.radius) + tc.abs() * W::splat(1.0 / 262_144.0);
+        let near = (tc - r).max(W::splat(t0));
+        let far = (tc + r).min(W::splat(t1));
+        (near, W::bitmask(dot3(&perp, &perp).cmple(r * r) & near.cmple(far)) & used)
     }
 
     /// Children whose bounding sphere is narrower than the footprint at its centre, scaled by
     /// the threshold: R < τ·(width0 + spread·tc).
     #[inline(always)]
-    fn below_footprint(&self, lod: &NodeLod, tc: Lanes) -> u32 {
-        lod.radius.cmplt(self.lod0 + self.lod_spread * tc.max(Lanes::ZERO)).bitmask()
+    fn below_footprint(&self, lod: &NodeLod, tc: W) -> u32 {
+        W::bitmask(W::load(&lod.radius).cmplt(self.lod0 + self.lod_spread * tc.max(W::splat(0.0))))
     }
 
     /// Children all of whose disks face away from the ray's origin from every point of their
@@ -79,13 +79,14 @@ impl SlabRay {
     /// (|v|² − s²)·sin²θ < (R + s·cos θ)². Cones of 90° or more never cull.
     #[inline(always)]
     fn facing_away(&self, lod: &NodeLod) -> u32 {
-        let v: [Lanes; 3] = std::array::from_fn(|k| self.origin[k] - lod.center[k]);
-        let s = dot3(&v, &lod.axis);
-        let cos = lod.cos_angle;
+        let v: [W; 3] = std::array::from_fn(|k| self.origin[k] - W::load(&lod.center[k]));
+        let s = dot3(&v, &lod.axis.map(|a| W::load(&a)));
+        let cos = W::load(&lod.cos_angle);
         // A slightly larger sphere: rounding must not cull a subtree that just faces the ray.
-        let gap = lod.radius * Lanes::splat(1.0 + 1.0 / 1024.0) + s * cos;
-        let spread = (dot3(&v, &v) - s * s).max(Lanes::ZERO) * (Lanes::ONE - cos * cos);
-        (gap.cmplt(Lanes::ZERO) & spread.cmplt(gap * gap) & cos.cmpgt(Lanes::ZERO)).bitmask()
+        let gap = W::load(&lod.radius) * W::splat(1.0 + 1.0 / 1024.0) + s * cos;
+        let zero = W::splat(0.0);
+        let spread = (dot3(&v, &v) - s * s).max(zero) * (W::splat(1.0) - cos * cos);
+        W::bitmask(gap.cmplt(zero) & spread.cmplt(gap * gap) & cos.cmpgt(zero))
     }
 
     /// Entry distances of the eight children of `node` within `[t0, t1]`, and a bit mask of
@@ -96,16 +97,16 @@ impl SlabRay {
     /// indices cost a load and a shift per plane (callgrind on the dragon: 62 → 50 instructions
     /// a node). Unused slots (minimum +∞, maximum −∞) come out entered and are masked off.
     #[inline(always)]
-    fn entries(&self, node: &Node, t0: f32, t1: f32) -> (Lanes, u32) {
+    fn entries(&self, node: &Node, t0: f32, t1: f32) -> (W, u32) {
         let slab = |k: usize| {
-            let lo = (self.origin[k] - node.planes[k]) * self.neg_inv_dir[k];
-            let hi = (self.origin[k] - node.planes[3 + k]) * self.neg_inv_dir[k];
+            let lo = (self.origin[k] - W::load(&node.planes[k])) * self.neg_inv_dir[k];
+            let hi = (self.origin[k] - W::load(&node.planes[3 + k])) * self.neg_inv_dir[k];
             (lo.min(hi), lo.max(hi))
         };
         let ((near0, far0), (near1, far1), (near2, far2)) = (slab(0), slab(1), slab(2));
-        let near = near0.max(near1).max(near2).max(Lanes::splat(t0));
-        let far = far0.min(far1).min(far2).min(Lanes::splat(t1));
-        (near, near.cmple(far).bitmask() & node.used & SLOTS)
+        let near = near0.max(near1).max(near2).max(W::splat(t0));
+        let far = far0.min(far1).min(far2).min(W::splat(t1));
+        (near, W::bitmask(near.cmple(far)) & node.used & SLOTS)
     }
 }
 
@@ -186,7 +187,7 @@ fn dispatch<V: SplatVisitor, K: LeafKernel>(
     // A node takes the multiresolution step when `reach` exceeds its `multires_below`: always
     // for culling rays, at sphere nodes, and where a child may be narrower than the footprint.
     let reach = if ray.cull_backfaces { f32::INFINITY } else { lod_reach };
-    let slab = SlabRay::new(ray);
+    let slab = SlabRay::<K::Lanes>::new(ray);
     let levels = Levels { lod_reach, reach };
     // Counted in a local, which can live in registers, and added once.
     let mut counts = TraversalStats::default();
@@ -227,7 +228,7 @@ struct Levels {
 fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
     bvh: &Bvh,
     ray: &Ray,
-    slab: &SlabRay,
+    slab: &SlabRay<K::Lanes>,
     visitor: &mut V,
     stats: &mut TraversalStats,
     stack: &mut [(u32, f32)],
@@ -273,7 +274,7 @@ fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
                     stats.box_tests += slot_count(node.used);
                     slab.entries(node, ray.t_min, t1)
                 };
-                // An array, not a `Lanes`: indexing a vector register by a run-time lane
+                // An array, not a vector: indexing a vector register by a run-time lane
                 // compiles to a jump table (7 instructions a child, callgrind).
                 let t = t.to_array();
                 if mask.is_power_of_two() {
@@ -323,22 +324,22 @@ fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
 /// each instruction set of `accel::isa` with the rest of the traversal.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn multires_children<V: SplatVisitor>(
+fn multires_children<V: SplatVisitor, W: Wide>(
     bvh: &Bvh,
-    slab: &SlabRay,
+    slab: &SlabRay<W>,
     ray: &Ray,
     k: usize,
     t1: f32,
     lod_reach: f32,
     visitor: &mut V,
     stats: &mut TraversalStats,
-) -> Option<(Lanes, u32)> {
+) -> Option<(W, u32)> {
     let node = &bvh.nodes[k];
     let node_lod = &bvh.lod[k];
     let slots = slot_count(node.used);
     let spheres = node.used & SPHERE_NODE != 0;
     let lod = node.min_radius < lod_reach;
-    let tc = if spheres || lod { slab.center_distances(node_lod) } else { Lanes::ZERO };
+    let tc = if spheres || lod { slab.center_distances(node_lod) } else { W::splat(0.0) };
     let (t, mut mask) = if spheres {
         stats.sphere_tests += slots;
         slab.sphere_entries(node_lod, tc, node.used & SLOTS, ray.t_min, t1)
