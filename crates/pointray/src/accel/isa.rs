@@ -373,16 +373,7 @@ mod tests {
     /// Every `Wide` operation on `a` and `b`, each result's bits in order.
     pub(super) fn wide_ops<W: Wide>(a: &Lanes, b: &Lanes) -> Vec<u32> {
         let (x, y) = (W::load(a), W::load(b));
-        let values = [
-            x + y,
-            x - y,
-            x * y,
-            x.min(y),
-            x.max(y),
-            x.abs(),
-            W::splat(a[3]),
-            dot3(&[x, y, x], &[y, y, x]),
-        ];
+        let values = [x + y, x - y, x * y, x.min(y), x.max(y), x.abs(), W::splat(a[3]), dot3(&[x, y, x], &[y, y, x])];
         let masks = [x.cmplt(y), x.cmple(y), x.cmpgt(y), x.cmplt(y) & y.cmpgt(W::splat(0.0))];
         let bits = values.into_iter().flat_map(|v| v.to_array()).map(f32::to_bits);
         bits.chain(masks.map(W::bitmask)).collect()

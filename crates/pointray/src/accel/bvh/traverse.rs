@@ -8,7 +8,6 @@
 //! visitor instead of being entered. Rays that use none of it (and trees without sphere nodes)
 //! run the full-detail loop, compiled without those steps.
 
-
 use super::lanes::{Wide, dot3};
 use super::lod::NodeLod;
 use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks};
