@@ -175,7 +175,7 @@ pub fn intersect<A: Accel + ?Sized>(
 }
 
 fn nearest<A: Accel + ?Sized>(accel: &A, ray: &Ray, stats: &mut TraversalStats) -> Option<SurfaceHit> {
-    let mut v = Nearest { t_max: f32::INFINITY, best: None, best_key: [0; 8] };
+    let mut v = Nearest { accel, t_max: f32::INFINITY, best: None };
     accel.traverse(ray, &mut v, stats);
     let (t, i) = v.best?;
     let s = accel.splat(i);
@@ -276,13 +276,16 @@ pub(crate) fn tie_key(s: &Splat) -> [u32; 8] {
     [b(c.x), b(c.y), b(c.z), b(s.radius), b(n.x), b(n.y), b(n.z), s.color]
 }
 
-struct Nearest {
+/// The nearest crossing, exact ties broken by [`tie_key`]. The keys are made only for a tie
+/// (the best's from its index): kept for every new best, they cost a load of the splat and
+/// eight words a hit (callgrind on the dragon, first hit: 841 → 826 instructions a pixel).
+struct Nearest<'a, A: ?Sized> {
+    accel: &'a A,
     t_max: f32,
     best: Option<(f32, u32)>,
-    best_key: [u32; 8],
 }
 
-impl SplatVisitor for Nearest {
+impl<A: Accel + ?Sized> SplatVisitor for Nearest<'_, A> {
     fn t_max(&self) -> f32 {
         self.t_max
     }
@@ -290,13 +293,12 @@ impl SplatVisitor for Nearest {
     #[inline(always)]
     fn hit(&mut self, _ray: &Ray, splat: &Splat, index: u32, h: DiskHit) {
         let better = match self.best {
-            Some((t, _)) => h.t < t || (h.t == t && tie_key(splat) < self.best_key),
+            Some((t, best)) => h.t < t || (h.t == t && tie_key(splat) < tie_key(self.accel.splat(best))),
             None => true,
         };
         if better {
             self.t_max = h.t;
             self.best = Some((h.t, index));
-            self.best_key = tie_key(splat);
         }
     }
 }
