@@ -126,9 +126,15 @@ fn bvh_nodes_bound_their_splats_and_visit_fewer_than_brute_force() {
     let bvh = Bvh::build(splats.clone(), &BvhParams::standard());
     assert!(bvh.depth() < 64, "depth {}", bvh.depth());
     pointray::accel::bvh::check_invariants(&bvh).expect("BVH invariants");
-    let mut sorted_in: Vec<u32> = (0..splats.len() as u32).map(|i| bvh.input_index(i)).collect();
-    sorted_in.sort_unstable();
-    assert!(sorted_in.iter().enumerate().all(|(i, &j)| i as u32 == j), "input_index is a permutation");
+    // The BVH holds the input's splats, reordered: the same multiset, bit for bit.
+    let bits = |s: &Splat| {
+        (s.center.to_array().map(f32::to_bits), s.normal.to_array().map(f32::to_bits), s.radius.to_bits(), s.color)
+    };
+    let mut input: Vec<_> = splats.iter().map(bits).collect();
+    let mut held: Vec<_> = bvh.splats().iter().map(bits).collect();
+    input.sort_unstable();
+    held.sort_unstable();
+    assert!(input == held, "the BVH's splats are not the input's");
     // Work per ray: the BVH must test orders of magnitude fewer disks than brute force.
     let mut stats = TraversalStats::default();
     let rays = random_rays(2_000, &bvh.bounds(), 9);

@@ -128,8 +128,6 @@ pub struct Bvh {
     /// The leaves' splats again, in blocks for the leaf kernel (see [`SplatBlock`]).
     pub(crate) blocks: Vec<SplatBlock>,
     pub(crate) bounds: Aabb,
-    /// For each splat of `splats`, its index in the input the BVH was built from.
-    pub(crate) input_index: Vec<u32>,
     pub(crate) depth: usize,
     pub(crate) node_bounds: NodeBounds,
     /// The 5th percentile of `Node::min_radius` (`representative::LOD_FLOOR_QUANTILE`): a ray whose
@@ -190,11 +188,6 @@ impl Bvh {
 
     pub fn depth(&self) -> usize {
         self.depth
-    }
-
-    /// Index in the build input of the splat at `i` in [`crate::accel::Accel::splats`].
-    pub fn input_index(&self, i: u32) -> u32 {
-        self.input_index[i as usize]
     }
 }
 
@@ -273,9 +266,7 @@ impl super::Accel for Bvh {
     }
 
     fn memory_bytes(&self) -> usize {
-        self.nodes.len() * Self::NODE_BYTES
-            + self.blocks.len() * size_of::<SplatBlock>()
-            + self.input_index.len() * size_of::<u32>()
+        self.nodes.len() * Self::NODE_BYTES + self.blocks.len() * size_of::<SplatBlock>()
     }
 
     fn traverse<V: super::SplatVisitor>(
