@@ -128,7 +128,8 @@ mod avx2 {
     /// NaN rules), in one instruction each (callgrind on the dragon, first hit: 897 → 841
     /// instructions a pixel). Values exist only inside `bvh_traverse_avx2`, the only
     /// instantiation of the traversal with [`Kernel`], which runs only where `detect` saw
-    /// AVX2: the type is private to this module.
+    /// AVX2, and in `lanes8_for_tests`, which checks `detect` first: the type is private to
+    /// this module.
     #[derive(Clone, Copy)]
     pub(super) struct Lanes8(__m256);
 
