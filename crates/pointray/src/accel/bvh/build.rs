@@ -242,12 +242,8 @@ fn build_node(prims: &mut [Prim], offset: usize, params: &BvhParams, depth: usiz
     let bounds_of = |prims: &[Prim]| {
         prims.iter().fold((Box3::EMPTY, Box3::EMPTY), |(b, c), p| (b.union(p.bounds()), c.grow(p.centroid())))
     };
-    let (bounds, centroids) = if prims.len() >= PARALLEL_BINNING {
-        let union = |(b0, c0): (Box3, Box3), (b1, c1): (Box3, Box3)| (b0.union(b1), c0.union(c1));
-        prims.par_chunks(PARALLEL_BINNING / 2).map(bounds_of).reduce(|| (Box3::EMPTY, Box3::EMPTY), union)
-    } else {
-        bounds_of(prims)
-    };
+    let union = |(b0, c0): (Box3, Box3), (b1, c1): (Box3, Box3)| (b0.union(b1), c0.union(c1));
+    let (bounds, centroids) = over_chunks(prims, bounds_of, || (Box3::EMPTY, Box3::EMPTY), union);
     let bounds = bounds.aabb();
     let n = prims.len();
     let leaf = || BuildNode::Leaf { bounds, first: offset, count: n };
@@ -314,6 +310,21 @@ pub(crate) const MAX_BINS: usize = 32;
 /// dragon's build 0.094 → 0.092 s, 2 threads, medians of five.)
 const PARALLEL_BINNING: usize = 64 * 1024;
 
+/// `pass` over all of `prims`: serially, or, from [`PARALLEL_BINNING`] primitives on, over
+/// chunks in parallel, the results merged (`empty` is `merge`'s identity).
+fn over_chunks<T: Send>(
+    prims: &[Prim],
+    pass: impl Fn(&[Prim]) -> T + Sync + Send,
+    empty: impl Fn() -> T + Sync + Send,
+    merge: impl Fn(T, T) -> T + Sync + Send,
+) -> T {
+    if prims.len() >= PARALLEL_BINNING {
+        prims.par_chunks(PARALLEL_BINNING / 2).map(pass).reduce(empty, merge)
+    } else {
+        pass(prims)
+    }
+}
+
 /// Where a centroid falls: bin ⌊(c − lo)·scale⌋ per axis, at most `last`.
 struct Binning {
     lo: Vec3A,
@@ -369,11 +380,8 @@ fn best_sah_split(prims: &[Prim], bounds: &Aabb, cb: &Aabb, params: &BvhParams) 
     let extent = cb.extent();
     let scale = Vec3::select(extent.cmpgt(Vec3::ZERO), Vec3::splat(bins as f32) / extent, Vec3::ZERO);
     let binning = Binning { lo: Vec3A::from(lo), scale: Vec3A::from(scale), last: Vec3A::splat((bins - 1) as f32) };
-    let Bins { boxes: bin_boxes, counts: bin_counts } = if prims.len() >= PARALLEL_BINNING {
-        prims.par_chunks(PARALLEL_BINNING / 2).map(|c| binning.bin(c)).reduce(Bins::empty, Bins::merge)
-    } else {
-        binning.bin(prims)
-    };
+    let Bins { boxes: bin_boxes, counts: bin_counts } =
+        over_chunks(prims, |c| binning.bin(c), Bins::empty, Bins::merge);
     let bin_bounds = bin_boxes.map(|axis| axis.map(Box3::aabb));
     let parent_area = bounds.half_area().max(f32::MIN_POSITIVE);
     let mut best: Option<Split> = None;

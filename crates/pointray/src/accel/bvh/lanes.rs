@@ -4,7 +4,7 @@
 //! Stored as two SSE vectors (glam's `Vec4`) side by side, and computed so on the baseline
 //! x86-64 build and other targets; the AVX2 build (`accel::isa`) loads the same eight floats
 //! into one register. Through [`Wide`], the traversal is written once for both, and both give
-//! the same bits. Comparisons give a [`Mask`], whose `bitmask` has bit i for lane i.
+//! the same bits. Comparisons give a [`Mask`], whose [`Wide::bitmask`] has bit i for lane i.
 //! Minimum and maximum are glam's, on x86-64 SSE's: where either lane is NaN, the second
 //! operand.
 
@@ -41,50 +41,6 @@ impl Lanes {
     #[inline(always)]
     pub(crate) fn from_array(a: [f32; LANES]) -> Self {
         Self { lo: Vec4::new(a[0], a[1], a[2], a[3]), hi: Vec4::new(a[4], a[5], a[6], a[7]) }
-    }
-
-    #[inline(always)]
-    pub(crate) fn to_array(self) -> [f32; LANES] {
-        let (lo, hi) = (self.lo.to_array(), self.hi.to_array());
-        [lo[0], lo[1], lo[2], lo[3], hi[0], hi[1], hi[2], hi[3]]
-    }
-
-    #[inline(always)]
-    pub(crate) fn min(self, o: Self) -> Self {
-        Self { lo: self.lo.min(o.lo), hi: self.hi.min(o.hi) }
-    }
-
-    #[inline(always)]
-    pub(crate) fn max(self, o: Self) -> Self {
-        Self { lo: self.lo.max(o.lo), hi: self.hi.max(o.hi) }
-    }
-
-    #[inline(always)]
-    pub(crate) fn abs(self) -> Self {
-        Self { lo: self.lo.abs(), hi: self.hi.abs() }
-    }
-
-    #[inline(always)]
-    pub(crate) fn cmplt(self, o: Self) -> Mask {
-        Mask { lo: self.lo.cmplt(o.lo), hi: self.hi.cmplt(o.hi) }
-    }
-
-    #[inline(always)]
-    pub(crate) fn cmple(self, o: Self) -> Mask {
-        Mask { lo: self.lo.cmple(o.lo), hi: self.hi.cmple(o.hi) }
-    }
-
-    #[inline(always)]
-    pub(crate) fn cmpgt(self, o: Self) -> Mask {
-        Mask { lo: self.lo.cmpgt(o.lo), hi: self.hi.cmpgt(o.hi) }
-    }
-}
-
-impl Mask {
-    /// Bit i set where lane i held.
-    #[inline(always)]
-    pub(crate) fn bitmask(self) -> u32 {
-        self.lo.bitmask() | self.hi.bitmask() << 4
     }
 }
 
@@ -152,42 +108,43 @@ impl Wide for Lanes {
 
     #[inline(always)]
     fn to_array(self) -> [f32; LANES] {
-        Lanes::to_array(self)
+        let (lo, hi) = (self.lo.to_array(), self.hi.to_array());
+        [lo[0], lo[1], lo[2], lo[3], hi[0], hi[1], hi[2], hi[3]]
     }
 
     #[inline(always)]
     fn min(self, o: Self) -> Self {
-        Lanes::min(self, o)
+        Self { lo: self.lo.min(o.lo), hi: self.hi.min(o.hi) }
     }
 
     #[inline(always)]
     fn max(self, o: Self) -> Self {
-        Lanes::max(self, o)
+        Self { lo: self.lo.max(o.lo), hi: self.hi.max(o.hi) }
     }
 
     #[inline(always)]
     fn abs(self) -> Self {
-        Lanes::abs(self)
+        Self { lo: self.lo.abs(), hi: self.hi.abs() }
     }
 
     #[inline(always)]
     fn cmplt(self, o: Self) -> Mask {
-        Lanes::cmplt(self, o)
+        Mask { lo: self.lo.cmplt(o.lo), hi: self.hi.cmplt(o.hi) }
     }
 
     #[inline(always)]
     fn cmple(self, o: Self) -> Mask {
-        Lanes::cmple(self, o)
+        Mask { lo: self.lo.cmple(o.lo), hi: self.hi.cmple(o.hi) }
     }
 
     #[inline(always)]
     fn cmpgt(self, o: Self) -> Mask {
-        Lanes::cmpgt(self, o)
+        Mask { lo: self.lo.cmpgt(o.lo), hi: self.hi.cmpgt(o.hi) }
     }
 
     #[inline(always)]
     fn bitmask(mask: Mask) -> u32 {
-        mask.bitmask()
+        mask.lo.bitmask() | mask.hi.bitmask() << 4
     }
 }
 
@@ -207,9 +164,9 @@ mod tests {
         let b = Lanes::splat(3.5);
         assert_eq!(a.to_array(), [0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0]);
         assert_eq!((a[2], a[6]), (2.0, 6.0));
-        assert_eq!(a.cmplt(b).bitmask(), 0b0000_1111);
-        assert_eq!(a.cmpgt(b).bitmask(), 0b1111_0000);
-        assert_eq!((a.cmple(Lanes::splat(5.0)) & a.cmpgt(Lanes::splat(1.0))).bitmask(), 0b0011_1100);
+        assert_eq!(Lanes::bitmask(a.cmplt(b)), 0b0000_1111);
+        assert_eq!(Lanes::bitmask(a.cmpgt(b)), 0b1111_0000);
+        assert_eq!(Lanes::bitmask(a.cmple(Lanes::splat(5.0)) & a.cmpgt(Lanes::splat(1.0))), 0b0011_1100);
         assert_eq!((a - b).abs().min(Lanes::splat(1.0)).max(Lanes::ZERO).to_array()[3], 0.5);
         assert_eq!((a * a + a).to_array()[7], 56.0);
         // SSE's minimum: the second operand where either is NaN.

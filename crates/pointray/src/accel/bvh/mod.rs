@@ -23,7 +23,7 @@ pub use lod::NodeBounds;
 
 use glam::Vec3;
 
-use lanes::Lanes;
+use lanes::{Lanes, Wide};
 
 use crate::accel::block::{BLOCK, SplatBlock};
 use crate::math::Aabb;
@@ -246,7 +246,7 @@ impl super::Accel for Bvh {
                 (n.planes[axis] - c).max(c - n.planes[3 + axis]).max(Lanes::ZERO)
             };
             let (gx, gy, gz) = (gap(0), gap(1), gap(2));
-            let mut near = (gx * gx + gy * gy + gz * gz).cmple(Lanes::splat(r2)).bitmask() & (n.used & SLOTS);
+            let mut near = Lanes::bitmask((gx * gx + gy * gy + gz * gz).cmple(Lanes::splat(r2))) & (n.used & SLOTS);
             while near != 0 {
                 let child = n.child[near.trailing_zeros() as usize];
                 near &= near - 1;

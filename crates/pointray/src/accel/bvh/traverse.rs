@@ -42,11 +42,17 @@ impl<W: Wide> SlabRay<W> {
         }
     }
 
+    /// The children's sphere centres seen from the ray's origin, c − o: found once for the
+    /// sphere test, the footprint and the cone.
+    #[inline(always)]
+    fn to_centers(&self, lod: &NodeLod) -> [W; 3] {
+        std::array::from_fn(|k| W::load(&lod.center[k]) - self.origin[k])
+    }
+
     /// Distances along the ray of the projections of the children's sphere centres.
     #[inline(always)]
-    fn center_distances(&self, lod: &NodeLod) -> W {
-        let oc: [W; 3] = std::array::from_fn(|k| W::load(&lod.center[k]) - self.origin[k]);
-        dot3(&oc, &self.dir)
+    fn center_distances(&self, oc: &[W; 3]) -> W {
+        dot3(oc, &self.dir)
     }
 
     /// Like [`Self::entries`] for the children's bounding spheres (QSplat's test, A4), given
@@ -55,8 +61,8 @@ impl<W: Wide> SlabRay<W> {
     /// ulps of the distance, the rounding error of the perpendicular distance, so that a disk
     /// touching its sphere is never missed (hits must not depend on the bounds chosen).
     #[inline(always)]
-    fn sphere_entries(&self, lod: &NodeLod, tc: W, used: u32, t0: f32, t1: f32) -> (W, u32) {
-        let perp: [W; 3] = std::array::from_fn(|k| W::load(&lod.center[k]) - self.origin[k] - tc * self.dir[k]);
+    fn sphere_entries(&self, lod: &NodeLod, oc: &[W; 3], tc: W, used: u32, t0: f32, t1: f32) -> (W, u32) {
+        let perp: [W; 3] = std::array::from_fn(|k| oc[k] - tc * self.dir[k]);
         let r = W::load(&lod.radius) + tc.abs() * W::splat(1.0 / 262_144.0);
         let near = (tc - r).max(W::splat(t0));
         let far = (tc + r).min(W::splat(t1));
@@ -75,16 +81,16 @@ impl<W: Wide> SlabRay<W> {
     /// cone's axis and s = v·axis, the largest v·n over a cone of half-angle θ ≤ 90° is
     /// |v|·cos(φ − θ) = s·cos θ + √(|v|² − s²)·sin θ, and the subtree faces away when that is
     /// below −R. Squared to avoid the roots: R + s·cos θ < 0 and
-    /// (|v|² − s²)·sin²θ < (R + s·cos θ)². Cones of 90° or more never cull.
+    /// (|v|² − s²)·sin²θ < (R + s·cos θ)². Cones of 90° or more never cull. Computed from
+    /// `oc` = −v: with s' = oc·axis = −s, R + s·cos θ is R − s'·cos θ to the bit.
     #[inline(always)]
-    fn facing_away(&self, lod: &NodeLod) -> u32 {
-        let v: [W; 3] = std::array::from_fn(|k| self.origin[k] - W::load(&lod.center[k]));
-        let s = dot3(&v, &lod.axis.map(|a| W::load(&a)));
+    fn facing_away(&self, lod: &NodeLod, oc: &[W; 3]) -> u32 {
+        let s = dot3(oc, &lod.axis.map(|a| W::load(&a)));
         let cos = W::load(&lod.cos_angle);
         // A slightly larger sphere: rounding must not cull a subtree that just faces the ray.
-        let gap = W::load(&lod.radius) * W::splat(1.0 + 1.0 / 1024.0) + s * cos;
+        let gap = W::load(&lod.radius) * W::splat(1.0 + 1.0 / 1024.0) - s * cos;
         let zero = W::splat(0.0);
-        let spread = (dot3(&v, &v) - s * s).max(zero) * (W::splat(1.0) - cos * cos);
+        let spread = (dot3(oc, oc) - s * s).max(zero) * (W::splat(1.0) - cos * cos);
         W::bitmask(gap.cmplt(zero) & spread.cmplt(gap * gap) & cos.cmpgt(zero))
     }
 
@@ -339,16 +345,17 @@ fn multires_children<V: SplatVisitor, W: Wide>(
     let slots = slot_count(node.used);
     let spheres = node.used & SPHERE_NODE != 0;
     let lod = node.min_radius < lod_reach;
-    let tc = if spheres || lod { slab.center_distances(node_lod) } else { W::splat(0.0) };
+    let oc = slab.to_centers(node_lod);
+    let tc = if spheres || lod { slab.center_distances(&oc) } else { W::splat(0.0) };
     let (t, mut mask) = if spheres {
         stats.sphere_tests += slots;
-        slab.sphere_entries(node_lod, tc, node.used & SLOTS, ray.t_min, t1)
+        slab.sphere_entries(node_lod, &oc, tc, node.used & SLOTS, ray.t_min, t1)
     } else {
         stats.box_tests += slots;
         slab.entries(node, ray.t_min, t1)
     };
     if mask != 0 && ray.cull_backfaces {
-        let away = slab.facing_away(node_lod) & mask;
+        let away = slab.facing_away(node_lod, &oc) & mask;
         stats.culled += u64::from(away.count_ones());
         mask &= !away;
     }
