@@ -11,7 +11,7 @@ use pointray::material::Material;
 use pointray::render::{Filter, Integrator, RenderConfig, Sampler};
 use pointray::shading::{Environment, Light};
 use pointray::splat::scheme::{SurfaceKind, SurfaceScheme};
-use pointray::splat::{DiskShape, Splat, splats_from_cloud};
+use pointray::splat::{DiskShape, splats_from_cloud};
 use pointray::stats::RenderStats;
 use serde::Serialize;
 
@@ -81,8 +81,8 @@ struct StatsReport {
     /// Most nodes visited by one pixel (the top of the `--aov nodes` scale).
     nodes_visited_max_per_pixel: u32,
     accel_bytes: usize,
+    /// The accelerator with its splats, per input splat.
     bytes_per_splat: f64,
-    splat_bytes: usize,
     mean_radius: f64,
     bounds_diagonal: f32,
     camera_distance: Option<f32>,
@@ -471,7 +471,6 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
             pss_fallback_fraction: per_hit(stats.traversal.pss_fallbacks),
             accel_bytes: accel.memory_bytes(),
             bytes_per_splat: accel.memory_bytes() as f64 / point_count as f64,
-            splat_bytes: point_count * size_of::<Splat>(),
             mean_radius,
             bounds_diagonal: bounds.diagonal(),
             camera_distance: a.eye.is_none().then(|| distance * bounds.diagonal()),

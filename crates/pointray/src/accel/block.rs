@@ -17,23 +17,22 @@ use super::bvh::lanes::{Lanes, Wide};
 use crate::math::Ray;
 use crate::splat::oriented_disk::DiskHit;
 use crate::splat::{DiskShape, Splat};
+use glam::Vec3;
 
 /// Disks per block.
 pub(crate) const BLOCK: usize = 8;
 
-/// Up to eight consecutive splats of one leaf. Unused lanes hold a disk of radius 0 and no
-/// normal, which no ray hits.
+/// Up to eight consecutive splats of one leaf: the only copy of the BVH's splats. Lane i of
+/// block b is splat `BLOCK·b + i`. Unused lanes hold a disk of radius 0 and no normal, which
+/// no ray hits. Four cache lines: the kernel reads the first three and a half; the colours,
+/// at the end, are read only for the hit a pixel shades.
 #[repr(C, align(32))]
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct SplatBlock {
     pub(super) center: [[f32; BLOCK]; 3],
     pub(super) normal: [[f32; BLOCK]; 3],
     pub(super) radius: [f32; BLOCK],
-    /// Index of the splat in lane 0 (in the accelerator's splat order); lane i holds splat
-    /// `first + i`.
-    pub(crate) first: u32,
-    /// Lanes in use.
-    pub(crate) count: u32,
+    color: [u32; BLOCK],
 }
 
 /// The leaf kernel a traversal runs: [`Portable`], or one written for an instruction set
@@ -71,28 +70,32 @@ impl BlockHits {
 }
 
 impl SplatBlock {
-    /// The block of `splats` (at most [`BLOCK`]), the first of which has index `first`.
-    pub(crate) fn new(splats: &[Splat], first: usize) -> Self {
+    /// The block of `splats` (at most [`BLOCK`]).
+    pub(crate) fn new(splats: &[Splat]) -> Self {
         debug_assert!((1..=BLOCK).contains(&splats.len()));
-        let mut block = Self {
-            center: [[0.0; BLOCK]; 3],
-            normal: [[0.0; BLOCK]; 3],
-            radius: [0.0; BLOCK],
-            first: first as u32,
-            count: splats.len() as u32,
-        };
+        let mut block =
+            Self { center: [[0.0; BLOCK]; 3], normal: [[0.0; BLOCK]; 3], radius: [0.0; BLOCK], color: [0; BLOCK] };
         for (i, s) in splats.iter().enumerate() {
             for k in 0..3 {
                 block.center[k][i] = s.center[k];
                 block.normal[k][i] = s.normal[k];
             }
             block.radius[i] = s.radius;
+            block.color[i] = s.color;
         }
         block
     }
 
-    pub(crate) fn indices(&self) -> std::ops::Range<usize> {
-        self.first as usize..(self.first + self.count) as usize
+    /// The splat in `lane`.
+    #[inline]
+    pub(crate) fn splat(&self, lane: usize) -> Splat {
+        let (c, n) = (&self.center, &self.normal);
+        Splat {
+            center: Vec3::new(c[0][lane], c[1][lane], c[2][lane]),
+            radius: self.radius[lane],
+            normal: Vec3::new(n[0][lane], n[1][lane], n[2][lane]),
+            color: self.color[lane],
+        }
     }
 
     /// The crossings of the disks `shape` stands for within `[ray.t_min, t_max]`.
@@ -190,6 +193,28 @@ pub(crate) mod tests {
         assert!(hits > 5_000 && misses > 50_000, "the test must see both: {hits} hits, {misses} misses");
     }
 
+    /// A block gives back the splats it was made of, bit for bit.
+    #[test]
+    fn block_holds_its_splats() {
+        for (round, (splats, _, _)) in random_disks_and_rays(3, BLOCK, 64).into_iter().enumerate() {
+            let colored =
+                |(i, s): (usize, Splat)| Splat { color: ((round * BLOCK + i) as u32).wrapping_mul(0x0101_0101), ..s };
+            let splats: Vec<Splat> = splats.into_iter().enumerate().map(colored).collect();
+            let block = SplatBlock::new(&splats);
+            for (lane, s) in splats.iter().enumerate() {
+                let bits = |s: Splat| {
+                    (
+                        s.center.to_array().map(f32::to_bits),
+                        s.normal.to_array().map(f32::to_bits),
+                        s.radius.to_bits(),
+                        s.color,
+                    )
+                };
+                assert_eq!(bits(block.splat(lane)), bits(*s));
+            }
+        }
+    }
+
     /// The edges random cases never reach, on the portable kernel.
     #[test]
     fn block_equals_the_scalar_tests_at_the_edges() {
@@ -210,7 +235,7 @@ pub(crate) mod tests {
         ];
         let mut hits = 0;
         for (s, ray, t_max) in cases {
-            let block = SplatBlock::new(&[s], 0);
+            let block = SplatBlock::new(&[s]);
             for shape in [DiskShape::Oriented, DiskShape::RayFacing] {
                 let got = kernel(&block, shape, &ray, t_max);
                 let lane = (got.mask & 1 != 0).then(|| got.hit(0));
@@ -232,7 +257,7 @@ pub(crate) mod tests {
         let (mut hits, mut misses) = (0, 0);
         for (splats, ray, t_max) in random_disks_and_rays(11, BLOCK, 20_000) {
             let lanes = splats.len();
-            let block = SplatBlock::new(&splats, 0);
+            let block = SplatBlock::new(&splats);
             for shape in [DiskShape::Oriented, DiskShape::RayFacing] {
                 let got = kernel(&block, shape, &ray, t_max);
                 assert_eq!(got.mask >> lanes, 0, "an unused lane hit");

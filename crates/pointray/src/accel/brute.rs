@@ -24,8 +24,16 @@ impl Accel for BruteForce {
         "brute"
     }
 
-    fn splats(&self) -> &[Splat] {
-        &self.splats
+    fn splat(&self, index: u32) -> Splat {
+        self.splats[index as usize]
+    }
+
+    fn is_representative(&self, _index: u32) -> bool {
+        false
+    }
+
+    fn splat_count(&self) -> usize {
+        self.splats.len()
     }
 
     fn bounds(&self) -> Aabb {
@@ -46,17 +54,17 @@ impl Accel for BruteForce {
         DiskShape::RayFacing
     }
 
-    fn for_each_near<F: FnMut(u32, &Splat)>(&self, center: Vec3, radius: f32, stats: &mut TraversalStats, mut f: F) {
+    fn for_each_near<F: FnMut(u32, Splat)>(&self, center: Vec3, radius: f32, stats: &mut TraversalStats, mut f: F) {
         for (i, s) in self.splats.iter().enumerate() {
             stats.splat_tests += 1;
             if (s.center - center).length_squared() <= radius * radius {
-                f(i as u32, s);
+                f(i as u32, *s);
             }
         }
     }
 
     fn memory_bytes(&self) -> usize {
-        0
+        self.splats.len() * size_of::<Splat>()
     }
 
     fn traverse<V: SplatVisitor>(&self, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {

@@ -32,16 +32,33 @@ use crate::splat::oriented_disk::DiskHit;
 use crate::splat::{DiskShape, Splat};
 use glam::Vec3;
 
+/// A ray's crossing of one disk, as an accelerator hands it to a visitor: where (`t`, and
+/// `dist2`, the squared distance from the disk's centre, as `splat::oriented_disk::intersect`
+/// or `ray_facing_disk` finds them), which disk (`splat`, what [`Accel::splat`] takes) and how
+/// wide it is, which the SJ window needs of every crossing (handed over from the leaf block the
+/// test just read, so that no visitor fetches the splat to learn it).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Crossing {
+    pub t: f32,
+    pub dist2: f32,
+    pub splat: u32,
+    pub radius: f32,
+}
+
+impl Crossing {
+    pub fn new(splat: u32, radius: f32, hit: DiskHit) -> Self {
+        Self { t: hit.t, dist2: hit.dist2, splat, radius }
+    }
+}
+
 /// Receives the crossings an accelerator finds along a ray.
 pub trait SplatVisitor {
     /// Nodes and splats beyond this ray parameter cannot matter any more.
     fn t_max(&self) -> f32;
-    /// The ray crosses the disk of `splat` (`index` is what [`Accel::splat`] takes) at `hit`,
-    /// exactly as `splat::oriented_disk::intersect` (or `ray_facing_disk`, after `SHAPE`)
-    /// finds it, within `[ray.t_min, self.t_max()]`. An accelerator whose `REPEATS_SPLATS` is
-    /// true may hand the same splat over more than once; a visitor used with it must then
-    /// change nothing on the second visit.
-    fn hit(&mut self, ray: &Ray, splat: &Splat, index: u32, hit: DiskHit);
+    /// The ray crosses a disk within `[ray.t_min, self.t_max()]`, found by the exact test of
+    /// `SHAPE`. An accelerator whose `REPEATS_SPLATS` is true may hand the same splat over more
+    /// than once; a visitor used with it must then change nothing on the second visit.
+    fn hit(&mut self, ray: &Ray, crossing: Crossing);
     /// True once the answer is known (any-hit queries stop early).
     fn done(&self) -> bool {
         false
@@ -56,7 +73,7 @@ pub trait SplatVisitor {
 #[inline(always)]
 pub(crate) fn test_disk<V: SplatVisitor>(ray: &Ray, splat: &Splat, index: u32, visitor: &mut V) {
     if let Some(h) = V::SHAPE.intersect(ray, splat, visitor.t_max()) {
-        visitor.hit(ray, splat, index, h);
+        visitor.hit(ray, Crossing::new(index, splat.radius, h));
     }
 }
 
@@ -104,13 +121,14 @@ pub trait Accel: Send + Sync {
     const REPEATS_SPLATS: bool = false;
 
     fn name(&self) -> &'static str;
-    /// The input splats, in the accelerator's order.
-    fn splats(&self) -> &[Splat];
-    /// The splat a visitor was handed as `index`: an input splat (`index < splats().len()`)
-    /// or a level-of-detail representative.
-    fn splat(&self, index: u32) -> &Splat {
-        &self.splats()[index as usize]
-    }
+    /// The splat a visitor was handed as index `index`: an input splat or a level-of-detail
+    /// representative. Indices are the accelerator's own (it may store its splats in any
+    /// order, with gaps); a copy, not a reference, so that it may store them in any form.
+    fn splat(&self, index: u32) -> Splat;
+    /// Whether `index` is a level-of-detail representative rather than an input splat.
+    fn is_representative(&self, index: u32) -> bool;
+    /// How many input splats the accelerator holds.
+    fn splat_count(&self) -> usize;
     /// Bounds of all the disks.
     fn bounds(&self) -> Aabb;
     /// The 99th percentile of the input splats' radii: how wide a disk a search that starts
@@ -129,8 +147,8 @@ pub trait Accel: Send + Sync {
     /// Calls `f` with every input splat (its index, as [`Accel::splat`] takes it, and itself)
     /// whose centre lies within `radius` of `center`, once each, in no particular order (the
     /// point-set surface's neighbourhoods). Representatives are not included.
-    fn for_each_near<F: FnMut(u32, &Splat)>(&self, center: Vec3, radius: f32, stats: &mut TraversalStats, f: F);
-    /// Bytes of the structure itself, excluding the splats.
+    fn for_each_near<F: FnMut(u32, Splat)>(&self, center: Vec3, radius: f32, stats: &mut TraversalStats, f: F);
+    /// Bytes of the structure with its splats (and their representatives).
     fn memory_bytes(&self) -> usize;
     /// Hands the visitor every splat the ray may cross in `[ray.t_min, visitor.t_max()]`,
     /// roughly front to back, until the visitor is `done`.

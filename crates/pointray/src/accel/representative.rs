@@ -20,7 +20,7 @@ pub(crate) struct Representative {
 /// The representative of `disks` (at least one).
 pub(crate) fn representative<'a>(disks: impl Iterator<Item = &'a Splat> + Clone) -> Representative {
     let first_normal = disks.clone().next().expect("a representative of no disk").normal;
-    let frame = Moments::of(disks.clone()).frame(first_normal);
+    let frame = Moments::of(disks.clone().copied()).frame(first_normal);
     let mut spread = Spread::default();
     disks.for_each(|s| spread.add(&frame, s));
     frame.representative(&spread)
@@ -40,7 +40,7 @@ pub(crate) struct Moments {
 }
 
 impl Moments {
-    pub(crate) fn of<'a>(disks: impl Iterator<Item = &'a Splat>) -> Self {
+    pub(crate) fn of(disks: impl Iterator<Item = Splat>) -> Self {
         let mut m = Moments::default();
         for s in disks {
             // Zero-radius disks still count (a little), so that a cloud of them has a centre.

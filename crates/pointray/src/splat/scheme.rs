@@ -26,10 +26,9 @@
 
 use glam::Vec3;
 
-use super::oriented_disk::DiskHit;
 use super::window::Window;
 use super::{DiskShape, DiskTest, Oriented, RayFacing, Splat, pss};
-use crate::accel::{Accel, SplatVisitor, TraversalStats};
+use crate::accel::{Accel, Crossing, SplatVisitor, TraversalStats};
 use crate::math::Ray;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
@@ -138,8 +137,8 @@ pub struct SurfaceHit {
     pub color: [f32; 3],
     /// Radius of the nearest disk: the local sampling scale, used for self-intersection offsets.
     pub radius: f32,
-    /// Index of the nearest disk, as [`Accel::splat`] takes it (a level-of-detail
-    /// representative when `≥ accel.splats().len()`).
+    /// Index of the nearest disk, as [`Accel::splat`] takes it (perhaps a level-of-detail
+    /// representative: [`Accel::is_representative`]).
     pub splat: u32,
     /// Number of disks blended (1 for first-hit; the neighbours of the last step for PSS).
     pub blended: u32,
@@ -166,7 +165,7 @@ pub fn intersect<A: Accel + ?Sized>(
             // A level-of-detail representative already stands for the surface at the ray's
             // footprint; projecting from it would gather the whole subtree (its bandwidth is
             // its radius).
-            if seed.splat as usize >= accel.splats().len() {
+            if accel.is_representative(seed.splat) {
                 return Some(seed);
             }
             Some(pss::project(accel, ray, &seed, &scheme.pss, stats))
@@ -293,14 +292,17 @@ impl<A: Accel + ?Sized> SplatVisitor for Nearest<'_, A> {
     }
 
     #[inline(always)]
-    fn hit(&mut self, _ray: &Ray, splat: &Splat, index: u32, h: DiskHit) {
+    fn hit(&mut self, _ray: &Ray, c: Crossing) {
         let better = match self.best {
-            Some(best) => h.t < self.t_max || (h.t == self.t_max && tie_key(splat) < tie_key(self.accel.splat(best))),
+            Some(best) => {
+                c.t < self.t_max
+                    || (c.t == self.t_max && tie_key(&self.accel.splat(c.splat)) < tie_key(&self.accel.splat(best)))
+            }
             None => true,
         };
         if better {
-            self.t_max = h.t;
-            self.best = Some(index);
+            self.t_max = c.t;
+            self.best = Some(c.splat);
         }
     }
 }
@@ -319,7 +321,7 @@ impl<D: DiskTest> SplatVisitor for AnyHit<D> {
     }
 
     #[inline(always)]
-    fn hit(&mut self, _ray: &Ray, _splat: &Splat, _index: u32, _hit: DiskHit) {
+    fn hit(&mut self, _ray: &Ray, _crossing: Crossing) {
         self.hit = true;
     }
 

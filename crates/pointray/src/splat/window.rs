@@ -9,23 +9,15 @@ use std::marker::PhantomData;
 use arrayvec::ArrayVec;
 use glam::Vec3;
 
-use super::oriented_disk::DiskHit;
 use super::scheme::{SurfaceHit, facing, tie_key};
-use super::{DiskShape, DiskTest, Splat};
-use crate::accel::{Accel, SplatVisitor};
+use super::{DiskShape, DiskTest};
+use crate::accel::{Accel, Crossing, SplatVisitor};
 use crate::math::Ray;
 
 /// Most disks a window holds; on a smooth surface a ray crosses a handful (about the mean
 /// overlap, πr²·density). Past the cap the farthest crossing is dropped; only then can the
 /// order in which disks arrive matter (with more than this many crossings, ties for last).
 const WINDOW_CAPACITY: usize = 24;
-
-#[derive(Clone, Copy)]
-struct Crossing {
-    t: f32,
-    dist2: f32,
-    index: u32,
-}
 
 /// Collects the disks (of shape `D`) crossed within `[t₀, t₀ + δ]` of the nearest crossing t₀
 /// found so far. The accelerator culls against `t_max() = collect_to` (at least t₀ + δ), so it
@@ -138,11 +130,11 @@ impl<D: DiskTest> Window<D> {
         // already; crossings of equal t are put in order of their splats.
         if list.windows(2).any(|w| w[0].t == w[1].t) {
             list.sort_by(|a, b| {
-                a.t.total_cmp(&b.t).then_with(|| tie_key(accel.splat(a.index)).cmp(&tie_key(accel.splat(b.index))))
+                a.t.total_cmp(&b.t).then_with(|| tie_key(&accel.splat(a.splat)).cmp(&tie_key(&accel.splat(b.splat))))
             });
         }
         let first = *list.first()?;
-        let first_splat = accel.splat(first.index);
+        let first_splat = accel.splat(first.splat);
         // Blend the disks facing the same way as the first, and of its material: the back of a
         // thin part may lie within the window, and so may another cloud where two touch.
         let side = first_splat.normal.dot(ray.dir) > 0.0;
@@ -151,15 +143,17 @@ impl<D: DiskTest> Window<D> {
         let mut blended = 0;
         let mut coverage = 0.0;
         for x in list.iter() {
-            let s = accel.splat(x.index);
+            // By value and field by field: a reference to the splat put all of it on the
+            // stack for every crossing (callgrind on the dragon, SJ: 16 stores a crossing).
+            let s = accel.splat(x.splat);
             if (s.normal.dot(ray.dir) > 0.0) != side || s.material() != material {
                 continue;
             }
             // SJ Eq. 1: wᵢ = rᵢ − dᵢ. Positive for every accepted crossing (dᵢ < rᵢ).
-            let w = s.radius - x.dist2.sqrt();
-            coverage += w / s.radius;
+            let w = x.radius - x.dist2.sqrt();
+            coverage += w / x.radius;
             wsum += w;
-            t += w * if tangent_planes { on_tangent_plane(ray, s, x.t) } else { x.t };
+            t += w * if tangent_planes { on_tangent_plane(ray, s.center, s.normal, x.t) } else { x.t };
             n += w * s.normal;
             c += w * Vec3::from(s.color_linear());
             blended += 1;
@@ -176,7 +170,7 @@ impl<D: DiskTest> Window<D> {
             normal: facing(n, ray.dir),
             color: c.to_array(),
             radius: first_splat.radius,
-            splat: first.index,
+            splat: first.splat,
             blended: blended.max(1),
         };
         Some((hit, coverage))
@@ -186,13 +180,13 @@ impl<D: DiskTest> Window<D> {
 /// Where the ray crosses the splat's tangent plane (within r/|cos| of `t`, the crossing of its
 /// ray-facing disk), not before `ray.t_min`; `t` itself where the plane is seen nearly edge-on
 /// and the crossing would run off.
-fn on_tangent_plane(ray: &Ray, s: &Splat, t: f32) -> f32 {
+fn on_tangent_plane(ray: &Ray, center: Vec3, normal: Vec3, t: f32) -> f32 {
     const MIN_COS: f32 = 0.05;
-    let den = ray.dir.dot(s.normal);
+    let den = ray.dir.dot(normal);
     if den.abs() < MIN_COS {
         return t;
     }
-    ((s.center - ray.origin).dot(s.normal) / den).max(ray.t_min)
+    ((center - ray.origin).dot(normal) / den).max(ray.t_min)
 }
 
 impl<D: DiskTest> SplatVisitor for Window<D> {
@@ -203,13 +197,13 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
     }
 
     #[inline(always)]
-    fn hit(&mut self, _ray: &Ray, splat: &Splat, index: u32, h: DiskHit) {
+    fn hit(&mut self, _ray: &Ray, h: Crossing) {
         let first_t = self.first_t;
         if !self.fixed && h.t <= first_t {
             self.first_t = h.t;
             // The window reaches `window` radii past the first crossing; of disks tied for
             // first, the widest decides, whatever order they arrive in.
-            let end = h.t + self.window * splat.radius;
+            let end = h.t + self.window * h.radius;
             let end = if h.t == first_t { end.max(self.end) } else { end };
             // Crossings past `collect_to` so far were turned away.
             self.grew |= end > self.collect_to;
@@ -223,9 +217,9 @@ impl<D: DiskTest> SplatVisitor for Window<D> {
         }
         // A kd-tree hands a disk that straddles cells over once per cell. (The window's start
         // and end above are the same for a repeat.)
-        if self.repeats && self.crossings.iter().any(|c| c.index == index) {
+        if self.repeats && self.crossings.iter().any(|c| c.splat == h.splat) {
             return;
         }
-        self.insert(Crossing { t: h.t, dist2: h.dist2, index });
+        self.insert(h);
     }
 }

@@ -3,12 +3,12 @@
 
 use glam::Vec3;
 use pointray::accel::{
-    Accel, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, SplatVisitor, TraversalStats, backfacing_fraction,
+    Accel, Bvh, BvhParams, Crossing, KdTree, KdTreeParams, NodeBounds, SplatVisitor, TraversalStats,
+    backfacing_fraction,
 };
 use pointray::camera::Camera;
 use pointray::math::Ray;
 use pointray::splat::Splat;
-use pointray::splat::oriented_disk::DiskHit;
 use pointray::splat::scheme::{self, SurfaceScheme};
 
 use crate::util::{random_rays, sphere_splats, torus_splats};
@@ -22,7 +22,7 @@ impl SplatVisitor for Everything {
         f32::INFINITY
     }
 
-    fn hit(&mut self, _: &Ray, _: &Splat, _: u32, _: DiskHit) {
+    fn hit(&mut self, _: &Ray, _: Crossing) {
         self.0 += 1;
     }
 }

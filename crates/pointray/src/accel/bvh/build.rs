@@ -141,9 +141,11 @@ impl Bvh {
     /// With more than [`MAX_SPLATS`] splats, or parameters out of range.
     ///
     /// Memory: each array is allocated once at its final size and every temporary is dropped
-    /// as soon as it is used, so that the peak is about the input and the finished BVH (with
-    /// the representatives apart and the leaf blocks counted ahead, a render of a
-    /// 2-million-point torus peaked at 274 MB where it took 408 MB, `/usr/bin/time`).
+    /// as soon as it is used, so that the peak is the splats in leaf order beside the blocks
+    /// made from them (with the representatives apart and the leaf blocks counted ahead, a
+    /// render of a 2-million-point torus peaked at 274 MB where it took 408 MB,
+    /// `/usr/bin/time`; with the splats kept only in blocks and the level of detail read from
+    /// them, a 20-million-point torus's render 1.72 → 1.52 GB).
     pub fn build(input: Vec<Splat>, params: &BvhParams) -> Bvh {
         assert!((2..=MAX_BINS).contains(&params.bins) && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
         assert!(input.len() <= MAX_SPLATS, "a BVH indexes at most {MAX_SPLATS} splats");
@@ -170,19 +172,26 @@ impl Bvh {
             BuildNode::Leaf { count: 0, .. } => 0, // no splats: no nodes
             root => flatten(root, &mut nodes, &mut spans),
         };
-        // The blocks in parallel (serially they took an eighth of the dragon's build).
+        // The capacity guessed above is about twice the 8-wide tree's nodes: 8 bytes a splat.
+        nodes.shrink_to_fit();
+        let (wide_radius, splat_count) = (wide_radius(&splats), splats.len());
+        // The blocks in parallel (serially they took an eighth of the dragon's build); from then
+        // on they are the only copy of the splats.
         let blocks: Vec<SplatBlock> =
-            spans.par_iter().map(|&(first, count)| SplatBlock::new(&splats[first..first + count], first)).collect();
+            spans.par_iter().map(|&(first, count)| SplatBlock::new(&splats[first..first + count])).collect();
+        let counts: Vec<u8> = spans.iter().map(|&(_, count)| count as u8).collect();
         drop(spans);
-        let wide_radius = wide_radius(&splats);
-        let (lod, representatives) = super::lod::build(&mut nodes, &splats, &blocks, params.shape);
+        drop(splats);
+        let disks = super::lod::Disks { blocks: &blocks, counts: &counts };
+        let (lod, representatives) = super::lod::build(&mut nodes, &disks, params.shape);
+        drop(counts);
         let lod_floor = radius_quantile(nodes.iter().map(|n| n.min_radius).collect(), LOD_FLOOR_QUANTILE);
         let mut bvh = Bvh {
             nodes,
             lod,
-            splats,
-            representatives,
             blocks,
+            representatives,
+            splat_count,
             bounds,
             depth,
             node_bounds: NodeBounds::Boxes,
@@ -225,7 +234,7 @@ fn flatten(node: BuildNode, nodes: &mut Vec<Node>, spans: &mut Vec<(usize, usize
                 spans.extend(
                     (first..first + count).step_by(BLOCK).map(|start| (start, BLOCK.min(first + count - start))),
                 );
-                nodes[at].child[i] = leaf_ref(first_block, spans.len() - first_block);
+                nodes[at].child[i] = leaf_ref(first_block, count);
             }
             inner @ BuildNode::Inner { .. } => {
                 nodes[at].child[i] = nodes.len() as u32;

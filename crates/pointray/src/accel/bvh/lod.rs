@@ -15,11 +15,14 @@
 //!   as normal, the area-weighted mean colour, and a radius between covering every disk below
 //!   and matching their spread (see `accel::representative`).
 
+use std::ops::Range;
+
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use super::lanes::Lanes;
-use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks};
+use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks, leaf_size, leaf_splats};
+use crate::accel::Accel;
 use crate::accel::block::SplatBlock;
 use crate::accel::representative::{Moments, Representative, Spread};
 use crate::splat::{DiskShape, Splat};
@@ -57,25 +60,38 @@ pub enum NodeBounds {
 /// Leaves of at most this many splats are never replaced by their representative.
 const ALWAYS_FULL_LEAF: usize = 4;
 
-/// Splat range below a child reference.
-fn child_range(child: u32, blocks: &[SplatBlock], node_range: &[std::ops::Range<usize>]) -> std::ops::Range<usize> {
-    if child & LEAF != 0 {
-        let p = leaf_blocks(child);
-        blocks[p.start].first as usize..blocks[p.end - 1].indices().end
-    } else {
-        node_range[child as usize].clone()
+/// The splats as the build left them: in blocks, block `b` holding `counts[b]` of them in its
+/// first lanes. A subtree's leaves take a contiguous run of blocks (the build writes them depth
+/// first), so its splats are the lanes in use of a block range. Read from the blocks, the
+/// level-of-detail build needs no second copy of the splats (a 20-million-point torus's
+/// render peaked at 1.76 GB with one, `/usr/bin/time`).
+pub(super) struct Disks<'a> {
+    pub(super) blocks: &'a [SplatBlock],
+    pub(super) counts: &'a [u8],
+}
+
+impl<'a> Disks<'a> {
+    /// The splats of a block range.
+    fn of(&self, blocks: Range<usize>) -> impl Iterator<Item = Splat> + Clone + 'a {
+        let (all, counts) = (self.blocks, self.counts);
+        blocks.flat_map(move |b| (0..usize::from(counts[b])).map(move |lane| all[b].splat(lane)))
     }
 }
 
-/// The splat range below every node. Children are stored after their parent, so one pass
+/// Block range below a child reference.
+fn child_range(child: u32, node_range: &[Range<usize>]) -> Range<usize> {
+    if child & LEAF != 0 { leaf_blocks(child) } else { node_range[child as usize].clone() }
+}
+
+/// The block range below every node. Children are stored after their parent, so one pass
 /// from the back sees every child before its parent.
-fn node_ranges(nodes: &[Node], blocks: &[SplatBlock]) -> Vec<std::ops::Range<usize>> {
+fn node_ranges(nodes: &[Node]) -> Vec<Range<usize>> {
     let mut ranges = vec![0..0; nodes.len()];
     for k in (0..nodes.len()).rev() {
         let n = &nodes[k];
         let (mut lo, mut hi) = (usize::MAX, 0);
         for i in (0..WIDTH).filter(|i| n.used & (1 << i) != 0) {
-            let r = child_range(n.child[i], blocks, &ranges);
+            let r = child_range(n.child[i], &ranges);
             (lo, hi) = (lo.min(r.start), hi.max(r.end));
         }
         ranges[k] = lo.min(hi)..hi;
@@ -110,13 +126,19 @@ fn round_up(x: f64) -> f32 {
 }
 
 /// The child's bounds and representative from its disks and their moments, in one pass.
-fn child_lod(box_center: Vec3, disks: &[Splat], moments: &Moments, shape: DiskShape) -> ChildLod {
-    let frame = moments.frame(disks[0].normal);
+fn child_lod(
+    box_center: Vec3,
+    disks: impl Iterator<Item = Splat> + Clone,
+    moments: &Moments,
+    shape: DiskShape,
+) -> ChildLod {
+    let first = disks.clone().next().expect("a child holds disks");
+    let frame = moments.frame(first.normal);
     let (c, axis) = (box_center.as_dvec3(), frame.normal().as_dvec3());
     let (mut far, mut spread, mut min_cos) = (0.0f64, Spread::default(), 1.0f64);
     for s in disks {
-        far = far.max(farthest(c, s, shape));
-        spread.add(&frame, s);
+        far = far.max(farthest(c, &s, shape));
+        spread.add(&frame, &s);
         min_cos = min_cos.min(s.normal.as_dvec3().dot(axis));
     }
     let Representative { splat: rep, coherent } = frame.representative(&spread);
@@ -132,16 +154,11 @@ fn child_lod(box_center: Vec3, disks: &[Splat], moments: &Moments, shape: DiskSh
 /// The moments of the disks below every node: its leaf children's summed in parallel, then its
 /// inner children's merged in from the leaves up (children are stored after their parent).
 /// Serially, this took a sixth of the dragon's level-of-detail build.
-fn node_moments(
-    nodes: &[Node],
-    splats: &[Splat],
-    blocks: &[SplatBlock],
-    ranges: &[std::ops::Range<usize>],
-) -> Vec<Moments> {
+fn node_moments(nodes: &[Node], disks: &Disks, ranges: &[Range<usize>]) -> Vec<Moments> {
     let leaves = |n: &Node| {
         let mut m = Moments::default();
         for i in (0..WIDTH).filter(|i| n.used & (1 << i) != 0 && n.child[*i] & LEAF != 0) {
-            m.merge(&Moments::of(splats[child_range(n.child[i], blocks, ranges)].iter()));
+            m.merge(&Moments::of(disks.of(child_range(n.child[i], ranges))));
         }
         m
     };
@@ -157,16 +174,11 @@ fn node_moments(
 }
 
 /// Level-of-detail payload of every node (`lod[k]` for `nodes[k]`) and the representative
-/// splats, one per child: child `i` of node `k` is `reps[k][i]`.
-/// Also sets every node's level-of-detail slots and `min_radius`.
-pub(super) fn build(
-    nodes: &mut [Node],
-    splats: &[Splat],
-    blocks: &[SplatBlock],
-    shape: DiskShape,
-) -> (Vec<NodeLod>, Vec<[Splat; WIDTH]>) {
-    let ranges = node_ranges(nodes, blocks);
-    let moments = node_moments(nodes, splats, blocks, &ranges);
+/// splats, one per child: child `i` of node `k` is `reps[k][i]`. Also sets every node's
+/// level-of-detail slots and `min_radius`.
+pub(super) fn build(nodes: &mut [Node], disks: &Disks, shape: DiskShape) -> (Vec<NodeLod>, Vec<[Splat; WIDTH]>) {
+    let ranges = node_ranges(nodes);
+    let moments = node_moments(nodes, disks, &ranges);
     // Unzipped straight into the two arrays: collected as pairs and then split, the pairs took
     // 256 bytes a node beside both.
     let (lod, reps): (Vec<NodeLod>, Vec<[Splat; WIDTH]>) = nodes
@@ -174,19 +186,19 @@ pub(super) fn build(
         .map(|n| {
             let children: [Option<ChildLod>; WIDTH] = std::array::from_fn(|i| {
                 (n.used & (1 << i) != 0).then(|| {
-                    let disks = &splats[child_range(n.child[i], blocks, &ranges)];
+                    let below = disks.of(child_range(n.child[i], &ranges));
                     // A leaf child's moments are summed again here (`node_moments` summed them
                     // into its parent's): one pass over the leaves, where keeping them would
                     // take a `Moments` per leaf.
                     let leaf_moments;
                     let m = match n.child[i] {
                         child if child & LEAF != 0 => {
-                            leaf_moments = Moments::of(disks.iter());
+                            leaf_moments = Moments::of(below.clone());
                             &leaf_moments
                         }
                         child => &moments[child as usize],
                     };
-                    child_lod(n.child_bounds(i).center(), disks, m, shape)
+                    child_lod(n.child_bounds(i).center(), below, m, shape)
                 })
             });
             let lane = |f: &dyn Fn(&ChildLod) -> f32, unused: f32| {
@@ -206,9 +218,8 @@ pub(super) fn build(
     for (n, l) in nodes.iter_mut().zip(&lod) {
         // A leaf of a few splats costs about what its representative does to test: it is never
         // replaced, and full detail there is free.
-        let leaf_len = |child: u32| child_range(child, blocks, &ranges).len();
         let coarse: Vec<usize> = (0..WIDTH)
-            .filter(|&i| n.used & (1 << i) != 0 && (n.child[i] & LEAF == 0 || leaf_len(n.child[i]) > ALWAYS_FULL_LEAF))
+            .filter(|&i| n.used & (1 << i) != 0 && (n.child[i] & LEAF == 0 || leaf_size(n.child[i]) > ALWAYS_FULL_LEAF))
             .collect();
         n.used = n.used & !(SLOTS << LOD_SLOTS_SHIFT) | coarse.iter().fold(0, |m, i| m | 1 << i) << LOD_SLOTS_SHIFT;
         n.min_radius = coarse.iter().map(|&i| l.radius[i]).fold(f32::INFINITY, f32::min);
@@ -246,13 +257,19 @@ pub(super) fn choose_node_bounds(nodes: &mut [Node], lod: &[NodeLod], choice: No
 /// Checks the level-of-detail invariants: each child's sphere contains every disk below it
 /// and its cone every normal below it, and the representative's normal is the cone's axis.
 pub(super) fn check_invariants(bvh: &Bvh) -> Result<(), String> {
-    let ranges = node_ranges(&bvh.nodes, &bvh.blocks);
+    fn splats_below(bvh: &Bvh, child: u32) -> Vec<Splat> {
+        if child & LEAF != 0 {
+            return leaf_splats(child).map(|j| bvh.splat(j)).collect();
+        }
+        let n = &bvh.nodes[child as usize];
+        (0..WIDTH).filter(|i| n.used & (1 << i) != 0).flat_map(|i| splats_below(bvh, n.child[i])).collect()
+    }
     for (k, n) in bvh.nodes.iter().enumerate() {
         let l = &bvh.lod[k];
         for i in (0..WIDTH).filter(|i| n.used & (1 << i) != 0) {
             let center = Vec3::new(l.center[0][i], l.center[1][i], l.center[2][i]);
             let axis = Vec3::new(l.axis[0][i], l.axis[1][i], l.axis[2][i]);
-            for s in &bvh.splats[child_range(n.child[i], &bvh.blocks, &ranges)] {
+            for s in &splats_below(bvh, n.child[i]) {
                 let far = farthest(center.as_dvec3(), s, bvh.shape);
                 if far > f64::from(l.radius[i]) {
                     return Err(format!("node {k} child {i}: sphere {center} r {} misses {s:?} ({far})", l.radius[i]));
@@ -291,7 +308,7 @@ mod tests {
     #[test]
     fn representative_of_one_disk_is_the_disk() {
         let s = Splat { center: Vec3::new(1.0, 2.0, 3.0), radius: 0.5, normal: Vec3::Y, color: 0x00_80_40_20 };
-        let c = child_lod(s.center, &[s], &Moments::of([s].iter()), DiskShape::Oriented);
+        let c = child_lod(s.center, [s].into_iter(), &Moments::of([s].into_iter()), DiskShape::Oriented);
         assert_eq!(c.rep, s);
         assert!(c.cos_angle > 0.9999 && (c.radius - 0.5).abs() < 1e-5);
     }
@@ -300,6 +317,7 @@ mod tests {
     fn opposite_normals_never_cull() {
         let a = Splat { center: Vec3::ZERO, radius: 0.5, normal: Vec3::Z, color: 0 };
         let b = Splat { normal: -Vec3::Z, ..a };
-        assert_eq!(child_lod(Vec3::ZERO, &[a, b], &Moments::of([a, b].iter()), DiskShape::Oriented).cos_angle, -1.0);
+        let disks = [a, b].into_iter();
+        assert_eq!(child_lod(Vec3::ZERO, disks.clone(), &Moments::of(disks), DiskShape::Oriented).cos_angle, -1.0);
     }
 }

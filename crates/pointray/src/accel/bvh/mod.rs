@@ -3,9 +3,8 @@
 //! The build makes a binary SAH tree and collapses it into an 8-wide one (as Embree's BVH8):
 //! each node stores the boxes of its up to eight children side by side (`lanes`), so one
 //! traversal step tests eight boxes and never fetches a child the ray misses, and the tree is
-//! a third as deep as the binary one. Leaves are ranges of the splat array, which the build reorders
-//! into leaf order, stored again as blocks of eight disks for the leaf kernel
-//! (`accel::block`).
+//! a third as deep as the binary one. The build puts the splats in leaf order and stores them
+//! in blocks of eight disks for the leaf kernel (`accel::block`); a leaf is a run of blocks.
 //!
 //! It is also the multiresolution BVH of thesis ch. 3: every child slot carries a bounding
 //! sphere, a normal cone and a representative splat (`lod`), so a ray whose footprint is wider
@@ -25,31 +24,45 @@ use glam::Vec3;
 
 use lanes::{Lanes, Wide};
 
+use crate::accel::Accel;
 use crate::accel::block::{BLOCK, SplatBlock};
 use crate::math::Aabb;
 use crate::splat::{DiskShape, Splat};
 
 /// A child reference is a node index, or for a leaf
-/// `LEAF | (blocks − 1) << FIRST_BITS | first block`: one word on the traversal stack says
-/// everything about a child.
+/// `LEAF | (splats − 1) << FIRST_BITS | first block`: one word on the traversal stack says
+/// everything about a child. A leaf's splats fill its blocks in order, so they are the splat
+/// indices `BLOCK · first block ..` on, one after another.
 const LEAF: u32 = 1 << 31;
 const FIRST_BITS: u32 = 27;
-/// Most splats a leaf can hold (its block count takes the bits between `LEAF` and the index).
+/// Most splats a leaf can hold (its splat count takes the four bits between `LEAF` and the
+/// first block).
 pub(crate) const MAX_LEAF_SIZE: usize = 16;
 /// Most splats a BVH can index (2²⁷ ≈ 134 million).
 pub const MAX_SPLATS: usize = 1 << FIRST_BITS;
 
-fn leaf_ref(first_block: usize, blocks: usize) -> u32 {
-    debug_assert!((1..=MAX_LEAF_SIZE / BLOCK).contains(&blocks) && first_block < MAX_SPLATS);
-    LEAF | ((blocks - 1) as u32) << FIRST_BITS | first_block as u32
+fn leaf_ref(first_block: usize, splats: usize) -> u32 {
+    debug_assert!((1..=MAX_LEAF_SIZE).contains(&splats) && first_block < MAX_SPLATS);
+    LEAF | ((splats - 1) as u32) << FIRST_BITS | first_block as u32
+}
+
+/// The number of splats in a leaf.
+#[inline(always)]
+fn leaf_size(child: u32) -> usize {
+    ((child & !LEAF) >> FIRST_BITS) as usize + 1
 }
 
 /// The block range of a leaf reference.
 #[inline(always)]
 fn leaf_blocks(child: u32) -> std::ops::Range<usize> {
     let first = (child & ((1 << FIRST_BITS) - 1)) as usize;
-    let count = ((child & !LEAF) >> FIRST_BITS) as usize + 1;
-    first..first + count
+    first..first + (leaf_size(child) - 1) / BLOCK + 1
+}
+
+/// The splat indices of a leaf reference.
+fn leaf_splats(child: u32) -> std::ops::Range<u32> {
+    let first = (leaf_blocks(child).start * BLOCK) as u32;
+    first..first + leaf_size(child) as u32
 }
 
 /// From this depth of the binary build tree on, splits are object medians (see `build_node`),
@@ -118,15 +131,15 @@ pub struct Bvh {
     pub(crate) nodes: Vec<Node>,
     /// Per node, its children's spheres and cones.
     pub(crate) lod: Vec<lod::NodeLod>,
-    /// The input splats in leaf order.
-    pub(crate) splats: Vec<Splat>,
-    /// The representative splats: child `i` of node `k` at `[k][i]`, with index
-    /// `splats.len() + WIDTH·k + i` for a visitor, which gets one index space for both.
-    /// (Apart, so that neither array is copied to grow: appending them doubled the splats'
-    /// capacity, the build's peak on a 2-million-point torus, massif.)
-    pub(crate) representatives: Vec<[Splat; WIDTH]>,
-    /// The leaves' splats again, in blocks for the leaf kernel (see [`SplatBlock`]).
+    /// The splats, in leaf order, in blocks for the leaf kernel (see [`SplatBlock`]): the
+    /// only copy (a second, as an array of [`Splat`]s, was 32 bytes a splat that only the
+    /// visitors' look-ups read).
     pub(crate) blocks: Vec<SplatBlock>,
+    /// The representative splats: child `i` of node `k` at `[k][i]`, with index
+    /// `BLOCK·blocks.len() + WIDTH·k + i` for a visitor, which gets one index space for both.
+    pub(crate) representatives: Vec<[Splat; WIDTH]>,
+    /// The number of input splats.
+    pub(crate) splat_count: usize,
     pub(crate) bounds: Aabb,
     pub(crate) depth: usize,
     pub(crate) node_bounds: NodeBounds,
@@ -146,7 +159,7 @@ impl Bvh {
     /// node `node`.
     #[inline(always)]
     pub(crate) fn representative_index(&self, node: usize, slot: usize) -> u32 {
-        (self.splats.len() + WIDTH * node + slot) as u32
+        (self.blocks.len() * BLOCK + WIDTH * node + slot) as u32
     }
 
     /// The `r`-th representative, child `r % WIDTH` of node `r / WIDTH`. Out of line: most
@@ -154,8 +167,8 @@ impl Bvh {
     /// inlined and out of line; the dragon at k = 16 with level of detail +0.2 %).
     #[cold]
     #[inline(never)]
-    fn representative_at(&self, r: usize) -> &Splat {
-        self.representative(r / WIDTH, r % WIDTH)
+    fn representative_at(&self, r: usize) -> Splat {
+        *self.representative(r / WIDTH, r % WIDTH)
     }
 
     pub(crate) fn representative(&self, node: usize, slot: usize) -> &Splat {
@@ -182,6 +195,12 @@ impl Bvh {
         self.node_bounds = choice;
     }
 
+    /// Every input splat with its index, in no particular order.
+    pub fn splats(&self) -> impl Iterator<Item = (u32, Splat)> + '_ {
+        let leaves = self.nodes.iter().flat_map(|n| (0..WIDTH).filter(|&i| n.used & (1 << i) != 0).map(|i| n.child[i]));
+        leaves.filter(|c| c & LEAF != 0).flat_map(leaf_splats).map(|j| (j, self.splat(j)))
+    }
+
     pub fn node_count(&self) -> usize {
         self.nodes.len()
     }
@@ -196,17 +215,21 @@ impl super::Accel for Bvh {
         "bvh"
     }
 
-    fn splats(&self) -> &[Splat] {
-        &self.splats
+    #[inline(always)]
+    fn splat(&self, index: u32) -> Splat {
+        let i = index as usize;
+        match self.blocks.get(i / BLOCK) {
+            Some(b) => b.splat(i % BLOCK),
+            None => self.representative_at(i - self.blocks.len() * BLOCK),
+        }
     }
 
-    #[inline(always)]
-    fn splat(&self, index: u32) -> &Splat {
-        let i = index as usize;
-        match self.splats.get(i) {
-            Some(s) => s,
-            None => self.representative_at(i - self.splats.len()),
-        }
+    fn is_representative(&self, index: u32) -> bool {
+        index as usize >= self.blocks.len() * BLOCK
+    }
+
+    fn splat_count(&self) -> usize {
+        self.splat_count
     }
 
     fn bounds(&self) -> Aabb {
@@ -225,7 +248,7 @@ impl super::Accel for Bvh {
         self.shape
     }
 
-    fn for_each_near<F: FnMut(u32, &Splat)>(
+    fn for_each_near<F: FnMut(u32, Splat)>(
         &self,
         center: Vec3,
         radius: f32,
@@ -254,11 +277,11 @@ impl super::Accel for Bvh {
                     stack.push(child);
                     continue;
                 }
-                for j in leaf_blocks(child).flat_map(|b| self.blocks[b].indices()) {
-                    let s = &self.splats[j];
+                for j in leaf_splats(child) {
+                    let s = self.splat(j);
                     stats.splat_tests += 1;
                     if (s.center - center).length_squared() <= r2 {
-                        f(j as u32, s);
+                        f(j, s);
                     }
                 }
             }
@@ -296,12 +319,12 @@ pub fn check_invariants(bvh: &Bvh) -> Result<(), String> {
             }
             let below = if n.child[i] & LEAF != 0 {
                 let mut b = Vec::new();
-                for j in leaf_blocks(n.child[i]).flat_map(|b| bvh.blocks[b].indices()) {
-                    let flag = seen.get_mut(j).ok_or(format!("leaf of node {node} points past the splats"))?;
+                for j in leaf_splats(n.child[i]) {
+                    let flag = seen.get_mut(j as usize).ok_or(format!("leaf of node {node} points past the splats"))?;
                     if std::mem::replace(flag, true) {
                         return Err(format!("splat {j} is in two leaves"));
                     }
-                    b.push(bvh.splats[j].bounds_as(bvh.shape));
+                    b.push(bvh.splat(j).bounds_as(bvh.shape));
                 }
                 b
             } else {
@@ -315,12 +338,17 @@ pub fn check_invariants(bvh: &Bvh) -> Result<(), String> {
         Ok(all)
     }
     if bvh.nodes.is_empty() {
-        return if bvh.splats.is_empty() { Ok(()) } else { Err("splats but no root node".into()) };
+        return if bvh.splat_count == 0 { Ok(()) } else { Err("splats but no root node".into()) };
     }
-    let mut seen = vec![false; bvh.splats.len()];
+    let mut seen = vec![false; bvh.blocks.len() * BLOCK];
     walk(bvh, 0, &mut seen)?;
-    if let Some(j) = seen.iter().position(|s| !s) {
-        return Err(format!("splat {j} is in no leaf"));
+    let held = seen.iter().filter(|s| **s).count();
+    if held != bvh.splat_count {
+        return Err(format!("the leaves hold {held} splats of {}", bvh.splat_count));
+    }
+    // The lanes no leaf holds must be disks no ray can hit.
+    if let Some(j) = (0..seen.len()).find(|&j| !seen[j] && bvh.blocks[j / BLOCK].splat(j % BLOCK).radius != 0.0) {
+        return Err(format!("lane {j} lies outside the leaves but holds a disk"));
     }
     lod::check_invariants(bvh)
 }

@@ -10,9 +10,9 @@
 
 use super::lanes::{Wide, dot3};
 use super::lod::NodeLod;
-use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks};
-use crate::accel::block::LeafKernel;
-use crate::accel::{Accel, SplatVisitor, TraversalStats, test_disk};
+use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks, leaf_size};
+use crate::accel::block::{BLOCK, LeafKernel};
+use crate::accel::{Crossing, SplatVisitor, TraversalStats, test_disk};
 use crate::math::Ray;
 
 /// The ray in the form the eight-wide tests want: per axis the origin, direction and negated
@@ -247,8 +247,9 @@ fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
         let (child, entry) = current;
         if entry <= cull_limit(visitor.t_max()) {
             if child & LEAF != 0 {
-                for block in &bvh.blocks[leaf_blocks(child)] {
-                    stats.splat_tests += u64::from(block.count);
+                stats.splat_tests += leaf_size(child) as u64;
+                let blocks = leaf_blocks(child);
+                for (b, block) in blocks.clone().zip(&bvh.blocks[blocks]) {
                     let hits = kernel.hits(block, V::SHAPE, ray, visitor.t_max());
                     let mut lanes = hits.mask;
                     while lanes != 0 {
@@ -258,8 +259,8 @@ fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
                         // this is then the scalar test against the new t_max (its range check on
                         // t·den, 2⁻¹⁶ wide, holds wherever t does but where t_max·den underflows).
                         if hits.t[lane] <= visitor.t_max() {
-                            let i = block.first as usize + lane;
-                            visitor.hit(ray, &bvh.splats[i], i as u32, hits.hit(lane));
+                            let index = (b * BLOCK + lane) as u32;
+                            visitor.hit(ray, Crossing::new(index, block.radius[lane], hits.hit(lane)));
                         }
                     }
                 }
@@ -368,8 +369,7 @@ fn multires_children<V: SplatVisitor, W: Wide>(
         while coarse != 0 {
             let i = coarse.trailing_zeros() as usize;
             coarse &= coarse - 1;
-            let index = bvh.representative_index(k, i);
-            test_disk(ray, bvh.splat(index), index, visitor);
+            test_disk(ray, bvh.representative(k, i), bvh.representative_index(k, i), visitor);
         }
         if visitor.done() {
             return None;

@@ -88,7 +88,7 @@ pub struct KdTree {
     /// The splats, then at index [`KdTree::padding`] a disk no ray hits (`packet::NO_DISK`).
     disks: Vec<Splat>,
     /// Per node, its representative (radius 0 for leaves);
-    /// the visitor knows node k's as splat `splats.len() + k`.
+    /// the visitor knows node k's as splat `padding() + k`.
     reps: Vec<Splat>,
     /// A small quantile of the representatives' radii (see `representative::radius_quantile`).
     lod_floor: f32,
@@ -108,6 +108,11 @@ impl KdTree {
     /// The index that pads the leaves: a disk no ray hits.
     fn padding(&self) -> u32 {
         (self.disks.len() - 1) as u32
+    }
+
+    /// The input splats, in input order.
+    pub fn splats(&self) -> &[Splat] {
+        &self.disks[..self.padding() as usize]
     }
 
     pub fn node_count(&self) -> usize {
@@ -132,13 +137,17 @@ impl Accel for KdTree {
         "kdtree"
     }
 
-    fn splats(&self) -> &[Splat] {
-        &self.disks[..self.padding() as usize]
+    fn splat(&self, index: u32) -> Splat {
+        let (i, n) = (index as usize, self.padding() as usize);
+        if i < n { self.disks[i] } else { self.reps[i - n] }
     }
 
-    fn splat(&self, index: u32) -> &Splat {
-        let (i, n) = (index as usize, self.padding() as usize);
-        if i < n { &self.disks[i] } else { &self.reps[i - n] }
+    fn is_representative(&self, index: u32) -> bool {
+        index >= self.padding()
+    }
+
+    fn splat_count(&self) -> usize {
+        self.splats().len()
     }
 
     fn bounds(&self) -> Aabb {
@@ -157,7 +166,7 @@ impl Accel for KdTree {
         self.shape
     }
 
-    fn for_each_near<F: FnMut(u32, &Splat)>(&self, center: Vec3, radius: f32, stats: &mut TraversalStats, mut f: F) {
+    fn for_each_near<F: FnMut(u32, Splat)>(&self, center: Vec3, radius: f32, stats: &mut TraversalStats, mut f: F) {
         if self.nodes.is_empty() {
             return;
         }
@@ -173,7 +182,7 @@ impl Accel for KdTree {
             let n = self.nodes[k];
             if n.is_leaf() {
                 for &r in &self.refs[n.padded_refs()][..n.ref_count()] {
-                    let s = &self.disks[r as usize];
+                    let s = self.disks[r as usize];
                     stats.splat_tests += 1;
                     if (s.center - center).length_squared() <= r2 && owns(&cell, s.center) {
                         f(r, s);
@@ -196,7 +205,7 @@ impl Accel for KdTree {
     }
 
     fn memory_bytes(&self) -> usize {
-        self.nodes.len() * Self::NODE_BYTES + self.refs.len() * size_of::<u32>()
+        self.nodes.len() * Self::NODE_BYTES + self.refs.len() * size_of::<u32>() + self.disks.len() * size_of::<Splat>()
     }
 
     fn traverse<V: SplatVisitor>(&self, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
