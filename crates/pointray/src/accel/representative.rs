@@ -20,7 +20,7 @@ pub(crate) struct Representative {
 /// The representative of `disks` (at least one).
 pub(crate) fn representative<'a>(disks: impl Iterator<Item = &'a Splat> + Clone) -> Representative {
     let first_normal = disks.clone().next().expect("a representative of no disk").normal;
-    let frame = Moments::of(disks.clone().copied()).frame(first_normal);
+    let frame = Moments::of(disks.clone()).frame(first_normal);
     let mut spread = Spread::default();
     disks.for_each(|s| spread.add(&frame, s));
     frame.representative(&spread)
@@ -40,18 +40,21 @@ pub(crate) struct Moments {
 }
 
 impl Moments {
-    pub(crate) fn of(disks: impl Iterator<Item = Splat>) -> Self {
+    pub(crate) fn of<'a>(disks: impl Iterator<Item = &'a Splat>) -> Self {
         let mut m = Moments::default();
-        for s in disks {
-            // Zero-radius disks still count (a little), so that a cloud of them has a centre.
-            let w = f64::from(s.radius).powi(2).max(f64::MIN_POSITIVE);
-            m.add_material(s.material(), w);
-            m.area += w;
-            m.center += w * s.center.as_dvec3();
-            m.normal += w * s.normal.as_dvec3();
-            m.color += w * glam::Vec3::from(s.color_linear()).as_dvec3();
-        }
+        disks.for_each(|s| m.add(s));
         m
+    }
+
+    #[inline]
+    pub(crate) fn add(&mut self, s: &Splat) {
+        // Zero-radius disks still count (a little), so that a cloud of them has a centre.
+        let w = f64::from(s.radius).powi(2).max(f64::MIN_POSITIVE);
+        self.add_material(s.material(), w);
+        self.area += w;
+        self.center += w * s.center.as_dvec3();
+        self.normal += w * s.normal.as_dvec3();
+        self.color += w * glam::Vec3::from(s.color_linear()).as_dvec3();
     }
 
     pub(crate) fn merge(&mut self, other: &Moments) {

@@ -70,11 +70,23 @@ pub(super) struct Disks<'a> {
     pub(super) counts: &'a [u8],
 }
 
-impl<'a> Disks<'a> {
-    /// The splats of a block range.
-    fn of(&self, blocks: Range<usize>) -> impl Iterator<Item = Splat> + Clone + 'a {
-        let (all, counts) = (self.blocks, self.counts);
-        blocks.flat_map(move |b| (0..usize::from(counts[b])).map(move |lane| all[b].splat(lane)))
+impl Disks<'_> {
+    /// Calls `f` with each splat of a block range, in leaf order. A loop, not an iterator: as
+    /// a flat map of the lanes the dragon's build took 0.155 s, not 0.12.
+    #[inline]
+    fn each(&self, blocks: Range<usize>, mut f: impl FnMut(&Splat)) {
+        for b in blocks {
+            let block = &self.blocks[b];
+            for lane in 0..usize::from(self.counts[b]) {
+                f(&block.splat(lane));
+            }
+        }
+    }
+
+    fn moments(&self, blocks: Range<usize>) -> Moments {
+        let mut m = Moments::default();
+        self.each(blocks, |s| m.add(s));
+        m
     }
 }
 
@@ -126,21 +138,15 @@ fn round_up(x: f64) -> f32 {
 }
 
 /// The child's bounds and representative from its disks and their moments, in one pass.
-fn child_lod(
-    box_center: Vec3,
-    disks: impl Iterator<Item = Splat> + Clone,
-    moments: &Moments,
-    shape: DiskShape,
-) -> ChildLod {
-    let first = disks.clone().next().expect("a child holds disks");
-    let frame = moments.frame(first.normal);
+fn child_lod(box_center: Vec3, disks: &Disks, blocks: Range<usize>, moments: &Moments, shape: DiskShape) -> ChildLod {
+    let frame = moments.frame(disks.blocks[blocks.start].splat(0).normal);
     let (c, axis) = (box_center.as_dvec3(), frame.normal().as_dvec3());
     let (mut far, mut spread, mut min_cos) = (0.0f64, Spread::default(), 1.0f64);
-    for s in disks {
-        far = far.max(farthest(c, &s, shape));
-        spread.add(&frame, &s);
+    disks.each(blocks, |s| {
+        far = far.max(farthest(c, s, shape));
+        spread.add(&frame, s);
         min_cos = min_cos.min(s.normal.as_dvec3().dot(axis));
-    }
+    });
     let Representative { splat: rep, coherent } = frame.representative(&spread);
     let cos_angle = if coherent {
         // A little wider than measured: rounding must never make the cone exclude a normal.
@@ -158,7 +164,7 @@ fn node_moments(nodes: &[Node], disks: &Disks, ranges: &[Range<usize>]) -> Vec<M
     let leaves = |n: &Node| {
         let mut m = Moments::default();
         for i in (0..WIDTH).filter(|i| n.used & (1 << i) != 0 && n.child[*i] & LEAF != 0) {
-            m.merge(&Moments::of(disks.of(child_range(n.child[i], ranges))));
+            m.merge(&disks.moments(child_range(n.child[i], ranges)));
         }
         m
     };
@@ -186,19 +192,19 @@ pub(super) fn build(nodes: &mut [Node], disks: &Disks, shape: DiskShape) -> (Vec
         .map(|n| {
             let children: [Option<ChildLod>; WIDTH] = std::array::from_fn(|i| {
                 (n.used & (1 << i) != 0).then(|| {
-                    let below = disks.of(child_range(n.child[i], &ranges));
+                    let below = child_range(n.child[i], &ranges);
                     // A leaf child's moments are summed again here (`node_moments` summed them
                     // into its parent's): one pass over the leaves, where keeping them would
                     // take a `Moments` per leaf.
                     let leaf_moments;
                     let m = match n.child[i] {
                         child if child & LEAF != 0 => {
-                            leaf_moments = Moments::of(below.clone());
+                            leaf_moments = disks.moments(below.clone());
                             &leaf_moments
                         }
                         child => &moments[child as usize],
                     };
-                    child_lod(n.child_bounds(i).center(), below, m, shape)
+                    child_lod(n.child_bounds(i).center(), disks, below, m, shape)
                 })
             });
             let lane = |f: &dyn Fn(&ChildLod) -> f32, unused: f32| {
@@ -308,7 +314,8 @@ mod tests {
     #[test]
     fn representative_of_one_disk_is_the_disk() {
         let s = Splat { center: Vec3::new(1.0, 2.0, 3.0), radius: 0.5, normal: Vec3::Y, color: 0x00_80_40_20 };
-        let c = child_lod(s.center, [s].into_iter(), &Moments::of([s].into_iter()), DiskShape::Oriented);
+        let disks = Disks { blocks: &[SplatBlock::new(&[s])], counts: &[1] };
+        let c = child_lod(s.center, &disks, 0..1, &disks.moments(0..1), DiskShape::Oriented);
         assert_eq!(c.rep, s);
         assert!(c.cos_angle > 0.9999 && (c.radius - 0.5).abs() < 1e-5);
     }
@@ -317,7 +324,7 @@ mod tests {
     fn opposite_normals_never_cull() {
         let a = Splat { center: Vec3::ZERO, radius: 0.5, normal: Vec3::Z, color: 0 };
         let b = Splat { normal: -Vec3::Z, ..a };
-        let disks = [a, b].into_iter();
-        assert_eq!(child_lod(Vec3::ZERO, disks.clone(), &Moments::of(disks), DiskShape::Oriented).cos_angle, -1.0);
+        let disks = Disks { blocks: &[SplatBlock::new(&[a, b])], counts: &[2] };
+        assert_eq!(child_lod(Vec3::ZERO, &disks, 0..1, &disks.moments(0..1), DiskShape::Oriented).cos_angle, -1.0);
     }
 }
