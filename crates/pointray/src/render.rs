@@ -10,7 +10,7 @@ use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 use rayon::prelude::*;
 
-use crate::accel::Accel;
+use crate::accel::{Accel, TraversalStats};
 use crate::camera::{Camera, Region};
 use crate::film::Film;
 use crate::ground::GroundPlane;
@@ -96,6 +96,10 @@ pub struct RenderConfig {
     /// Cull back-facing subtrees for camera rays (only right for closed, consistently
     /// oriented surfaces; see `accel::backfacing_fraction`).
     pub cull_backfaces: bool,
+    /// Count the traversal's work: [`RenderStats::traversal`] and the film's `nodes_visited`.
+    /// Off, they stay zero and the BVH traverses without counting (see
+    /// [`TraversalStats::uncounted`]): for frames whose statistics nobody reads.
+    pub count_work: bool,
 }
 
 /// Pixels per tile edge: small enough to balance 2–64 threads, big enough for coherence.
@@ -145,6 +149,9 @@ pub fn render_into<A: Accel>(
         .enumerate()
         .map(|(b, ((((rgb, nodes), normal), albedo), depth))| {
             let mut stats = RenderStats::default();
+            if !config.count_work {
+                stats.traversal = TraversalStats::uncounted();
+            }
             let y0 = region.y0 + b as u32 * TILE;
             let rows = (rgb.len() / width) as u32;
             for tx in (region.x0..region.x1).step_by(TILE as usize) {

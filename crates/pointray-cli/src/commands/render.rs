@@ -361,9 +361,11 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         samples: a.spp,
         seed: a.seed,
         diffuse_spread: a.diffuse_spread,
+        count_work: a.stats.is_some() || a.aov.contains(&AovArg::Nodes),
     };
 
-    // 4. Render: one frame for the image, then any timed benchmark frames.
+    // 4. Render: one frame for the image, then any timed benchmark frames, which count no work
+    // (the statistics' counts are the first frame's).
     let bar = crate::progress::bar(region.pixel_count(), "render", quiet);
     let t = Instant::now();
     let (film, stats) = accel.render(&camera, &config, &|n| bar.inc(n));
@@ -372,10 +374,11 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
     let mut times = Vec::new();
     // The timed frames share one film, as a renderer showing frame after frame would.
     let mut scratch = None;
+    let timed = RenderConfig { count_work: false, ..config.clone() };
     for _ in 0..a.bench_frames {
         let scratch = scratch.get_or_insert_with(|| pointray::film::Film::new(film.region));
         let t = Instant::now();
-        let _ = accel.render_into(&camera, &config, scratch, &|_| {});
+        let _ = accel.render_into(&camera, &timed, scratch, &|_| {});
         times.push(t.elapsed().as_secs_f64());
     }
     times.sort_by(f64::total_cmp);

@@ -1,4 +1,4 @@
-//! The same image and counters whatever the thread count.
+//! The same image and counters whatever the thread count, and whether work is counted.
 
 use glam::Vec3;
 use pointray::accel::{Bvh, BvhParams};
@@ -52,4 +52,11 @@ fn image_is_identical_with_one_and_two_threads() {
         (v3(&f.rgb), v3(&f.normal), v3(&f.albedo), f.depth.iter().map(|d| d.to_bits()).collect::<Vec<_>>())
     };
     assert!(bits(&a) == bits(&reused) && a.nodes_visited == reused.nodes_visited);
+    // Without counting, the same image, and nothing counted.
+    let quiet = RenderConfig { count_work: false, ..config.clone() };
+    let (q, sq) = render(&bvh, &cam, &quiet, &|_| {});
+    assert!(bits(&a) == bits(&q), "counting work changed the image");
+    assert_eq!(sq.traversal.nodes_visited + sq.traversal.splat_tests + sq.traversal.lod_stops, 0, "{sq:?}");
+    assert!(q.nodes_visited.iter().all(|&n| n == 0) && a.nodes_visited.iter().any(|&n| n > 0));
+    assert_eq!((sq.rays, sq.primary_hits), (sa.rays, sa.primary_hits));
 }

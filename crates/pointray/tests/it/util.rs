@@ -82,5 +82,6 @@ pub fn render_config(region: pointray::camera::Region, samples: u32) -> pointray
         lod_threshold: 0.0,
         diffuse_spread: 0.0,
         cull_backfaces: false,
+        count_work: true,
     }
 }

@@ -195,14 +195,25 @@ fn dispatch<V: SplatVisitor, K: LeafKernel>(
     let reach = if ray.cull_backfaces { f32::INFINITY } else { lod_reach };
     let slab = SlabRay::<K::Lanes>::new(ray);
     let levels = Levels { lod_reach, reach };
-    // Counted in a local, which can live in registers, and added once.
+    // Counted in a local, which can live in registers, and added once. Where nothing reads
+    // them, a local that is never read: the compiler drops the counting from that instance.
     let mut counts = TraversalStats::default();
-    if lod || ray.cull_backfaces || bvh.node_bounds != super::NodeBounds::Boxes {
-        traverse_from::<V, K, true>(bvh, ray, &slab, visitor, &mut counts, stack, &levels, kernel);
-    } else {
-        traverse_from::<V, K, false>(bvh, ray, &slab, visitor, &mut counts, stack, &levels, kernel);
+    let multires = lod || ray.cull_backfaces || bvh.node_bounds != super::NodeBounds::Boxes;
+    match (multires, stats.counting()) {
+        (true, true) => traverse_from::<V, K, true>(bvh, ray, &slab, visitor, &mut counts, stack, &levels, kernel),
+        (false, true) => traverse_from::<V, K, false>(bvh, ray, &slab, visitor, &mut counts, stack, &levels, kernel),
+        (true, false) => {
+            let mut unread = TraversalStats::default();
+            traverse_from::<V, K, true>(bvh, ray, &slab, visitor, &mut unread, stack, &levels, kernel);
+        }
+        (false, false) => {
+            let mut unread = TraversalStats::default();
+            traverse_from::<V, K, false>(bvh, ray, &slab, visitor, &mut unread, stack, &levels, kernel);
+        }
     }
-    *stats += counts;
+    if stats.counting() {
+        *stats += counts;
+    }
 }
 
 /// The widest the ray's footprint gets (scaled by τ) before it leaves the model: subtrees no
