@@ -3,11 +3,13 @@
 
 Usage: scripts/bench_vs_embree.py MODEL.ply [--dist 1,4,16] [--threads 2] [--reps 10] [--size 1024]
                                   [--surface first-hit] [--spp 1] [--tau T] [--rounds 1]
-                                  [--pointray BIN]
+                                  [--integrator eye-light] [--pointray BIN]
 
 The model is first run through `pointray prepare`, so both renderers see the same normals and
 radii. For each distance it runs one pointray benchmark (`--surface SURFACE --no-shadows
---crop-to-model --bench-frames REPS`: primary rays only, like Embree's |N.L| shading) and then
+--crop-to-model --bench-frames REPS --integrator eye-light`: primary rays only, shaded |N.D| as
+Embree's bench shades them, so that the ratio measures the ray query; `--integrator whitted` gives
+the Phong shading of the figures before 2026-11-25's third session) and then
 Embree's bench (`--geom oriented --crop --reps REPS`), and prints a Markdown table of median
 frame times (ten times as many frames for k ≥ 2, whose crops hold few rays). With `--spp N` both
 trace N rays a pixel; `--tau T` sets the level-of-detail threshold at one ray a pixel (pointray
@@ -35,6 +37,7 @@ def main():
     ap.add_argument("--spp", type=int, default=1)
     ap.add_argument("--tau", type=float)
     ap.add_argument("--rounds", type=int, default=1)
+    ap.add_argument("--integrator", default="eye-light")
     ap.add_argument("--pointray", default=pointray)
     a = ap.parse_args()
     pointray_bin = a.pointray
@@ -45,7 +48,7 @@ def main():
     prepared = os.path.join(tmp, "prepared.ply")
     subprocess.run([pointray_bin, "-q", "prepare", a.model, "-o", prepared], check=True)
     lod = ["--lod", "off"] if a.tau is None else ["--lod-threshold", str(a.tau * a.spp ** 0.5)]
-    print(f"model {os.path.basename(a.model)}, {a.size}x{a.size}, {a.threads} threads, crop, surface {a.surface}, "
+    print(f"model {os.path.basename(a.model)}, {a.size}x{a.size}, {a.threads} threads, crop, surface {a.surface}, integrator {a.integrator}, "
           f"{a.spp} rays a pixel, {' '.join(lod)}, median of {a.reps} frames ({10 * a.reps} for k >= 2), "
           f"median of {a.rounds} rounds\n")
     print("| k | rays | pointray build s | Embree build s | pointray Mrays/s | Embree Mrays/s | ratio | nodes/ray | splat tests/ray | pointray B/splat | Embree BVH MB |")
@@ -59,7 +62,7 @@ def main():
             subprocess.run([pointray_bin, "-q", "render", prepared, "-o", os.path.join(tmp, "p.png"), "--distance", k,
                             "--crop-to-model", "--surface", a.surface, "--no-shadows", "--threads", str(a.threads),
                             "--width", str(a.size), "--height", str(a.size), "--bench-frames", str(reps),
-                            "--spp", str(a.spp), *lod, "--stats", stats], check=True)
+                            "--spp", str(a.spp), "--integrator", a.integrator, *lod, "--stats", stats], check=True)
             ps.append(json.load(open(stats)))
             out = subprocess.run([embree, prepared, "--geom", "oriented", "--threads", str(a.threads), "--dist", k,
                                   "--crop", "--reps", str(reps), "--size", f"{a.size}x{a.size}", "--spp", str(a.spp)],

@@ -426,6 +426,8 @@ pub enum IntegratorArg {
     Path,
     /// Ambient occlusion.
     Ao,
+    /// Albedo × |N·D|, no lights (Embree's bench's shading; a quick preview).
+    EyeLight,
 }
 
 #[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]

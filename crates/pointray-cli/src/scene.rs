@@ -176,6 +176,7 @@ fn scene_args(path: &Path, spec: &SceneFile, a: &RenderArgs) -> anyhow::Result<R
             IntegratorSpec::Whitted => IntegratorArg::Whitted,
             IntegratorSpec::Path => IntegratorArg::Path,
             IntegratorSpec::Ao => IntegratorArg::Ao,
+            IntegratorSpec::EyeLight => IntegratorArg::EyeLight,
         };
         ao_distance = r.ao_distance;
         sampler = match r.sampler {

@@ -252,6 +252,7 @@ pub enum IntegratorSpec {
     Whitted,
     Path,
     Ao,
+    EyeLight,
 }
 
 #[derive(Debug, Deserialize)]

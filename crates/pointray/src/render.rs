@@ -37,6 +37,11 @@ pub enum Integrator {
     /// Ambient occlusion: a diffuse surface shows its albedo times the fraction of
     /// cosine-distributed rays (one per sample) that meet nothing within `distance`.
     AmbientOcclusion { distance: f32 },
+    /// Eye light: every hit shows its albedo times |N·D|, the cosine between its normal and
+    /// the ray; no lights, shadows or bounces. The shading of Embree's tutorials and bench,
+    /// so that a comparison with it measures the ray query, not the shading; and a quick
+    /// preview.
+    EyeLight,
 }
 
 /// Where in and around its pixel each sample's camera ray goes.
@@ -326,6 +331,9 @@ impl<A: Accel> Tracer<'_, A> {
             self.first.depth += hit.t;
             self.first.hits += 1;
         }
+        if config.integrator == Integrator::EyeLight {
+            return Vec3::from(hit.color) * hit.normal.dot(ray.dir).abs();
+        }
         let bounce = |direction: Vec3| secondary(ray, &hit, direction, config);
         match material {
             Material::Phong(_) if config.integrator == Integrator::Path => self.diffuse(ray, &hit, depth, inside),
@@ -366,8 +374,8 @@ impl<A: Accel> Tracer<'_, A> {
                             tint * self.radiance(&refracted, depth + 1, !inside)
                         }
                     }
-                    // Whitted: both, weighted.
-                    (Integrator::Whitted, Some(refracted)) => {
+                    // Whitted: both, weighted. (An eye-light render returned before.)
+                    (Integrator::Whitted | Integrator::EyeLight, Some(refracted)) => {
                         reflectance * self.radiance(&reflected, depth + 1, inside)
                             + (1.0 - reflectance) * tint * self.radiance(&refracted, depth + 1, !inside)
                     }

@@ -320,6 +320,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         integrator: match a.integrator {
             IntegratorArg::Whitted => Integrator::Whitted,
             IntegratorArg::Path => Integrator::Path,
+            IntegratorArg::EyeLight => Integrator::EyeLight,
             IntegratorArg::Ao => {
                 Integrator::AmbientOcclusion { distance: a.ao_distance.unwrap_or(0.1 * bounds.diagonal()) }
             }

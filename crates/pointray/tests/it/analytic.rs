@@ -4,7 +4,7 @@ use glam::Vec3;
 use pointray::accel::{Bvh, BvhParams, TraversalStats};
 use pointray::camera::{Camera, Region};
 use pointray::material::Material;
-use pointray::render::{RenderConfig, render};
+use pointray::render::{Integrator, RenderConfig, render};
 use pointray::shading::Light;
 use pointray::splat::scheme::{self, SurfaceHit, SurfaceScheme};
 
@@ -77,7 +77,8 @@ fn sj_hits_lie_on_the_sphere_with_smooth_normals() {
     assert!(sj.mean_normal_deg < 0.4 * first.mean_normal_deg, "SJ does not smooth the normals");
 }
 
-/// Lambert + Phong shading of the exact sphere, pixel for pixel as the renderer shades.
+/// Lambert + Phong shading (or the eye light) of the exact sphere, pixel for pixel as the
+/// renderer shades.
 fn analytic_image(cam: &Camera, config: &RenderConfig) -> Vec<[f32; 3]> {
     let mut out = Vec::new();
     for y in 0..cam.height {
@@ -97,10 +98,14 @@ fn analytic_image(cam: &Camera, config: &RenderConfig) -> Vec<[f32; 3]> {
                         splat: 0,
                         blended: 1,
                     };
-                    let (l, _, e) = config.lights[0].towards(p);
-                    let Material::Phong(phong) = config.materials[0] else { panic!("a Phong sphere") };
-                    let lit = if hit.normal.dot(l) > 0.0 { phong.direct(&hit, -ray.dir, l, e) } else { Vec3::ZERO };
-                    (phong.ambient(&hit) + lit).to_array()
+                    if config.integrator == Integrator::EyeLight {
+                        (Vec3::from(hit.color) * hit.normal.dot(ray.dir).abs()).to_array()
+                    } else {
+                        let (l, _, e) = config.lights[0].towards(p);
+                        let Material::Phong(phong) = config.materials[0] else { panic!("a Phong sphere") };
+                        let lit = if hit.normal.dot(l) > 0.0 { phong.direct(&hit, -ray.dir, l, e) } else { Vec3::ZERO };
+                        (phong.ambient(&hit) + lit).to_array()
+                    }
                 }
             });
         }
@@ -108,27 +113,45 @@ fn analytic_image(cam: &Camera, config: &RenderConfig) -> Vec<[f32; 3]> {
     out
 }
 
-#[test]
-fn sphere_image_matches_the_analytic_image() {
+/// Pixels off the analytic image by more than 0.03, and the mean difference, of a render of
+/// a grey sphere of splats.
+fn sphere_against_analytic(config: &RenderConfig) -> (usize, f32) {
     let mut splats = sphere_splats(100_000, 1.0, 22);
     let grey = pointray::splat::pack_color([0.8, 0.8, 0.8]);
     splats.iter_mut().for_each(|s| s.color = grey);
     let bvh = Bvh::build(splats, &BvhParams::standard());
     let cam = Camera::look_at(Vec3::new(0.0, 0.0, 3.2), Vec3::ZERO, Vec3::Y, 45.0, 64, 64);
-    let config = RenderConfig {
-        lights: vec![Light::Point { position: Vec3::new(2.0, 3.0, 4.0), intensity: 25.0 }],
-        ..crate::util::render_config(Region::full(64, 64), 1)
-    };
-    let (film, stats) = render(&bvh, &cam, &config, &|_| {});
-    let exact = analytic_image(&cam, &config);
+    let (film, stats) = render(&bvh, &cam, config, &|_| {});
+    assert!(stats.primary_hits > 1_000);
+    let exact = analytic_image(&cam, config);
     let diff: Vec<f32> =
         film.rgb.iter().zip(&exact).map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).abs()).fold(0.0, f32::max)).collect();
     let off = diff.iter().filter(|d| **d > 0.03).count();
     let mean = diff.iter().sum::<f32>() / diff.len() as f32;
     eprintln!("pixels off by > 0.03: {off} of {}, mean |diff| {mean:.5}", diff.len());
-    assert!(stats.primary_hits > 1_000);
+    (off, mean)
+}
+
+#[test]
+fn sphere_image_matches_the_analytic_image() {
+    let config = RenderConfig {
+        lights: vec![Light::Point { position: Vec3::new(2.0, 3.0, 4.0), intensity: 25.0 }],
+        ..crate::util::render_config(Region::full(64, 64), 1)
+    };
+    let (off, mean) = sphere_against_analytic(&config);
     // Measured: no pixel off by more than 0.03, mean 0.0004. A few silhouette pixels may
     // differ (disks overhang the exact outline by up to r).
+    assert!(off <= 8, "{off} pixels differ");
+    assert!(mean < 0.002, "mean difference {mean}");
+}
+
+/// The eye light shows albedo × |N·D| of the exact sphere.
+#[test]
+fn eye_light_matches_the_analytic_cosine() {
+    let config =
+        RenderConfig { integrator: Integrator::EyeLight, ..crate::util::render_config(Region::full(64, 64), 1) };
+    let (off, mean) = sphere_against_analytic(&config);
+    // Measured: 0 pixels off, mean 0.0004.
     assert!(off <= 8, "{off} pixels differ");
     assert!(mean < 0.002, "mean difference {mean}");
 }
