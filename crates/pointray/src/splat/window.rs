@@ -143,8 +143,6 @@ impl<D: DiskTest> Window<D> {
         let mut blended = 0;
         let mut coverage = 0.0;
         for x in list.iter() {
-            // By value and field by field: a reference to the splat put all of it on the
-            // stack for every crossing (callgrind on the dragon, SJ: 16 stores a crossing).
             let s = accel.splat(x.splat);
             if (s.normal.dot(ray.dir) > 0.0) != side || s.material() != material {
                 continue;

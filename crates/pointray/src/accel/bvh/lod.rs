@@ -180,14 +180,14 @@ fn node_moments(nodes: &[Node], disks: &Disks, ranges: &[Range<usize>]) -> Vec<M
 }
 
 /// Level-of-detail payload of every node (`lod[k]` for `nodes[k]`) and the representative
-/// splats, one per child: child `i` of node `k` is `reps[k][i]`. Also sets every node's
+/// splats, one per child: child `i` of node `k` in lane `i` of block `k`. Also sets every node's
 /// level-of-detail slots and `min_radius`.
-pub(super) fn build(nodes: &mut [Node], disks: &Disks, shape: DiskShape) -> (Vec<NodeLod>, Vec<[Splat; WIDTH]>) {
+pub(super) fn build(nodes: &mut [Node], disks: &Disks, shape: DiskShape) -> (Vec<NodeLod>, Vec<SplatBlock>) {
     let ranges = node_ranges(nodes);
     let moments = node_moments(nodes, disks, &ranges);
     // Unzipped straight into the two arrays: collected as pairs and then split, the pairs took
     // 256 bytes a node beside both.
-    let (lod, reps): (Vec<NodeLod>, Vec<[Splat; WIDTH]>) = nodes
+    let (lod, reps): (Vec<NodeLod>, Vec<SplatBlock>) = nodes
         .par_iter()
         .map(|n| {
             let children: [Option<ChildLod>; WIDTH] = std::array::from_fn(|i| {
@@ -217,7 +217,8 @@ pub(super) fn build(nodes: &mut [Node], disks: &Disks, shape: DiskShape) -> (Vec
                 cos_angle: lane(&|c| c.cos_angle, -1.0),
             };
             let unused = Splat { center: Vec3::ZERO, radius: 0.0, normal: Vec3::Z, color: 0 };
-            (lod, std::array::from_fn(|i| children[i].as_ref().map_or(unused, |c| c.rep)))
+            let reps: [Splat; WIDTH] = std::array::from_fn(|i| children[i].as_ref().map_or(unused, |c| c.rep));
+            (lod, SplatBlock::new(&reps))
         })
         .unzip();
     drop(moments);

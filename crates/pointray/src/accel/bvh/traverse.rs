@@ -390,7 +390,7 @@ fn multires_children<V: SplatVisitor, W: Wide>(
         while coarse != 0 {
             let i = coarse.trailing_zeros() as usize;
             coarse &= coarse - 1;
-            test_disk(ray, bvh.representative(k, i), bvh.representative_index(k, i), visitor);
+            test_disk(ray, &bvh.representative(k, i), bvh.representative_index(k, i), visitor);
         }
         if visitor.done() {
             return None;
