@@ -111,14 +111,19 @@ impl Splat {
     /// Inlined: as a call it made the SJ blend spill ten registers per disk.
     #[inline]
     pub fn color_linear(&self) -> [f32; 3] {
-        let table = srgb8_to_linear_table();
+        self.color_linear_in(srgb8_to_linear_table())
+    }
+
+    /// [`Self::color_linear`] with the table fetched once, for loops over many splats.
+    #[inline]
+    pub(crate) fn color_linear_in(&self, table: &[f32; 256]) -> [f32; 3] {
         let c = self.color;
         [table[(c & 0xff) as usize], table[(c >> 8 & 0xff) as usize], table[(c >> 16 & 0xff) as usize]]
     }
 }
 
 #[inline]
-fn srgb8_to_linear_table() -> &'static [f32; 256] {
+pub(crate) fn srgb8_to_linear_table() -> &'static [f32; 256] {
     static TABLE: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
     TABLE.get_or_init(|| std::array::from_fn(|i| crate::film::srgb_to_linear(i as f32 / 255.0)))
 }

@@ -7,10 +7,10 @@
 use std::marker::PhantomData;
 
 use arrayvec::ArrayVec;
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 
 use super::scheme::{SurfaceHit, facing, tie_key};
-use super::{DiskShape, DiskTest};
+use super::{DiskShape, DiskTest, srgb8_to_linear_table};
 use crate::accel::{Accel, Crossing, SplatVisitor};
 use crate::math::Ray;
 
@@ -139,23 +139,13 @@ impl<D: DiskTest> Window<D> {
         // thin part may lie within the window, and so may another cloud where two touch.
         let side = first_splat.normal.dot(ray.dir) > 0.0;
         let material = first_splat.material();
-        let (mut wsum, mut t, mut n, mut c) = (0.0f32, 0.0f32, Vec3::ZERO, Vec3::ZERO);
-        let mut blended = 0;
-        let mut coverage = 0.0;
-        for x in list.iter() {
-            let s = accel.splat(x.splat);
-            if (s.normal.dot(ray.dir) > 0.0) != side || s.material() != material {
-                continue;
-            }
-            // SJ Eq. 1: wᵢ = rᵢ − dᵢ. Positive for every accepted crossing (dᵢ < rᵢ).
-            let w = x.radius - x.dist2.sqrt();
-            coverage += w / x.radius;
-            wsum += w;
-            t += w * if tangent_planes { on_tangent_plane(ray, s.center, s.normal, x.t) } else { x.t };
-            n += w * s.normal;
-            c += w * Vec3::from(s.color_linear());
-            blended += 1;
-        }
+        let sums = if tangent_planes {
+            blend_sums::<A, true>(list, accel, ray, side, material)
+        } else {
+            blend_sums::<A, false>(list, accel, ray, side, material)
+        };
+        let Sums { wsum, t, n, c, coverage, blended } = sums;
+        let (n, c) = (Vec3::from(n), Vec3::from(c));
         let (t, n, c) = if wsum > 0.0 && n.length_squared() > 0.0 {
             (t / wsum, n.normalize(), c / wsum)
         } else {
@@ -173,6 +163,48 @@ impl<D: DiskTest> Window<D> {
         };
         Some((hit, coverage))
     }
+}
+
+/// The weighted sums of a window's crossings that face `side` and are of `material`.
+struct Sums {
+    wsum: f32,
+    t: f32,
+    n: Vec3A,
+    c: Vec3A,
+    coverage: f32,
+    blended: u32,
+}
+
+/// The sums of [`Window::blend`], compiled once with and once without the tangent planes, with
+/// the colour table fetched once, and the normal and colour sums in SIMD lanes (the same sums,
+/// lane by lane). With the tangent planes a test in the loop, each crossing's splat was copied
+/// to the stack for them (callgrind on the dragon, SJ: 1,141 → 1,116 instructions a pixel; the
+/// same speed within the noise of alternating runs).
+#[inline(always)]
+fn blend_sums<A: Accel + ?Sized, const TANGENT_PLANES: bool>(
+    list: &[Crossing],
+    accel: &A,
+    ray: &Ray,
+    side: bool,
+    material: u8,
+) -> Sums {
+    let table = srgb8_to_linear_table();
+    let mut sums = Sums { wsum: 0.0, t: 0.0, n: Vec3A::ZERO, c: Vec3A::ZERO, coverage: 0.0, blended: 0 };
+    for x in list {
+        let s = accel.splat(x.splat);
+        if (s.normal.dot(ray.dir) > 0.0) != side || s.material() != material {
+            continue;
+        }
+        // SJ Eq. 1: wᵢ = rᵢ − dᵢ. Positive for every accepted crossing (dᵢ < rᵢ).
+        let w = x.radius - x.dist2.sqrt();
+        sums.coverage += w / x.radius;
+        sums.wsum += w;
+        sums.t += w * if TANGENT_PLANES { on_tangent_plane(ray, s.center, s.normal, x.t) } else { x.t };
+        sums.n += w * Vec3A::from(s.normal);
+        sums.c += w * Vec3A::from(s.color_linear_in(table));
+        sums.blended += 1;
+    }
+    sums
 }
 
 /// Where the ray crosses the splat's tangent plane (within r/|cos| of `t`, the crossing of its
