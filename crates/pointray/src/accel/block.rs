@@ -25,7 +25,7 @@ pub(crate) const BLOCK: usize = 8;
 /// Up to eight consecutive splats of one leaf: the only copy of the BVH's splats. Lane i of
 /// block b is splat `BLOCK·b + i`. Unused lanes hold a disk of radius 0 and no normal, which
 /// no ray hits. Four cache lines: the kernel reads the first three and a half; the colours,
-/// at the end, are read only for the hit a pixel shades.
+/// at the end, only the visitors' look-ups read.
 #[repr(C, align(32))]
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct SplatBlock {

@@ -106,7 +106,7 @@ pub struct TraversalStats {
 impl TraversalStats {
     /// Counters the BVH leaves at zero: it then runs a traversal compiled without counting,
     /// for frames whose statistics nobody reads (benchmark frames). On the dragon, first hit:
-    /// 811 → 792 instructions a pixel and 5 % more rays a second (alternating runs).
+    /// 811 → 786 instructions a pixel and 2–5 % more rays a second (alternating runs).
     pub fn uncounted() -> Self {
         Self { uncounted: true, ..Self::default() }
     }

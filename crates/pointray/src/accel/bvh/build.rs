@@ -145,7 +145,7 @@ impl Bvh {
     /// made from them (with the representatives apart and the leaf blocks counted ahead, a
     /// render of a 2-million-point torus peaked at 274 MB where it took 408 MB,
     /// `/usr/bin/time`; with the splats kept only in blocks and the level of detail read from
-    /// them, a 20-million-point torus's render 1.72 → 1.52 GB).
+    /// them, a 20-million-point torus's render 1.72 → 1.59 GB).
     pub fn build(input: Vec<Splat>, params: &BvhParams) -> Bvh {
         assert!((2..=MAX_BINS).contains(&params.bins) && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
         assert!(input.len() <= MAX_SPLATS, "a BVH indexes at most {MAX_SPLATS} splats");

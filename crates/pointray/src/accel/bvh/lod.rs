@@ -5,8 +5,8 @@
 //! the cone and the representative's radius are computed from the disks below the child
 //! directly, in one pass, not merged from the grandchildren as QSplat does: the merge bounds
 //! bounds, and its spheres and cones only grow with the depth. A child covers a contiguous
-//! range of the splat array (the build keeps every subtree contiguous), so this pass costs
-//! O(n · depth). It took four passes before: loading the prepared dragon and building its BVH
+//! run of leaf blocks (the build keeps every subtree contiguous, see [`Disks`]), so this pass
+//! costs O(n · depth). It took four passes before: loading the prepared dragon and building its BVH
 //! went from 2.73 to 2.53 billion instructions (callgrind).
 //!
 //! * Sphere: centred on the child's box, radius to the farthest point of any disk below.
