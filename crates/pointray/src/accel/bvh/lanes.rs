@@ -67,6 +67,16 @@ lanewise!(Add, add);
 lanewise!(Sub, sub);
 lanewise!(Mul, mul);
 
+/// `Wide` methods of two operands, glam's own on each half.
+macro_rules! halves {
+    ($($f:ident -> $out:ident),*) => {$(
+        #[inline(always)]
+        fn $f(self, o: Self) -> $out {
+            $out { lo: self.lo.$f(o.lo), hi: self.hi.$f(o.hi) }
+        }
+    )*};
+}
+
 impl Index<usize> for Lanes {
     type Output = f32;
     fn index(&self, i: usize) -> &f32 {
@@ -113,34 +123,11 @@ impl Wide for Lanes {
     }
 
     #[inline(always)]
-    fn min(self, o: Self) -> Self {
-        Self { lo: self.lo.min(o.lo), hi: self.hi.min(o.hi) }
-    }
-
-    #[inline(always)]
-    fn max(self, o: Self) -> Self {
-        Self { lo: self.lo.max(o.lo), hi: self.hi.max(o.hi) }
-    }
-
-    #[inline(always)]
     fn abs(self) -> Self {
         Self { lo: self.lo.abs(), hi: self.hi.abs() }
     }
 
-    #[inline(always)]
-    fn cmplt(self, o: Self) -> Mask {
-        Mask { lo: self.lo.cmplt(o.lo), hi: self.hi.cmplt(o.hi) }
-    }
-
-    #[inline(always)]
-    fn cmple(self, o: Self) -> Mask {
-        Mask { lo: self.lo.cmple(o.lo), hi: self.hi.cmple(o.hi) }
-    }
-
-    #[inline(always)]
-    fn cmpgt(self, o: Self) -> Mask {
-        Mask { lo: self.lo.cmpgt(o.lo), hi: self.hi.cmpgt(o.hi) }
-    }
+    halves!(min -> Lanes, max -> Lanes, cmplt -> Mask, cmple -> Mask, cmpgt -> Mask);
 
     #[inline(always)]
     fn bitmask(mask: Mask) -> u32 {

@@ -174,17 +174,26 @@ pub(crate) fn traverse<V: SplatVisitor, K: LeafKernel>(
     if stack.len() < need {
         stack.resize(need, (0, 0.0));
     }
-    dispatch(bvh, ray, visitor, stats, &mut stack, kernel);
+    // Counted in a local, which can live in registers, and added once. Where nothing reads the
+    // counts, a local that is never read: the compiler drops the counting from that instance.
+    if stats.counting() {
+        let mut counts = TraversalStats::default();
+        dispatch(bvh, ray, visitor, &mut counts, &mut stack, kernel);
+        *stats += counts;
+    } else {
+        dispatch(bvh, ray, visitor, &mut TraversalStats::default(), &mut stack, kernel);
+    }
     STACK.set(stack);
 }
 
 /// Full-detail rays through a tree of boxes take the loop without the multiresolution steps.
+/// `counts` is a local of `traverse`'s.
 #[inline(always)]
 fn dispatch<V: SplatVisitor, K: LeafKernel>(
     bvh: &Bvh,
     ray: &Ray,
     visitor: &mut V,
-    stats: &mut TraversalStats,
+    counts: &mut TraversalStats,
     stack: &mut [(u32, f32)],
     kernel: K,
 ) {
@@ -195,24 +204,10 @@ fn dispatch<V: SplatVisitor, K: LeafKernel>(
     let reach = if ray.cull_backfaces { f32::INFINITY } else { lod_reach };
     let slab = SlabRay::<K::Lanes>::new(ray);
     let levels = Levels { lod_reach, reach };
-    // Counted in a local, which can live in registers, and added once. Where nothing reads
-    // them, a local that is never read: the compiler drops the counting from that instance.
-    let mut counts = TraversalStats::default();
-    let multires = lod || ray.cull_backfaces || bvh.node_bounds != super::NodeBounds::Boxes;
-    match (multires, stats.counting()) {
-        (true, true) => traverse_from::<V, K, true>(bvh, ray, &slab, visitor, &mut counts, stack, &levels, kernel),
-        (false, true) => traverse_from::<V, K, false>(bvh, ray, &slab, visitor, &mut counts, stack, &levels, kernel),
-        (true, false) => {
-            let mut unread = TraversalStats::default();
-            traverse_from::<V, K, true>(bvh, ray, &slab, visitor, &mut unread, stack, &levels, kernel);
-        }
-        (false, false) => {
-            let mut unread = TraversalStats::default();
-            traverse_from::<V, K, false>(bvh, ray, &slab, visitor, &mut unread, stack, &levels, kernel);
-        }
-    }
-    if stats.counting() {
-        *stats += counts;
+    if lod || ray.cull_backfaces || bvh.node_bounds != super::NodeBounds::Boxes {
+        traverse_from::<V, K, true>(bvh, ray, &slab, visitor, counts, stack, &levels, kernel);
+    } else {
+        traverse_from::<V, K, false>(bvh, ray, &slab, visitor, counts, stack, &levels, kernel);
     }
 }
 
