@@ -117,9 +117,14 @@ impl Splat {
     /// [`Self::color_linear`] with the table fetched once, for loops over many splats.
     #[inline]
     pub(crate) fn color_linear_in(&self, table: &[f32; 256]) -> [f32; 3] {
-        let c = self.color;
-        [table[(c & 0xff) as usize], table[(c >> 8 & 0xff) as usize], table[(c >> 16 & 0xff) as usize]]
+        color_linear_in(self.color, table)
     }
+}
+
+/// A packed colour (as [`Splat::color`]) in linear RGB, through `table`.
+#[inline(always)]
+pub(crate) fn color_linear_in(c: u32, table: &[f32; 256]) -> [f32; 3] {
+    [table[(c & 0xff) as usize], table[(c >> 8 & 0xff) as usize], table[(c >> 16 & 0xff) as usize]]
 }
 
 #[inline]

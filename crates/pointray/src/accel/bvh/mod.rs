@@ -69,6 +69,10 @@ fn leaf_splats(child: u32) -> std::ops::Range<u32> {
 /// which bounds the depth of any tree by this plus log₂ n.
 pub(crate) const MEDIAN_SPLIT_DEPTH: usize = 88;
 
+/// The deepest an 8-wide tree can be: each of its levels takes at least one level of the
+/// binary build tree, whose depth median splits bound.
+pub(crate) const MAX_DEPTH: usize = MEDIAN_SPLIT_DEPTH + FIRST_BITS as usize;
+
 /// Children per node.
 pub(crate) const WIDTH: usize = lanes::LANES;
 
@@ -332,6 +336,10 @@ pub fn check_invariants(bvh: &Bvh) -> Result<(), String> {
     }
     if bvh.nodes.is_empty() {
         return if bvh.splat_count == 0 { Ok(()) } else { Err("splats but no root node".into()) };
+    }
+    // The traversal's stack holds enough for this depth and no more.
+    if bvh.depth > MAX_DEPTH {
+        return Err(format!("depth {} beyond {MAX_DEPTH}", bvh.depth));
     }
     let mut seen = vec![false; bvh.blocks.len() * BLOCK];
     walk(bvh, 0, &mut seen)?;

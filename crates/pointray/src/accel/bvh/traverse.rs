@@ -10,7 +10,9 @@
 
 use super::lanes::{Wide, dot3};
 use super::lod::NodeLod;
-use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks, leaf_size};
+use arrayvec::ArrayVec;
+
+use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, MAX_DEPTH, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks, leaf_size};
 use crate::accel::block::{BLOCK, LeafKernel};
 use crate::accel::{Crossing, SplatVisitor, TraversalStats, test_disk};
 use crate::math::Ray;
@@ -147,14 +149,15 @@ fn cull_limit(t_max: f32) -> f32 {
     t_max * (1.0 + 1.0 / 65536.0)
 }
 
-thread_local! {
-    /// Each thread's traversal stack, reused from ray to ray: a fresh array per ray would cost
-    /// a memset of the whole stack every time. A traversal takes it out and puts it back, so
-    /// no closure stands between the instruction-set builds of `accel::isa` and the loop (a
-    /// closure would be compiled once, for the baseline), and a traversal started from inside
-    /// a visitor finds it empty and makes its own.
-    static STACK: std::cell::Cell<Vec<(u32, f32)>> = const { std::cell::Cell::new(Vec::new()) };
-}
+/// Entries the traversal stack holds: each level of the tree pushes at most WIDTH − 1, and no
+/// tree is deeper than [`MAX_DEPTH`].
+const STACK_ENTRIES: usize = (WIDTH - 1) * MAX_DEPTH + 1;
+
+/// A traversal's stack: (child reference, entry distance). On the thread's stack and left
+/// uninitialised (an `ArrayVec`), so that a ray pays for neither a memset of it (a zeroed
+/// array of 64 entries cost 3 % of the dragon's first-hit rays a second) nor a thread-local
+/// taken out and put back (a `Cell<Vec>`: 32 instructions a ray, callgrind).
+type Stack = ArrayVec<(u32, f32), STACK_ENTRIES>;
 
 /// Inlined into each instruction-set build of `accel::isa`, which calls it.
 #[inline(always)]
@@ -168,12 +171,8 @@ pub(crate) fn traverse<V: SplatVisitor, K: LeafKernel>(
     if bvh.nodes.is_empty() {
         return;
     }
-    // Each level pushes at most WIDTH − 1 entries.
-    let need = (WIDTH - 1) * bvh.depth + 1;
-    let mut stack = STACK.take();
-    if stack.len() < need {
-        stack.resize(need, (0, 0.0));
-    }
+    debug_assert!(bvh.depth <= MAX_DEPTH);
+    let mut stack = Stack::new();
     // Counted in a local, which can live in registers, and added once. Where nothing reads the
     // counts, a local that is never read: the compiler drops the counting from that instance.
     if stats.counting() {
@@ -183,7 +182,6 @@ pub(crate) fn traverse<V: SplatVisitor, K: LeafKernel>(
     } else {
         dispatch(bvh, ray, visitor, &mut TraversalStats::default(), &mut stack, kernel);
     }
-    STACK.set(stack);
 }
 
 /// Full-detail rays through a tree of boxes take the loop without the multiresolution steps.
@@ -194,7 +192,7 @@ fn dispatch<V: SplatVisitor, K: LeafKernel>(
     ray: &Ray,
     visitor: &mut V,
     counts: &mut TraversalStats,
-    stack: &mut [(u32, f32)],
+    stack: &mut Stack,
     kernel: K,
 ) {
     let lod_reach = lod_reach(bvh, ray);
@@ -243,11 +241,10 @@ fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
     slab: &SlabRay<K::Lanes>,
     visitor: &mut V,
     stats: &mut TraversalStats,
-    stack: &mut [(u32, f32)],
+    stack: &mut Stack,
     levels: &Levels,
     kernel: K,
 ) {
-    let mut sp = 0;
     let mut current = (0, ray.t_min);
     loop {
         let (child, entry) = current;
@@ -266,7 +263,7 @@ fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
                         // t·den, 2⁻¹⁶ wide, holds wherever t does but where t_max·den underflows).
                         if hits.t[lane] <= visitor.t_max() {
                             let index = (b * BLOCK + lane) as u32;
-                            visitor.hit(ray, Crossing::new(index, block.radius[lane], hits.hit(lane)));
+                            visitor.hit(ray, Crossing::new(index, &block.splat(lane), hits.hit(lane)));
                         }
                     }
                 }
@@ -319,23 +316,20 @@ fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
                         let nearer = c.1 < nearest.1;
                         let (lo, hi) = if nearer { (c, nearest) } else { (nearest, c) };
                         let closer = hi.1 < second.1;
-                        stack[sp] = if closer { second } else { hi };
+                        stack.push(if closer { second } else { hi });
                         second = if closer { hi } else { second };
                         nearest = lo;
-                        sp += 1;
                     }
-                    stack[sp] = second;
-                    sp += 1;
+                    stack.push(second);
                     current = nearest;
                     continue;
                 }
             }
         }
-        if sp == 0 {
-            return;
+        match stack.pop() {
+            Some(entry) => current = entry,
+            None => return,
         }
-        sp -= 1;
-        current = stack[sp];
     }
 }
 
