@@ -13,9 +13,7 @@
 //! hit: ~75 instructions per 4-wide packet for the SSE pre-filter plus the visitor's scalar
 //! re-test of the candidates before, ~45 per 8-wide block after (`docs/RESULTS.md`).
 
-use super::SplatVisitor;
 use super::bvh::lanes::{Lanes, Wide};
-use super::bvh::{self, traverse::Walk};
 use crate::math::Ray;
 use crate::splat::oriented_disk::DiskHit;
 use crate::splat::{DiskShape, Splat};
@@ -43,9 +41,6 @@ pub(crate) trait LeafKernel: Copy {
     /// How the same instruction set computes a node's eight lanes.
     type Lanes: Wide;
     fn hits(self, block: &SplatBlock, shape: DiskShape, ray: &Ray, t_max: f32) -> BlockHits;
-    /// The BVH's multiresolution walk on this instruction set, compiled apart from the
-    /// full-detail one (see `bvh::traverse::walk`).
-    fn walk_multires<V: SplatVisitor, const COUNT: bool>(self, walk: Walk<'_, V, Self::Lanes>);
 }
 
 /// [`SplatBlock::hits`], which the compiler vectorizes for whatever it targets.
@@ -58,11 +53,6 @@ impl LeafKernel for Portable {
     #[inline(always)]
     fn hits(self, block: &SplatBlock, shape: DiskShape, ray: &Ray, t_max: f32) -> BlockHits {
         block.hits(shape, ray, t_max)
-    }
-
-    #[inline(never)]
-    fn walk_multires<V: SplatVisitor, const COUNT: bool>(self, walk: Walk<'_, V, Lanes>) {
-        bvh::traverse::walk::<V, Self, true, COUNT>(walk, self);
     }
 }
 

@@ -106,19 +106,9 @@ mod avx2 {
     use std::arch::x86_64::*;
 
     use super::super::block::{BLOCK, BlockHits, LeafKernel, SplatBlock};
-    use crate::accel::SplatVisitor;
     use crate::accel::bvh::lanes::{Lanes, Wide};
-    use crate::accel::bvh::traverse::{self, Walk};
     use crate::math::Ray;
     use crate::splat::DiskShape;
-
-    /// The multiresolution walk compiled for AVX2, called from `bvh_traverse_avx2` for the
-    /// rays that need it (see `bvh::traverse::walk`).
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    fn walk_multires<V: SplatVisitor, const COUNT: bool>(walk: Walk<'_, V, Lanes8>, kernel: Kernel) {
-        traverse::walk::<V, Kernel, true, COUNT>(walk, kernel);
-    }
 
     /// The AVX2 kernel. Made only where `detect` saw AVX2 and FMA: by `bvh_traverse_avx2`,
     /// which runs only there, and by `kernel_for_tests` (the field, private to `isa`, keeps the
@@ -139,15 +129,6 @@ mod avx2 {
                     DiskShape::Oriented => oriented(block, ray, t_max),
                     DiskShape::RayFacing => ray_facing(block, ray, t_max),
                 }
-            }
-        }
-
-        #[inline(always)]
-        fn walk_multires<V: SplatVisitor, const COUNT: bool>(self, walk: Walk<'_, V, Lanes8>) {
-            // SAFETY: as for `hits`: a `Kernel` exists only where the CPU has AVX2 and FMA.
-            #[allow(unsafe_code)]
-            unsafe {
-                walk_multires::<V, COUNT>(walk, self)
             }
         }
     }

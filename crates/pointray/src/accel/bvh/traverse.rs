@@ -20,7 +20,7 @@ use crate::math::Ray;
 /// The ray in the form the eight-wide tests want: per axis the origin, direction and negated
 /// inverse direction splatted to all lanes, and the footprint scaled by the level-of-detail
 /// threshold.
-pub(crate) struct SlabRay<W> {
+struct SlabRay<W> {
     origin: [W; 3],
     dir: [W; 3],
     /// −1/d per axis, held within ±[`MAX_INV_DIR`]: finite, so no slab distance is NaN (0·∞)
@@ -168,7 +168,7 @@ const STACK_ENTRIES: usize = (WIDTH - 1) * MAX_DEPTH + 1;
 /// uninitialised (an `ArrayVec`), so that a ray pays for neither a memset of it (a zeroed
 /// array of 64 entries cost 3 % of the dragon's first-hit rays a second) nor a thread-local
 /// taken out and put back (a `Cell<Vec>`: 32 instructions a ray, callgrind).
-pub(crate) type Stack = ArrayVec<(u32, f32), STACK_ENTRIES>;
+type Stack = ArrayVec<(u32, f32), STACK_ENTRIES>;
 
 /// Inlined into each instruction-set build of `accel::isa`, which calls it.
 #[inline(always)]
@@ -192,6 +192,13 @@ pub(crate) fn traverse<V: SplatVisitor, K: LeafKernel>(
 }
 
 /// Full-detail rays through a tree of boxes take the loop without the multiresolution steps.
+///
+/// The walk counts its work in a local, which can live in registers, and adds it to `stats`
+/// once, if `COUNT`; otherwise the local is never read and the compiler drops the counting
+/// from that instance (on the dragon, first hit: 811 → 786 instructions a pixel and 2–5 % more
+/// rays a second, alternating runs). With the choice a run-time test here, between a local
+/// that was added and one that was not, a change to the multiresolution steps moved the
+/// first-hit count by up to 17 instructions a pixel (callgrind), in code they never run.
 #[inline(always)]
 fn dispatch<V: SplatVisitor, K: LeafKernel, const COUNT: bool>(
     bvh: &Bvh,
@@ -208,11 +215,14 @@ fn dispatch<V: SplatVisitor, K: LeafKernel, const COUNT: bool>(
     let reach = if ray.cull_backfaces { f32::INFINITY } else { lod_reach };
     let slab = SlabRay::<K::Lanes>::new(ray);
     let levels = Levels { lod_reach, reach };
-    let walk = Walk { bvh, ray, slab: &slab, visitor, stats, stack, levels: &levels };
+    let mut counts = TraversalStats::default();
     if lod || ray.cull_backfaces || bvh.node_bounds != super::NodeBounds::Boxes {
-        kernel.walk_multires::<V, COUNT>(walk);
+        traverse_from::<V, K, true>(bvh, ray, &slab, visitor, &mut counts, stack, &levels, kernel);
     } else {
-        self::walk::<V, K, false, COUNT>(walk, kernel);
+        traverse_from::<V, K, false>(bvh, ray, &slab, visitor, &mut counts, stack, &levels, kernel);
+    }
+    if COUNT {
+        *stats += counts;
     }
 }
 
@@ -231,51 +241,18 @@ pub(super) fn lod_reach(bvh: &Bvh, ray: &Ray) -> f32 {
 }
 
 /// Where the multiresolution steps apply, per ray (see `dispatch`).
-pub(crate) struct Levels {
+struct Levels {
     /// Children narrower than this may stop the ray (0: none).
     lod_reach: f32,
     /// Nodes whose `multires_below` is under this take the multiresolution step.
     reach: f32,
 }
 
-/// What a walk down the tree works with: the tree, the ray (as given and in lanes), the
-/// visitor, the work counts, an empty stack and where the multiresolution steps apply.
-pub(crate) struct Walk<'a, V, W> {
-    bvh: &'a Bvh,
-    ray: &'a Ray,
-    slab: &'a SlabRay<W>,
-    visitor: &'a mut V,
-    stats: &'a mut TraversalStats,
-    stack: &'a mut Stack,
-    levels: &'a Levels,
-}
-
-/// The traversal proper, with or without the multiresolution steps. The full-detail walk is
-/// inlined into `traverse`; the multiresolution one is compiled apart (`LeafKernel::
-/// walk_multires`), so that the steps it adds leave the full-detail loop's code alone: inlined
-/// beside it, a change to them moved the first-hit dragon's count by up to 17 instructions a
-/// pixel (callgrind), in code they never run.
-///
-/// The walk counts its work in a local of its own, which can live in registers, and adds it
-/// to `w.stats` once, if `COUNT`; otherwise the local is never read and the compiler drops
-/// the counting from that instance (on the dragon, first hit: 811 → 786 instructions a pixel
-/// and 2–5 % more rays a second, alternating runs).
-#[inline(always)]
-pub(crate) fn walk<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool, const COUNT: bool>(
-    w: Walk<'_, V, K::Lanes>,
-    kernel: K,
-) {
-    let Walk { bvh, ray, slab, visitor, stats: total, stack, levels } = w;
-    let mut counts = TraversalStats::default();
-    walk_counting::<V, K, MULTIRES>(bvh, ray, slab, visitor, &mut counts, stack, levels, kernel);
-    if COUNT {
-        *total += counts;
-    }
-}
-
+/// The traversal proper, with `stack` large enough for the tree: entries are (child
+/// reference, entry distance).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-fn walk_counting<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
+fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
     bvh: &Bvh,
     ray: &Ray,
     slab: &SlabRay<K::Lanes>,
