@@ -36,7 +36,32 @@ pub(crate) struct Moments {
     normal: DVec3,
     color: DVec3,
     /// The area of each material.
-    materials: Vec<(u8, f64)>,
+    materials: Materials,
+}
+
+/// Areas by material: the first material met kept inline, the others (rare: most clouds have
+/// one) in a vector, so that a node's or a leaf's moments allocate nothing.
+#[derive(Clone, Debug, Default)]
+struct Materials {
+    first: Option<(u8, f64)>,
+    others: Vec<(u8, f64)>,
+}
+
+impl Materials {
+    fn add(&mut self, material: u8, area: f64) {
+        match &mut self.first {
+            Some((m, a)) if *m == material => *a += area,
+            None => self.first = Some((material, area)),
+            Some(_) => match self.others.iter_mut().find(|(m, _)| *m == material) {
+                Some((_, a)) => *a += area,
+                None => self.others.push((material, area)),
+            },
+        }
+    }
+
+    fn iter(&self) -> impl Iterator<Item = &(u8, f64)> {
+        self.first.iter().chain(&self.others)
+    }
 }
 
 impl Moments {
@@ -50,7 +75,7 @@ impl Moments {
     pub(crate) fn add(&mut self, s: &Splat) {
         // Zero-radius disks still count (a little), so that a cloud of them has a centre.
         let w = f64::from(s.radius).powi(2).max(f64::MIN_POSITIVE);
-        self.add_material(s.material(), w);
+        self.materials.add(s.material(), w);
         self.area += w;
         self.center += w * s.center.as_dvec3();
         self.normal += w * s.normal.as_dvec3();
@@ -62,15 +87,8 @@ impl Moments {
         self.center += other.center;
         self.normal += other.normal;
         self.color += other.color;
-        for &(material, area) in &other.materials {
-            self.add_material(material, area);
-        }
-    }
-
-    fn add_material(&mut self, material: u8, area: f64) {
-        match self.materials.iter_mut().find(|(m, _)| *m == material) {
-            Some((_, a)) => *a += area,
-            None => self.materials.push((material, area)),
+        for &(material, area) in other.materials.iter() {
+            self.materials.add(material, area);
         }
     }
 
