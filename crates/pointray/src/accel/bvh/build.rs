@@ -271,7 +271,7 @@ fn build_node(prims: &mut [Prim], offset: usize, params: &BvhParams, depth: usiz
     };
     let mid = match split {
         Some(s) if s.cost < blocks(n) * params.intersection_cost || n > params.max_leaf_size => {
-            partition(prims, |p| s.bin_of(p.centroid()) < s.bin)
+            partition(prims, |p| s.goes_left(p.centroid()))
         }
         None if n > params.max_leaf_size => median_split(prims),
         _ => return leaf(),
@@ -289,25 +289,28 @@ fn build_node(prims: &mut [Prim], offset: usize, params: &BvhParams, depth: usiz
 struct Split {
     axis: usize,
     bin: usize,
-    bins: usize,
     lo: f32,
     scale: f32,
     cost: f32,
 }
 
 impl Split {
-    fn bin_of(&self, c: Vec3A) -> usize {
-        bin_index(c[self.axis], self.lo, self.scale, self.bins)
+    /// Whether a centroid's bin, ⌊v⌋ for v = (c − lo)·scale, capped at the last, lies left of
+    /// the split: for the finite, non-negative values binning gives, ⌊v⌋ < b exactly when
+    /// v < b, and written as ¬(v ≥ b) a NaN goes left, as its conversion to bin 0 sent it. The
+    /// same partitions without converting v to an integer, which Rust's saturating `as usize`
+    /// does in ~15 instructions, a primitive at every level (loading the prepared dragon and
+    /// building its BVH: 2.22 → 2.11 billion instructions, callgrind; the torus's build 4 %
+    /// faster, alternating runs).
+    #[inline(always)]
+    fn goes_left(&self, c: Vec3A) -> bool {
+        !((c[self.axis] - self.lo) * self.scale >= self.bin as f32)
     }
 }
 
 /// Blocks a leaf of `n` splats is tested as (see `accel::block`).
 fn blocks(n: usize) -> f32 {
     n.div_ceil(BLOCK) as f32
-}
-
-fn bin_index(x: f32, lo: f32, scale: f32, bins: usize) -> usize {
-    (((x - lo) * scale) as usize).min(bins - 1)
 }
 
 /// Most bins per axis (the binning arrays live on the stack).
@@ -368,7 +371,7 @@ impl Binning {
     fn bin(&self, prims: &[Prim]) -> Bins {
         let mut bins = Bins::empty();
         for p in prims {
-            // `bin_index` on the three axes at once: the centroids lie at or above `lo`, so the
+            // ⌊(c − lo)·scale⌋ on the three axes at once: the centroids lie at or above `lo`, so the
             // clamp before the conversion is the clamp after it.
             let b = ((p.centroid() - self.lo) * self.scale).min(self.last).as_uvec3();
             for axis in 0..3 {
@@ -417,7 +420,7 @@ fn best_sah_split(prims: &[Prim], bounds: &Aabb, cb: &Aabb, params: &BvhParams) 
                     * (left.half_area() * blocks(left_count) + right_area[b] * blocks(right_count))
                     / parent_area;
             if best.as_ref().is_none_or(|s| cost < s.cost) {
-                best = Some(Split { axis, bin: b, bins, lo: lo[axis], scale: scale[axis], cost });
+                best = Some(Split { axis, bin: b, lo: lo[axis], scale: scale[axis], cost });
             }
         }
     }
