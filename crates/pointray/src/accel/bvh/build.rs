@@ -297,11 +297,11 @@ struct Split {
 impl Split {
     /// Whether a centroid's bin, ⌊v⌋ for v = (c − lo)·scale, capped at the last, lies left of
     /// the split: for the finite, non-negative values binning gives, ⌊v⌋ < b exactly when
-    /// v < b, and a NaN goes left, as its conversion to bin 0 sent it. The
-    /// same partitions without converting v to an integer, which Rust's saturating `as usize`
-    /// does in ~15 instructions, a primitive at every level (loading the prepared dragon and
-    /// building its BVH: 2.22 → 2.11 billion instructions, callgrind; the torus's build 4 %
-    /// faster, alternating runs).
+    /// v < b, and a NaN goes left, as its conversion to bin 0 sent it. The same partitions
+    /// without converting v to an integer, which Rust's saturating `as usize` does in ~15
+    /// instructions, a primitive at every level (loading the prepared dragon and building its
+    /// BVH: 2.22 → 2.12 billion instructions, callgrind; the torus's build 4 % faster,
+    /// alternating runs).
     #[inline(always)]
     fn goes_left(&self, c: Vec3A) -> bool {
         let v = (c[self.axis] - self.lo) * self.scale;
