@@ -111,17 +111,12 @@ impl Splat {
     /// Inlined: as a call it made the SJ blend spill ten registers per disk.
     #[inline]
     pub fn color_linear(&self) -> [f32; 3] {
-        self.color_linear_in(srgb8_to_linear_table())
-    }
-
-    /// [`Self::color_linear`] with the table fetched once, for loops over many splats.
-    #[inline]
-    pub(crate) fn color_linear_in(&self, table: &[f32; 256]) -> [f32; 3] {
-        color_linear_in(self.color, table)
+        color_linear_in(self.color, srgb8_to_linear_table())
     }
 }
 
-/// A packed colour (as [`Splat::color`]) in linear RGB, through `table`.
+/// A packed colour (as [`Splat::color`]) in linear RGB, through `table`: [`Splat::color_linear`]
+/// with the table fetched once, for loops over many colours.
 #[inline(always)]
 pub(crate) fn color_linear_in(c: u32, table: &[f32; 256]) -> [f32; 3] {
     [table[(c & 0xff) as usize], table[(c >> 8 & 0xff) as usize], table[(c >> 16 & 0xff) as usize]]
