@@ -337,6 +337,7 @@ fn config(e: &Experiment, camera: &Camera, region: Region, surface: SurfaceKind,
         diffuse_spread: 0.0,
         cull_backfaces: false,
         count_work: true,
+        first_hit_aovs: false,
     }
 }
 

@@ -363,6 +363,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
         seed: a.seed,
         diffuse_spread: a.diffuse_spread,
         count_work: a.stats.is_some() || a.aov.contains(&AovArg::Nodes),
+        first_hit_aovs: a.aov.iter().any(|aov| *aov != AovArg::Nodes),
     };
 
     // 4. Render: one frame for the image, then any timed benchmark frames, which count no work

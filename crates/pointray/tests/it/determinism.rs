@@ -58,5 +58,11 @@ fn image_is_identical_with_one_and_two_threads() {
     assert!(bits(&a) == bits(&q), "counting work changed the image");
     assert_eq!(sq.traversal.nodes_visited + sq.traversal.splat_tests + sq.traversal.lod_stops, 0, "{sq:?}");
     assert!(q.nodes_visited.iter().all(|&n| n == 0) && a.nodes_visited.iter().any(|&n| n > 0));
+    // Without the first hits' channels, the same image, and those channels as the film began.
+    let plain = RenderConfig { first_hit_aovs: false, ..config.clone() };
+    let (p, _) = render(&bvh, &cam, &plain, &|_| {});
+    assert!(bits(&a).0 == bits(&p).0, "leaving the first hits out changed the image");
+    assert!(p.normal.iter().all(|n| *n == [0.0; 3]) && p.depth.iter().all(|d| d.is_infinite()));
+    assert!(a.normal.iter().any(|n| *n != [0.0; 3]));
     assert_eq!((sq.rays, sq.primary_hits), (sa.rays, sa.primary_hits));
 }

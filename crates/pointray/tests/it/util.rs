@@ -83,5 +83,6 @@ pub fn render_config(region: pointray::camera::Region, samples: u32) -> pointray
         diffuse_spread: 0.0,
         cull_backfaces: false,
         count_work: true,
+        first_hit_aovs: true,
     }
 }
