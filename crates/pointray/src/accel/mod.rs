@@ -59,7 +59,7 @@ impl Crossing {
     /// The crossed disk's material (the colour's top byte, as [`Splat::material`]).
     #[inline(always)]
     pub fn material(&self) -> u8 {
-        (self.color >> 24) as u8
+        crate::splat::material_of(self.color)
     }
 }
 

@@ -100,7 +100,7 @@ impl Splat {
     /// The index of the splat's material in the render's list (`RenderConfig::materials`):
     /// the packed colour's top byte, so that a scene of several clouds costs no memory.
     pub fn material(&self) -> u8 {
-        (self.color >> 24) as u8
+        material_of(self.color)
     }
 
     pub fn set_material(&mut self, material: u8) {
@@ -126,6 +126,12 @@ pub(crate) fn color_linear_in(c: u32, table: &[f32; 256]) -> [f32; 3] {
 pub(crate) fn srgb8_to_linear_table() -> &'static [f32; 256] {
     static TABLE: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
     TABLE.get_or_init(|| std::array::from_fn(|i| crate::film::srgb_to_linear(i as f32 / 255.0)))
+}
+
+/// The material index in a packed colour (its top byte, see [`Splat::material`]).
+#[inline(always)]
+pub(crate) fn material_of(color: u32) -> u8 {
+    (color >> 24) as u8
 }
 
 /// Packs an sRGB-encoded colour (each channel in `[0, 1]`) into a splat's 8-bit channels.

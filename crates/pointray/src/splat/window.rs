@@ -97,6 +97,8 @@ impl<D: DiskTest> Window<D> {
         // overlap), but shifting the others in costs less than sorting at the end did: SJ took
         // 1,380 instructions a pixel with the list sorted by `blend`, 1,322 so, and 1,335 with
         // the push folded into the shifting path below (callgrind).
+        // A tie with the last, noted apart from the test below: as one read of the last `t`
+        // for both, SJ took 12 instructions a pixel more (callgrind).
         if let Some(last) = self.crossings.last() {
             self.ties |= last.t == c.t;
         }
@@ -183,13 +185,12 @@ struct Sums {
     blended: u32,
 }
 
-/// The sums of [`Window::blend`], compiled once with and once without the tangent planes, with
-/// the colour table fetched once, and the normal and colour sums in SIMD lanes (the same sums,
-/// lane by lane). With the tangent planes a test in the loop, each crossing's splat was copied
-/// to the stack for them (callgrind on the dragon, SJ: 1,141 → 1,116 instructions a pixel; the
-/// same speed within the noise of alternating runs). Eight crossings at a time, their terms
-/// gathered into lanes and summed lane by lane, took 1,148 where this loop takes 1,092: with
-/// eight crossings a hit, the gathering costs what the loop does.
+/// The sums of [`Window::blend`], compiled once with and once without the tangent planes (only
+/// they fetch a splat, for its centre), with the colour table fetched once, and the normal and
+/// colour sums in SIMD lanes (the same sums, lane by lane). Eight crossings at a time, their
+/// terms gathered into lanes and summed lane by lane, took 1,148 instructions a pixel where this
+/// loop took 1,092 (callgrind on the dragon, SJ): with eight crossings a hit, the gathering
+/// costs what the loop does.
 #[inline(always)]
 fn blend_sums<A: Accel + ?Sized, const TANGENT_PLANES: bool>(
     list: &[Crossing],
