@@ -23,7 +23,7 @@ use rayon::prelude::*;
 use super::lanes::Lanes;
 use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks, leaf_size, leaf_splats};
 use crate::accel::Accel;
-use crate::accel::block::SplatBlock;
+use crate::accel::block::{BLOCK, SplatBlock};
 use crate::accel::representative::{Moments, Representative, Spread};
 use crate::splat::{DiskShape, Splat};
 
@@ -133,16 +133,23 @@ fn round_up(x: f64) -> f32 {
     (x * (1.0 + 1e-6)) as f32 + f32::MIN_POSITIVE
 }
 
-/// The child's bounds and representative from its disks and their moments, in one pass.
+/// The child's bounds and representative from its disks and their moments, in one pass over
+/// its blocks, lane by lane.
 fn child_lod(box_center: Vec3, disks: &Disks, blocks: Range<usize>, moments: &Moments, shape: DiskShape) -> ChildLod {
     let frame = moments.frame(disks.blocks[blocks.start].splat(0).normal);
     let (c, axis) = (box_center.as_dvec3(), frame.normal().as_dvec3());
     let (mut far, mut spread, mut min_cos) = (0.0f64, Spread::default(), 1.0f64);
-    disks.each(blocks, |s| {
-        far = far.max(farthest(c, s, shape));
-        spread.add(&frame, s);
-        min_cos = min_cos.min(s.normal.as_dvec3().dot(axis));
-    });
+    for b in blocks {
+        let (block, count) = (&disks.blocks[b], usize::from(disks.counts[b]));
+        let (far_lanes, cos_lanes) = (farthest_lanes(c, block, shape), cos_lanes(axis, block));
+        // Compares, not `f64::max`, whose NaN rules cost four instructions a lane: no value
+        // here is NaN, and neither the bounds nor the cone depend on a zero's sign.
+        for i in 0..count {
+            far = if far_lanes[i] > far { far_lanes[i] } else { far };
+            min_cos = if cos_lanes[i] < min_cos { cos_lanes[i] } else { min_cos };
+        }
+        spread.add_block(&frame, block, count);
+    }
     let Representative { splat: rep, coherent } = frame.representative(&spread);
     let cos_angle = if coherent {
         // A little wider than measured: rounding must never make the cone exclude a normal.
@@ -151,6 +158,41 @@ fn child_lod(box_center: Vec3, disks: &Disks, blocks: Range<usize>, moments: &Mo
         -1.0 // normals that cancel out: a cone that never culls
     };
     ChildLod { radius: round_up(far), cos_angle, rep }
+}
+
+/// [`farthest`] from `p` for each lane of `block`, in the same operations: written over lanes,
+/// the compiler vectorizes it. With [`Spread::add_block`] and plain compares for the extremes,
+/// `child_lod` took 578 million instructions of the 1-million-point torus's build, where it
+/// took 779 splat by splat (callgrind).
+#[inline(always)]
+fn farthest_lanes(p: DVec3, block: &SplatBlock, shape: DiskShape) -> [f64; BLOCK] {
+    let [cx, cy, cz] = block.center.map(|x| x.map(f64::from));
+    let [nx, ny, nz] = block.normal.map(|x| x.map(f64::from));
+    let r = block.radius.map(f64::from);
+    let mut far = [0.0; BLOCK];
+    for i in 0..BLOCK {
+        let d = [cx[i] - p.x, cy[i] - p.y, cz[i] - p.z];
+        far[i] = if shape == DiskShape::RayFacing {
+            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() + r[i]
+        } else {
+            let h = d[0] * nx[i] + d[1] * ny[i] + d[2] * nz[i];
+            let q = [d[0] - h * nx[i], d[1] - h * ny[i], d[2] - h * nz[i]];
+            let in_plane = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
+            (h * h + (in_plane + r[i]) * (in_plane + r[i])).sqrt()
+        };
+    }
+    far
+}
+
+/// The cosine between `axis` and each lane's normal.
+#[inline(always)]
+fn cos_lanes(axis: DVec3, block: &SplatBlock) -> [f64; BLOCK] {
+    let [nx, ny, nz] = block.normal.map(|x| x.map(f64::from));
+    let mut cos = [0.0; BLOCK];
+    for i in 0..BLOCK {
+        cos[i] = nx[i] * axis.x + ny[i] * axis.y + nz[i] * axis.z;
+    }
+    cos
 }
 
 /// The moments of the disks below every node: its leaf children's summed in parallel, then its
@@ -306,6 +348,40 @@ mod tests {
         let c = child_lod(s.center, &disks, 0..1, &disks.moments(0..1), DiskShape::Oriented);
         assert_eq!(c.rep, s);
         assert!(c.cos_angle > 0.9999 && (c.radius - 0.5).abs() < 1e-5);
+    }
+
+    /// The block-lane bounds and spread against the scalar functions, disk by disk, bit for bit.
+    #[test]
+    fn child_lod_equals_the_scalar_bounds() {
+        let splats: Vec<Splat> = (0..21)
+            .map(|i| {
+                let t = i as f32 * 0.37;
+                let normal = Vec3::new(t.sin(), 0.6 + 0.1 * t.cos(), (2.0 * t).cos()).normalize();
+                Splat {
+                    center: Vec3::new(t.cos() * 3.1, t * 0.21, (t * 1.7).sin()),
+                    radius: 0.05 + 0.01 * t,
+                    normal,
+                    color: 0,
+                }
+            })
+            .collect();
+        let blocks: Vec<SplatBlock> = splats.chunks(BLOCK).map(SplatBlock::new).collect();
+        let counts: Vec<u8> = splats.chunks(BLOCK).map(|c| c.len() as u8).collect();
+        let disks = Disks { blocks: &blocks, counts: &counts };
+        let box_center = Vec3::new(0.3, 2.0, -0.1);
+        for shape in [DiskShape::Oriented, DiskShape::RayFacing] {
+            let moments = disks.moments(0..blocks.len());
+            let lanes = child_lod(box_center, &disks, 0..blocks.len(), &moments, shape);
+            let frame = moments.frame(splats[0].normal);
+            let axis = frame.normal().as_dvec3();
+            let mut spread = Spread::default();
+            splats.iter().for_each(|s| spread.add(&frame, s));
+            let far = splats.iter().map(|s| farthest(box_center.as_dvec3(), s, shape)).fold(0.0, f64::max);
+            let min_cos = splats.iter().map(|s| s.normal.as_dvec3().dot(axis)).fold(1.0, f64::min);
+            assert_eq!(lanes.radius.to_bits(), round_up(far).to_bits());
+            assert_eq!(lanes.cos_angle.to_bits(), ((min_cos - 1e-5).max(-1.0) as f32).to_bits());
+            assert_eq!(lanes.rep, frame.representative(&spread).splat);
+        }
     }
 
     #[test]
