@@ -32,7 +32,7 @@ pub(crate) struct SplatBlock {
     pub(super) center: [[f32; BLOCK]; 3],
     pub(super) normal: [[f32; BLOCK]; 3],
     pub(super) radius: [f32; BLOCK],
-    color: [u32; BLOCK],
+    pub(super) color: [u32; BLOCK],
 }
 
 /// The leaf kernel a traversal runs: [`Portable`], or one written for an instruction set

@@ -6,7 +6,7 @@ use glam::DVec3;
 
 use crate::accel::block::{BLOCK, SplatBlock};
 use crate::film::linear_to_srgb;
-use crate::splat::{Splat, pack_color};
+use crate::splat::{Splat, color_linear_in, material_of, pack_color, srgb8_to_linear_table};
 
 /// A representative and whether the normals below agree enough to have a mean.
 pub(crate) struct Representative {
@@ -81,6 +81,23 @@ impl Moments {
         self.center += w * s.center.as_dvec3();
         self.normal += w * s.normal.as_dvec3();
         self.color += w * glam::Vec3::from(s.color_linear()).as_dvec3();
+    }
+
+    /// [`Moments::add`] of the first `count` disks of `block`, in the same operations and
+    /// order, read from the block's lanes: extracting each disk first, the leaves' moments took
+    /// 83 million instructions of the dragon's build, this 67 (callgrind).
+    pub(crate) fn add_block(&mut self, block: &SplatBlock, count: usize) {
+        let table = srgb8_to_linear_table();
+        let [cx, cy, cz] = block.center.map(|x| x.map(f64::from));
+        let [nx, ny, nz] = block.normal.map(|x| x.map(f64::from));
+        for i in 0..count {
+            let w = f64::from(block.radius[i]).powi(2).max(f64::MIN_POSITIVE);
+            self.materials.add(material_of(block.color[i]), w);
+            self.area += w;
+            self.center += w * DVec3::new(cx[i], cy[i], cz[i]);
+            self.normal += w * DVec3::new(nx[i], ny[i], nz[i]);
+            self.color += w * glam::Vec3::from(color_linear_in(block.color[i], table)).as_dvec3();
+        }
     }
 
     pub(crate) fn merge(&mut self, other: &Moments) {
