@@ -122,9 +122,15 @@ pub fn render<A: Accel>(
     config: &RenderConfig,
     progress: &(dyn Fn(u64) + Sync),
 ) -> (Film, RenderStats) {
-    let mut film = Film::new(config.region.clamp_to(camera.width, camera.height));
+    let mut film = film_for(camera, config);
     let stats = render_into(accel, camera, config, &mut film, progress);
     (film, stats)
+}
+
+/// A film of the region `config` renders, with the first hits' channels if it records them.
+pub fn film_for(camera: &Camera, config: &RenderConfig) -> Film {
+    let region = config.region.clamp_to(camera.width, camera.height);
+    if config.first_hit_aovs { Film::with_first_hits(region) } else { Film::new(region) }
 }
 
 /// [`render`] into a film made before, which every pixel of is written (the first hits'
@@ -132,7 +138,9 @@ pub fn render<A: Accel>(
 /// per frame, its pages faulted in anew, cost 7 % of a frame of the dragon at 1024², first hits).
 ///
 /// # Panics
-/// If the film's region is not `config.region` within the camera's frame.
+/// If the film's region is not `config.region` within the camera's frame, or the film has no
+/// first-hit channels where `config.first_hit_aovs` asks for them ([`film_for`] makes one that
+/// fits).
 pub fn render_into<A: Accel>(
     accel: &A,
     camera: &Camera,
@@ -149,40 +157,51 @@ pub fn render_into<A: Accel>(
     // One task per band of TILE rows, written straight into the film; within a band, pixels
     // go tile by tile (TILE × TILE) so that neighbouring rays share nodes in cache.
     let band = TILE as usize * width;
-    film.rgb
-        .par_chunks_mut(band)
-        .zip(film.nodes_visited.par_chunks_mut(band))
-        .zip(film.normal.par_chunks_mut(band))
-        .zip(film.albedo.par_chunks_mut(band))
-        .zip(film.depth.par_chunks_mut(band))
-        .enumerate()
-        .map(|(b, ((((rgb, nodes), normal), albedo), depth))| {
-            let mut stats = RenderStats::default();
-            if !config.count_work {
-                stats.traversal = TraversalStats::uncounted();
-            }
-            let y0 = region.y0 + b as u32 * TILE;
-            let rows = (rgb.len() / width) as u32;
-            for tx in (region.x0..region.x1).step_by(TILE as usize) {
-                for y in y0..y0 + rows {
-                    for x in tx..(tx + TILE).min(region.x1) {
-                        let i = (y - y0) as usize * width + (x - region.x0) as usize;
-                        let pixel = render_pixel(accel, camera, config, x, y, &mut stats);
-                        (rgb[i], nodes[i]) = (pixel.rgb, pixel.nodes);
-                        if config.first_hit_aovs {
-                            (normal[i], albedo[i], depth[i]) = (pixel.normal, pixel.albedo, pixel.depth);
-                        }
+    let render_band = |b: usize, rgb: &mut [[f32; 3]], nodes: &mut [u32], mut first_hits: Option<BandFirstHits>| {
+        let mut stats = RenderStats::default();
+        if !config.count_work {
+            stats.traversal = TraversalStats::uncounted();
+        }
+        let y0 = region.y0 + b as u32 * TILE;
+        let rows = (rgb.len() / width) as u32;
+        for tx in (region.x0..region.x1).step_by(TILE as usize) {
+            for y in y0..y0 + rows {
+                for x in tx..(tx + TILE).min(region.x1) {
+                    let i = (y - y0) as usize * width + (x - region.x0) as usize;
+                    let pixel = render_pixel(accel, camera, config, x, y, &mut stats);
+                    (rgb[i], nodes[i]) = (pixel.rgb, pixel.nodes);
+                    if let Some((normal, albedo, depth)) = &mut first_hits {
+                        (normal[i], albedo[i], depth[i]) = (pixel.normal, pixel.albedo, pixel.depth);
                     }
                 }
             }
-            progress(rgb.len() as u64);
-            stats
-        })
-        .reduce(RenderStats::default, |mut a, b| {
-            a += b;
-            a
-        })
+        }
+        progress(rgb.len() as u64);
+        stats
+    };
+    let sum = |mut a: RenderStats, b: RenderStats| {
+        a += b;
+        a
+    };
+    let bands = film.rgb.par_chunks_mut(band).zip(film.nodes_visited.par_chunks_mut(band)).enumerate();
+    match &mut film.first_hits {
+        Some(c) if config.first_hit_aovs => {
+            let channels =
+                c.normal.par_chunks_mut(band).zip(c.albedo.par_chunks_mut(band)).zip(c.depth.par_chunks_mut(band));
+            bands
+                .zip(channels)
+                .map(|((b, (rgb, nodes)), ((normal, albedo), depth))| {
+                    render_band(b, rgb, nodes, Some((normal, albedo, depth)))
+                })
+                .reduce(RenderStats::default, sum)
+        }
+        None if config.first_hit_aovs => panic!("a film without the first hits' channels (see `film_for`)"),
+        _ => bands.map(|(b, (rgb, nodes))| render_band(b, rgb, nodes, None)).reduce(RenderStats::default, sum),
+    }
 }
+
+/// A band's rows of the first hits' normal, albedo and depth.
+type BandFirstHits<'a> = (&'a mut [[f32; 3]], &'a mut [[f32; 3]], &'a mut [f32]);
 
 /// One pixel's values (see [`Film`]).
 struct Pixel {

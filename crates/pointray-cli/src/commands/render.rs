@@ -378,7 +378,7 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
     let mut scratch = None;
     let timed = RenderConfig { count_work: false, ..config.clone() };
     for _ in 0..a.bench_frames {
-        let scratch = scratch.get_or_insert_with(|| pointray::film::Film::new(film.region));
+        let scratch = scratch.get_or_insert_with(|| pointray::render::film_for(&camera, &timed));
         let t = Instant::now();
         let _ = accel.render_into(&camera, &timed, scratch, &|_| {});
         times.push(t.elapsed().as_secs_f64());
@@ -520,15 +520,15 @@ fn exr_channels(film: &Film, aovs: &[AovArg], width: u32, height: u32, outside: 
     for aov in aovs {
         match aov {
             AovArg::Nodes => add("nodes.Y", &|i| film.nodes_visited[i] as f32, 0.0),
-            AovArg::Depth => add("depth.Z", &|i| film.depth[i], f32::INFINITY),
+            AovArg::Depth => add("depth.Z", &|i| first_hits(film).depth[i], f32::INFINITY),
             AovArg::Normal => {
                 for (c, axis) in ["X", "Y", "Z"].iter().enumerate() {
-                    add(&format!("normal.{axis}"), &|i| film.normal[i][c], 0.0);
+                    add(&format!("normal.{axis}"), &|i| first_hits(film).normal[i][c], 0.0);
                 }
             }
             AovArg::Albedo => {
                 for (c, name) in ["R", "G", "B"].iter().enumerate() {
-                    add(&format!("albedo.{name}"), &|i| film.albedo[i][c], 0.0);
+                    add(&format!("albedo.{name}"), &|i| first_hits(film).albedo[i][c], 0.0);
                 }
             }
         }
@@ -541,16 +541,26 @@ fn aov_rgb8(film: &Film, aov: AovArg, nodes_max: u32) -> Vec<u8> {
     let byte = |v: f32| (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
     match aov {
         AovArg::Nodes => pointray::metrics::heat_map_rgb8(&film.nodes_visited, nodes_max),
-        AovArg::Normal => film.normal.iter().flat_map(|n| n.map(|c| byte(0.5 * c + 0.5))).collect(),
-        AovArg::Albedo => film.albedo.iter().flat_map(|c| c.map(|v| byte(pointray::film::linear_to_srgb(v)))).collect(),
+        AovArg::Normal => first_hits(film).normal.iter().flat_map(|n| n.map(|c| byte(0.5 * c + 0.5))).collect(),
+        AovArg::Albedo => {
+            let linear = &first_hits(film).albedo;
+            linear.iter().flat_map(|c| c.map(|v| byte(pointray::film::linear_to_srgb(v)))).collect()
+        }
         AovArg::Depth => {
-            let finite = film.depth.iter().copied().filter(|d| d.is_finite());
+            let depth = &first_hits(film).depth;
+            let finite = depth.iter().copied().filter(|d| d.is_finite());
             let (near, far) = finite.fold((f32::INFINITY, 0.0f32), |(lo, hi), d| (lo.min(d), hi.max(d)));
             let range = (far - near).max(f32::MIN_POSITIVE);
             let shade = |d: f32| if d.is_finite() { byte(1.0 - 0.8 * (d - near) / range) } else { 0 };
-            film.depth.iter().flat_map(|&d| [shade(d); 3]).collect()
+            depth.iter().flat_map(|&d| [shade(d); 3]).collect()
         }
     }
+}
+
+/// The first hits' channels, which `RenderConfig::first_hit_aovs` has the render record
+/// whenever an AOV other than the node counts is asked for.
+fn first_hits(film: &Film) -> &pointray::film::FirstHitChannels {
+    film.first_hits.as_ref().expect("the render records the first hits whenever their AOVs are asked for")
 }
 
 /// The full frame, black outside `region`, from the region's RGB8 pixels.

@@ -49,7 +49,11 @@ fn image_is_identical_with_one_and_two_threads() {
     assert_eq!(sa, sr);
     let bits = |f: &pointray::film::Film| {
         let v3 = |v: &[[f32; 3]]| v.iter().flat_map(|x| x.map(f32::to_bits)).collect::<Vec<_>>();
-        (v3(&f.rgb), v3(&f.normal), v3(&f.albedo), f.depth.iter().map(|d| d.to_bits()).collect::<Vec<_>>())
+        let first = f
+            .first_hits
+            .as_ref()
+            .map(|c| (v3(&c.normal), v3(&c.albedo), c.depth.iter().map(|d| d.to_bits()).collect::<Vec<_>>()));
+        (v3(&f.rgb), first)
     };
     assert!(bits(&a) == bits(&reused) && a.nodes_visited == reused.nodes_visited);
     // Without counting, the same image, and nothing counted.
@@ -58,11 +62,16 @@ fn image_is_identical_with_one_and_two_threads() {
     assert!(bits(&a) == bits(&q), "counting work changed the image");
     assert_eq!(sq.traversal.nodes_visited + sq.traversal.splat_tests + sq.traversal.lod_stops, 0, "{sq:?}");
     assert!(q.nodes_visited.iter().all(|&n| n == 0) && a.nodes_visited.iter().any(|&n| n > 0));
-    // Without the first hits' channels, the same image, and those channels as the film began.
+    // Without the first hits' channels, the same image, and no channels made; a film that has
+    // them keeps them as they were.
     let plain = RenderConfig { first_hit_aovs: false, ..config.clone() };
     let (p, _) = render(&bvh, &cam, &plain, &|_| {});
     assert!(bits(&a).0 == bits(&p).0, "leaving the first hits out changed the image");
-    assert!(p.normal.iter().all(|n| *n == [0.0; 3]) && p.depth.iter().all(|d| d.is_infinite()));
-    assert!(a.normal.iter().any(|n| *n != [0.0; 3]));
+    assert!(p.first_hits.is_none() && a.first_hits.as_ref().is_some_and(|c| c.normal.iter().any(|n| *n != [0.0; 3])));
+    let mut kept = pointray::film::Film::with_first_hits(config.region);
+    render_into(&bvh, &cam, &plain, &mut kept, &|_| {});
+    assert!(bits(&kept).0 == bits(&p).0);
+    let untouched = kept.first_hits.as_ref().expect("made with them");
+    assert!(untouched.normal.iter().all(|n| *n == [0.0; 3]) && untouched.depth.iter().all(|d| d.is_infinite()));
     assert_eq!((sq.rays, sq.primary_hits), (sa.rays, sa.primary_hits));
 }

@@ -33,7 +33,8 @@ fn furnace(mut splats: Vec<Splat>, srgb: f32, expected: f32, max_depth: u32) -> 
     let (film, _) = render(&bvh, &cam, &config, &|_| {});
     // Pixels whose every sample hit: their mean normal is (nearly) unit; a miss counts zero.
     let covered = |n: &[f32; 3]| Vec3::from(*n).length() > 0.99;
-    let hits: Vec<f32> = film.rgb.iter().zip(&film.normal).filter(|(_, n)| covered(n)).map(|(c, _)| c[1]).collect();
+    let normal = &film.first_hits.as_ref().expect("first hits recorded").normal;
+    let hits: Vec<f32> = film.rgb.iter().zip(normal).filter(|(_, n)| covered(n)).map(|(c, _)| c[1]).collect();
     assert!(hits.len() > 500, "{} hit pixels", hits.len());
     let mean = hits.iter().sum::<f32>() / hits.len() as f32;
     let worst = hits.iter().map(|v| (v - expected).abs()).fold(0.0, f32::max);
@@ -87,7 +88,8 @@ fn plane_mean_with(
         ..render_config(Region::full(32, 32), samples)
     };
     let (film, _) = render(&bvh, &cam, &config, &|_| {});
-    assert!(film.depth.iter().all(|d| d.is_finite()), "the plane fills the frame");
+    let depth = &film.first_hits.as_ref().expect("first hits recorded").depth;
+    assert!(depth.iter().all(|d| d.is_finite()), "the plane fills the frame");
     let mean = film.rgb.iter().map(|c| c[1]).sum::<f32>() / film.rgb.len() as f32;
     (mean, pointray::film::srgb_to_linear(188.0 / 255.0))
 }
