@@ -167,11 +167,12 @@ impl Bvh {
     /// With more than [`MAX_SPLATS`] splats, or parameters out of range.
     ///
     /// Memory: each array is allocated once at its final size and every temporary is dropped
-    /// as soon as it is used, so that the peak is the splats in leaf order beside the blocks
-    /// made from them (with the representatives apart and the leaf blocks counted ahead, a
-    /// render of a 2-million-point torus peaked at 274 MB where it took 408 MB,
-    /// `/usr/bin/time`; with the splats kept only in blocks and the level of detail read from
-    /// them, a 20-million-point torus's render 1.72 → 1.59 GB).
+    /// as soon as it is used, so that the peak is the input splats beside the blocks made from
+    /// them (with the representatives apart and the leaf blocks counted ahead, a render of a
+    /// 2-million-point torus peaked at 274 MB where it took 408 MB, `/usr/bin/time`; with the
+    /// splats kept only in blocks and the level of detail read from them, a 20-million-point
+    /// torus's render 1.72 → 1.59 GB; with 32-byte primitives and the blocks gathered from the
+    /// input, 1.67 GB, for a build 10 % faster).
     pub fn build(input: Vec<Splat>, params: &BvhParams) -> Bvh {
         assert!((2..=MAX_BINS).contains(&params.bins) && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
         assert!(input.len() <= MAX_SPLATS, "a BVH indexes at most {MAX_SPLATS} splats");
@@ -179,35 +180,40 @@ impl Bvh {
             input.par_iter().enumerate().map(|(i, s)| Prim::new(s.bounds_as(params.shape), i as u32)).collect();
         let extent = Extent::of(&prims);
         let root = build_node(&mut prims, extent, 0, params, 0);
-        // The leaf order alone (4 bytes a splat) before the gather, so that the primitives (32)
-        // are gone by then; and gone after it: kept in the BVH, it was 80 MB of a 20-million-point
-        // render's peak that nothing read.
+        // The leaf order alone (4 bytes a splat), so that the primitives (32) are gone before
+        // the blocks are made.
         let order: Vec<u32> = prims.iter().map(Prim::index).collect();
         drop(prims);
         let bounds = root.bounds();
         let mut nodes = Vec::with_capacity(input.len() / params.max_leaf_size.max(2) + 1);
         let mut spans = Vec::with_capacity(root.block_count());
-        // The serial flattening beside the parallel gather: with the flattening's vectors on the
-        // stack, the dragon's build 3.4 % faster (alternating runs), for a peak 47 MB higher in
-        // a 20-million-point torus's render (1.63 GB, the nodes made while the splats are).
-        let (depth, splats) = join(
+        // The serial flattening beside the serial quantile.
+        let (depth, wide_radius) = join(
             || match root {
                 BuildNode::Leaf { count: 0, .. } => 0, // no splats: no nodes
                 root => flatten(root, &mut nodes, &mut spans),
             },
-            || order.par_iter().map(|&i| input[i as usize]).collect::<Vec<Splat>>(),
+            || wide_radius(&input),
         );
-        drop((input, order));
         // The capacity guessed above is about twice the 8-wide tree's nodes: 8 bytes a splat.
         nodes.shrink_to_fit();
-        let (wide_radius, splat_count) = (wide_radius(&splats), splats.len());
-        // The blocks in parallel (serially they took an eighth of the dragon's build); from then
-        // on they are the only copy of the splats.
-        let blocks: Vec<SplatBlock> =
-            spans.par_iter().map(|&(first, count)| SplatBlock::new(&splats[first..first + count])).collect();
+        let splat_count = input.len();
+        // The blocks in parallel, each gathering its splats from the input in leaf order; from
+        // then on they are the only copy of the splats. (Gathered first into a vector in leaf
+        // order and made into blocks from there, the 1-million-point torus's build took 3 %
+        // longer and the 20-million-point one 6.6 s, not 6.0; the render's peak, the input, the
+        // order and the blocks side by side, is 1.67 GB, 30 MB more.)
+        let blocks: Vec<SplatBlock> = spans
+            .par_iter()
+            .map(|&(first, count)| {
+                let splats: ArrayVec<Splat, BLOCK> =
+                    order[first..first + count].iter().map(|&i| input[i as usize]).collect();
+                SplatBlock::new(&splats)
+            })
+            .collect();
+        drop((input, order));
         let counts: Vec<u8> = spans.iter().map(|&(_, count)| count as u8).collect();
         drop(spans);
-        drop(splats);
         let disks = super::lod::Disks { blocks: &blocks, counts: &counts };
         let (lod, representatives) = super::lod::build(&mut nodes, &disks, params.shape);
         drop(counts);
