@@ -90,7 +90,7 @@ fn bvh_matches_brute_force_on_sphere_and_torus_for_every_preset() {
 }
 
 /// Inputs that break naive builds: one disk, coplanar disks, coincident disks, a line.
-fn degenerate_inputs() -> [(&'static str, Vec<Splat>); 4] {
+fn degenerate_inputs() -> [(&'static str, Vec<Splat>); 5] {
     let disk = |c: Vec3, n: Vec3| Splat { center: c, radius: 0.1, normal: n.normalize(), color: 0 };
     let one = vec![disk(Vec3::ZERO, Vec3::Z)];
     let coplanar: Vec<Splat> =
@@ -98,7 +98,17 @@ fn degenerate_inputs() -> [(&'static str, Vec<Splat>); 4] {
     // Every splat at one place: SAH finds no split, the build must still terminate.
     let duplicates: Vec<Splat> = (0..300).map(|i| disk(Vec3::ONE, Vec3::new(1.0, i as f32 * 0.01, 0.0))).collect();
     let collinear: Vec<Splat> = (0..300).map(|i| disk(Vec3::new(i as f32 * 0.05, 0.0, 0.0), Vec3::Y)).collect();
-    [("one", one), ("coplanar", coplanar), ("duplicates", duplicates), ("collinear", collinear)]
+    // Centres a subnormal apart on x: binning's scale there overflows to ∞, and a centre at
+    // the lowest gets position 0·∞ = NaN, which binning and the partition must place alike.
+    let subnormal: Vec<Splat> =
+        (0..300).map(|i| disk(Vec3::new((i % 2) as f32 * 1e-41, i as f32 * 0.05, 0.0), Vec3::Z)).collect();
+    [
+        ("one", one),
+        ("coplanar", coplanar),
+        ("duplicates", duplicates),
+        ("collinear", collinear),
+        ("subnormal", subnormal),
+    ]
 }
 
 #[test]
