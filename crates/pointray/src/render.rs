@@ -171,7 +171,7 @@ pub fn render_into<A: Accel>(
                     let pixel = render_pixel(accel, camera, config, x, y, &mut stats);
                     (rgb[i], nodes[i]) = (pixel.rgb, pixel.nodes);
                     if let Some((normal, albedo, depth)) = &mut first_hits {
-                        (normal[i], albedo[i], depth[i]) = (pixel.normal, pixel.albedo, pixel.depth);
+                        (normal[i], albedo[i], depth[i]) = pixel.first.means();
                     }
                 }
             }
@@ -203,22 +203,31 @@ pub fn render_into<A: Accel>(
 /// A band's rows of the first hits' normal, albedo and depth.
 type BandFirstHits<'a> = (&'a mut [[f32; 3]], &'a mut [[f32; 3]], &'a mut [f32]);
 
-/// One pixel's values (see [`Film`]).
+/// One pixel's values (see [`Film`]): its radiance, work and the sums of its first hits.
 struct Pixel {
     rgb: [f32; 3],
     nodes: u32,
-    normal: [f32; 3],
-    albedo: [f32; 3],
-    depth: f32,
+    first: FirstHits,
 }
 
-/// What a camera ray's first hit was, for the film's AOVs.
+/// What a pixel's camera rays' first hits were, summed, for the film's AOVs.
 #[derive(Default)]
 struct FirstHits {
     normal: Vec3,
     albedo: Vec3,
     depth: f32,
     hits: u32,
+    samples: u32,
+}
+
+impl FirstHits {
+    /// The mean normal and albedo over the samples (a miss counts as zero) and the mean depth
+    /// over the hits (∞ without one): averaged only where the film records them.
+    fn means(&self) -> ([f32; 3], [f32; 3], f32) {
+        let n = self.samples as f32;
+        let depth = if self.hits == 0 { f32::INFINITY } else { self.depth / self.hits as f32 };
+        ((self.normal / n).to_array(), (self.albedo / n).to_array(), depth)
+    }
 }
 
 fn render_pixel<A: Accel>(
@@ -231,8 +240,8 @@ fn render_pixel<A: Accel>(
 ) -> Pixel {
     let nodes_before = stats.traversal.nodes_visited;
     let mut sum = Vec3::ZERO;
-    let mut first = FirstHits::default();
     let samples = config.samples.max(1);
+    let mut first = FirstHits { samples, ..FirstHits::default() };
     let footprint_scale = (samples as f32).sqrt().recip();
     // The pixel's own shift of the R2 sequence (Cranley–Patterson rotation), drawn only
     // where it is used: seeding a generator costs ~60 instructions.
@@ -272,14 +281,7 @@ fn render_pixel<A: Accel>(
         sum += tracer.radiance(&ray, 0, false);
     }
     let nodes = (stats.traversal.nodes_visited - nodes_before).min(u32::MAX as u64) as u32;
-    let n = samples as f32;
-    Pixel {
-        rgb: (sum / n).to_array(),
-        nodes,
-        normal: (first.normal / n).to_array(),
-        albedo: (first.albedo / n).to_array(),
-        depth: if first.hits == 0 { f32::INFINITY } else { first.depth / first.hits as f32 },
-    }
+    Pixel { rgb: (sum / samples as f32).to_array(), nodes, first }
 }
 
 /// Point `i` of the R2 sequence, shifted by `shift` (modulo 1): α = (1/g, 1/g²), g the

@@ -24,7 +24,7 @@ use super::lanes::Lanes;
 use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks, leaf_size, leaf_splats};
 use crate::accel::Accel;
 use crate::accel::block::{BLOCK, SplatBlock};
-use crate::accel::representative::{Moments, Representative, Spread};
+use crate::accel::representative::{Moments, Representative, Spread, along_and_off};
 use crate::splat::{DiskShape, Splat};
 
 /// What the multiresolution traversal knows of a node's eight children besides their boxes and
@@ -108,14 +108,18 @@ struct ChildLod {
 
 /// Distance from `p` to the farthest point of the disk `s` (of its ball, for ray-facing disks).
 fn farthest(p: DVec3, s: &Splat, disks: DiskShape) -> f64 {
-    let d = s.center.as_dvec3() - p;
+    let d = (s.center.as_dvec3() - p).to_array();
+    farthest_of(d, s.normal.as_dvec3().to_array(), f64::from(s.radius), disks)
+}
+
+/// [`farthest`] for a disk `d` away, with normal `n` and radius `r`.
+#[inline(always)]
+fn farthest_of(d: [f64; 3], n: [f64; 3], r: f64, disks: DiskShape) -> f64 {
     if disks == DiskShape::RayFacing {
-        return d.length() + f64::from(s.radius);
+        return (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() + r;
     }
-    let n = s.normal.as_dvec3();
-    let h = d.dot(n);
-    let in_plane = (d - h * n).length();
-    (h * h + (in_plane + f64::from(s.radius)).powi(2)).sqrt()
+    let (h, in_plane) = along_and_off(d, n);
+    (h * h + (in_plane + r) * (in_plane + r)).sqrt()
 }
 
 /// Rounds a bound up a little, so that f32 storage never makes it smaller than exact.
@@ -161,15 +165,7 @@ fn farthest_lanes(p: DVec3, block: &SplatBlock, shape: DiskShape) -> [f64; BLOCK
     let r = block.radius.map(f64::from);
     let mut far = [0.0; BLOCK];
     for i in 0..BLOCK {
-        let d = [cx[i] - p.x, cy[i] - p.y, cz[i] - p.z];
-        far[i] = if shape == DiskShape::RayFacing {
-            (d[0] * d[0] + d[1] * d[1] + d[2] * d[2]).sqrt() + r[i]
-        } else {
-            let h = d[0] * nx[i] + d[1] * ny[i] + d[2] * nz[i];
-            let q = [d[0] - h * nx[i], d[1] - h * ny[i], d[2] - h * nz[i]];
-            let in_plane = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt();
-            (h * h + (in_plane + r[i]) * (in_plane + r[i])).sqrt()
-        };
+        far[i] = farthest_of([cx[i] - p.x, cy[i] - p.y, cz[i] - p.z], [nx[i], ny[i], nz[i]], r[i], shape);
     }
     far
 }
