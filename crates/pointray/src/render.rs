@@ -157,6 +157,7 @@ pub fn render_into<A: Accel>(
     // One task per band of TILE rows, written straight into the film; within a band, pixels
     // go tile by tile (TILE × TILE) so that neighbouring rays share nodes in cache.
     let band = TILE as usize * width;
+    let primary = PrimaryRays::new(accel, camera, config);
     let render_band = |b: usize, rgb: &mut [[f32; 3]], nodes: &mut [u32], mut first_hits: Option<BandFirstHits>| {
         let mut stats = RenderStats::default();
         if !config.count_work {
@@ -168,7 +169,7 @@ pub fn render_into<A: Accel>(
             for y in y0..y0 + rows {
                 for x in tx..(tx + TILE).min(region.x1) {
                     let i = (y - y0) as usize * width + (x - region.x0) as usize;
-                    let pixel = render_pixel(accel, camera, config, x, y, &mut stats);
+                    let pixel = render_pixel(accel, camera, config, &primary, x, y, &mut stats);
                     (rgb[i], nodes[i]) = (pixel.rgb, pixel.nodes);
                     if let Some((normal, albedo, depth)) = &mut first_hits {
                         (normal[i], albedo[i], depth[i]) = pixel.first.means();
@@ -230,10 +231,40 @@ impl FirstHits {
     }
 }
 
+/// What every camera ray of a frame shares.
+struct PrimaryRays {
+    /// The rays' level-of-detail threshold: `config.lod_threshold`, or 0 where no camera ray
+    /// could stop at a representative (a view close enough that every footprint stays
+    /// narrower than the accelerator's `lod_floor`): the same hits, without a test per ray.
+    tau: f32,
+    /// Each of n samples stands for 1/n of the pixel, a beam 1/√n as wide (as pbrt scales its
+    /// ray differentials): more samples resolve finer detail.
+    footprint_scale: f32,
+}
+
+impl PrimaryRays {
+    fn new<A: Accel>(accel: &A, camera: &Camera, config: &RenderConfig) -> Self {
+        let footprint_scale = (config.samples.max(1) as f32).sqrt().recip();
+        // Every camera ray's footprint, as `render_pixel` makes it.
+        let mut cone = camera.ray(0.5, 0.5).cone;
+        cone.spread *= footprint_scale;
+        // Thin-lens rays leave from across the lens: the bound is for one origin.
+        let tau = if camera.lens_radius > 0.0
+            || accel.may_stop_at_representatives_from(camera.eye, cone, config.lod_threshold)
+        {
+            config.lod_threshold
+        } else {
+            0.0
+        };
+        Self { tau, footprint_scale }
+    }
+}
+
 fn render_pixel<A: Accel>(
     accel: &A,
     camera: &Camera,
     config: &RenderConfig,
+    primary: &PrimaryRays,
     x: u32,
     y: u32,
     stats: &mut RenderStats,
@@ -242,7 +273,6 @@ fn render_pixel<A: Accel>(
     let mut sum = Vec3::ZERO;
     let samples = config.samples.max(1);
     let mut first = FirstHits { samples, ..FirstHits::default() };
-    let footprint_scale = (samples as f32).sqrt().recip();
     // The pixel's own shift of the R2 sequence (Cranley–Patterson rotation), drawn only
     // where it is used: seeding a generator costs ~60 instructions.
     let pixel_shift = if samples > 1 && config.sampler == Sampler::R2 {
@@ -270,12 +300,10 @@ fn render_pixel<A: Accel>(
         let lens = if camera.lens_radius > 0.0 { [rng.get().random(), rng.get().random()] } else { [0.5; 2] };
         let mut ray = camera
             .lens_ray(x as f32 + dx, y as f32 + dy, lens)
-            .with_lod_threshold(config.lod_threshold)
+            .with_lod_threshold(primary.tau)
             // A ray-facing disk faces every ray: nothing is a back face.
             .with_backface_culling(config.cull_backfaces && config.scheme.kind.shape() == DiskShape::Oriented);
-        // Each of n samples stands for 1/n of the pixel, a beam 1/√n as wide (as pbrt scales
-        // its ray differentials): more samples resolve finer detail.
-        ray.cone.spread *= footprint_scale;
+        ray.cone.spread *= primary.footprint_scale;
         stats.primary_rays += 1;
         let mut tracer = Tracer { accel, config, rng, first: &mut first, stats: &mut *stats };
         sum += tracer.radiance(&ray, 0, false);

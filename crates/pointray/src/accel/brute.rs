@@ -45,6 +45,10 @@ impl Accel for BruteForce {
     }
 
     /// No level of detail.
+    fn lod_floor(&self) -> f32 {
+        f32::INFINITY
+    }
+
     fn may_stop_at_representatives(&self, _ray: &Ray) -> bool {
         false
     }

@@ -381,12 +381,15 @@ mod tests {
     use super::super::block::tests::{check_against_scalar, check_edges};
     use crate::accel::bvh::lanes::{Lanes, Wide, dot3};
 
-    /// Every `Wide` operation on `a` and `b`, each result's bits in order.
+    /// Every `Wide` operation on `a` and `b`, each result's bits in order, every NaN as one:
+    /// which operand's NaN an instruction passes on (and so its sign) depends on the operand
+    /// order the optimiser picks, and no test of a NaN tells them apart.
     pub(super) fn wide_ops<W: Wide>(a: &Lanes, b: &Lanes) -> Vec<u32> {
         let (x, y) = (W::load(a), W::load(b));
         let values = [x + y, x - y, x * y, x.min(y), x.max(y), x.abs(), W::splat(a[3]), dot3(&[x, y, x], &[y, y, x])];
         let masks = [x.cmplt(y), x.cmple(y), x.cmpgt(y), x.cmplt(y) & y.cmpgt(W::splat(0.0))];
-        let bits = values.into_iter().flat_map(|v| v.to_array()).map(f32::to_bits);
+        let canonical = |v: f32| if v.is_nan() { f32::NAN.to_bits() } else { v.to_bits() };
+        let bits = values.into_iter().flat_map(|v| v.to_array()).map(canonical);
         bits.chain(masks.map(W::bitmask)).collect()
     }
 

@@ -27,7 +27,7 @@ pub use bvh::{Bvh, BvhParams, NodeBounds};
 pub use culling::backfacing_fraction;
 pub use kdtree::{KdTree, KdTreeParams};
 
-use crate::math::{Aabb, Ray};
+use crate::math::{Aabb, Ray, RayCone};
 use crate::splat::oriented_disk::DiskHit;
 use crate::splat::{DiskShape, Splat};
 use glam::Vec3;
@@ -170,6 +170,27 @@ pub trait Accel: Send + Sync {
     /// may reach outside its subtree's bounds, so a walk that starts past `t_min` can miss one
     /// that crosses the ray later; the SJ window's completing walk asks.
     fn may_stop_at_representatives(&self, ray: &Ray) -> bool;
+    /// The footprint, scaled by τ, that a ray must grow wider than before it leaves the model
+    /// for `traverse` to hand it a representative (∞ without level of detail).
+    fn lod_floor(&self) -> f32;
+    /// Whether any ray from `origin` with a footprint no wider than `cone`'s, at threshold
+    /// `tau`, may be handed a representative: [`Self::may_stop_at_representatives`] for all of
+    /// them at once. A ray leaves the model's box no farther than its farthest corner, where
+    /// the footprint is widest, so false means that each such ray takes full detail anyway;
+    /// a renderer then gives its camera rays τ = 0, the same hits without the per-ray test
+    /// (the dragon close up at τ = 1, first hits: 722 → 709 instructions a pixel, callgrind).
+    fn may_stop_at_representatives_from(&self, origin: Vec3, cone: RayCone, tau: f32) -> bool {
+        let b = self.bounds();
+        if tau <= 0.0 || b.is_empty() {
+            return false;
+        }
+        // An origin on a face's plane can give a ray parallel to it an exit of 0·∞ = NaN,
+        // which the traversal takes for ∞.
+        let on_plane = (0..3).any(|k| origin[k] == b.min[k] || origin[k] == b.max[k]);
+        // A thousandth wider than the corner: rounding must not make a ray's exit the farther.
+        let far = (b.min - origin).abs().max((b.max - origin).abs()).length() * (1.0 + 1.0 / 1024.0);
+        on_plane || !far.is_finite() || tau * cone.width_at(far) > self.lod_floor()
+    }
     /// The disks the bounds were built to hold: a visitor of another shape may miss hits
     /// unless it is held too ([`DiskShape::holds`]).
     fn shape(&self) -> DiskShape;

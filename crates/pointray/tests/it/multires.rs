@@ -180,3 +180,42 @@ fn the_culling_check_tells_closed_surfaces_from_open_ones() {
     let open = backfacing_fraction(&Bvh::build(bowl, &BvhParams::standard()), 4096, 0).unwrap();
     assert!(open > 0.1, "open bowl: {open}");
 }
+
+/// Where an accelerator says that no ray from a point with a given footprint can stop at a
+/// representative (so a renderer may give its camera rays no level of detail at all), no ray
+/// from there, in any direction, does; and from far enough away some can.
+#[test]
+fn a_view_without_level_of_detail_has_no_ray_that_stops() {
+    let splats = torus_splats(40_000, 9);
+    check_view_bound(&Bvh::build(splats.clone(), &BvhParams::standard()));
+    check_view_bound(&KdTree::build(splats, &KdTreeParams::standard()));
+}
+
+fn check_view_bound(accel: &impl Accel) {
+    let b = accel.bounds();
+    let mut rng = crate::util::rng(5);
+    let (mut near, mut far) = (0, 0);
+    for distance in [0.2, 0.5, 1.0, 2.0, 4.0, 16.0] {
+        for tau in [0.5, 1.0, 4.0] {
+            let cam = Camera::orbit(&b, Vec3::new(0.3, 0.8, 1.0), Vec3::Y, distance, 40.0, 256, 256);
+            let cone = cam.ray(0.5, 0.5).cone;
+            if accel.may_stop_at_representatives_from(cam.eye, cone, tau) {
+                far += 1;
+                continue;
+            }
+            near += 1;
+            for _ in 0..2_000 {
+                let dir = pointray::demo::uniform_sphere(&mut rng);
+                let ray = Ray::new(cam.eye, dir, cone).with_lod_threshold(tau);
+                assert!(!accel.may_stop_at_representatives(&ray), "{} at {distance}, τ {tau}: {dir}", accel.name());
+            }
+        }
+    }
+    assert!(near > 0 && far > 0, "{}: {near} views without level of detail, {far} with", accel.name());
+    // An origin on the plane of a face: a ray along the plane has an undefined exit there,
+    // which the traversal takes for infinitely far.
+    let cone = Camera::orbit(&b, Vec3::Z, Vec3::Y, 0.2, 40.0, 256, 256).ray(0.5, 0.5).cone;
+    let on_face = Vec3::new(b.min.x, b.center().y, b.center().z);
+    assert!(accel.may_stop_at_representatives_from(on_face, cone, 1.0));
+    assert!(!accel.may_stop_at_representatives_from(on_face, cone, 0.0));
+}

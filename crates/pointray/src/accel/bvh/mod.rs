@@ -241,6 +241,10 @@ impl super::Accel for Bvh {
         traverse::lod_reach(self, ray) > 0.0
     }
 
+    fn lod_floor(&self) -> f32 {
+        self.lod_floor
+    }
+
     fn shape(&self) -> DiskShape {
         self.shape
     }

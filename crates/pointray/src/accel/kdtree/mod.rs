@@ -162,6 +162,10 @@ impl Accel for KdTree {
         traverse::multires_reach(self, ray).is_some()
     }
 
+    fn lod_floor(&self) -> f32 {
+        self.lod_floor
+    }
+
     fn shape(&self) -> DiskShape {
         self.shape
     }
