@@ -18,6 +18,7 @@
 
 use super::block::Portable;
 use super::bvh::Bvh;
+use super::bvh::traverse::{self, Levels};
 use super::{SplatVisitor, TraversalStats};
 use crate::math::Ray;
 
@@ -85,7 +86,22 @@ pub(crate) fn bvh_traverse<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut 
 /// instructions a sample).
 #[inline(never)]
 fn bvh_traverse_baseline<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
-    super::bvh::traverse::traverse(bvh, ray, visitor, stats, Portable);
+    let multires = |visitor: &mut V, stats: &mut TraversalStats, levels: &Levels| {
+        multires_baseline(bvh, ray, visitor, stats, levels)
+    };
+    traverse::traverse(bvh, ray, visitor, stats, Portable, multires);
+}
+
+/// The multiresolution loop for the baseline (see `traverse::multires_walk`).
+#[inline(never)]
+fn multires_baseline<V: SplatVisitor>(
+    bvh: &Bvh,
+    ray: &Ray,
+    visitor: &mut V,
+    stats: &mut TraversalStats,
+    levels: &Levels,
+) {
+    traverse::multires_walk(bvh, ray, visitor, stats, levels, Portable);
 }
 
 /// `bvh::traverse` (inlined, with the leaf kernel and the visitor) compiled for AVX2: one
@@ -93,7 +109,17 @@ fn bvh_traverse_baseline<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut V,
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 fn bvh_traverse_avx2<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
-    super::bvh::traverse::traverse(bvh, ray, visitor, stats, avx2::Kernel(()));
+    let multires =
+        |visitor: &mut V, stats: &mut TraversalStats, levels: &Levels| multires_avx2(bvh, ray, visitor, stats, levels);
+    traverse::traverse(bvh, ray, visitor, stats, avx2::Kernel(()), multires);
+}
+
+/// The multiresolution loop for AVX2 (see `traverse::multires_walk`).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline(never)]
+fn multires_avx2<V: SplatVisitor>(bvh: &Bvh, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats, levels: &Levels) {
+    traverse::multires_walk(bvh, ray, visitor, stats, levels, avx2::Kernel(()));
 }
 
 /// The leaf kernel in AVX intrinsics: [`SplatBlock::hits`] operation for operation (no fused
@@ -110,9 +136,9 @@ mod avx2 {
     use crate::math::Ray;
     use crate::splat::DiskShape;
 
-    /// The AVX2 kernel. Made only where `detect` saw AVX2 and FMA: by `bvh_traverse_avx2`,
-    /// which runs only there, and by `kernel_for_tests` (the field, private to `isa`, keeps the
-    /// rest of the crate from making one).
+    /// The AVX2 kernel. Made only where `detect` saw AVX2 and FMA: by `bvh_traverse_avx2` and
+    /// `multires_avx2`, which run only there, and by `kernel_for_tests` (the field, private to
+    /// `isa`, keeps the rest of the crate from making one).
     #[derive(Clone, Copy)]
     pub(super) struct Kernel(pub(super) ());
 
@@ -136,9 +162,9 @@ mod avx2 {
     /// A node's eight lanes in one AVX register: [`Wide`] operation for operation as
     /// [`Lanes`] computes it with two SSE vectors (the same IEEE operations, comparisons and
     /// NaN rules), in one instruction each (callgrind on the dragon, first hit: 897 → 841
-    /// instructions a pixel). Values exist only inside `bvh_traverse_avx2`, the only
-    /// instantiation of the traversal with [`Kernel`], which runs only where `detect` saw
-    /// AVX2, and in `lanes8_for_tests`, which checks `detect` first: the type is private to
+    /// instructions a pixel). Values exist only inside `bvh_traverse_avx2` and `multires_avx2`,
+    /// the only instantiations of the traversal with [`Kernel`], which run only where `detect`
+    /// saw AVX2, and in `lanes8_for_tests`, which checks `detect` first: the type is private to
     /// this module.
     #[derive(Clone, Copy)]
     pub(super) struct Lanes8(__m256);
