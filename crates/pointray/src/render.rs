@@ -240,6 +240,8 @@ struct PrimaryRays {
     /// Each of n samples stands for 1/n of the pixel, a beam 1/√n as wide (as pbrt scales its
     /// ray differentials): more samples resolve finer detail.
     footprint_scale: f32,
+    /// Back faces culled: asked for, and the disks oriented (a ray-facing disk faces every ray).
+    cull_backfaces: bool,
 }
 
 impl PrimaryRays {
@@ -256,9 +258,22 @@ impl PrimaryRays {
         } else {
             0.0
         };
-        Self { tau, footprint_scale }
+        let cull_backfaces = config.cull_backfaces && config.scheme.kind.shape() == DiskShape::Oriented;
+        Self { tau, footprint_scale, cull_backfaces }
+    }
+
+    /// A camera's `ray` with the frame's threshold, culling and footprint, counted.
+    #[inline(always)]
+    fn finish(&self, ray: Ray, stats: &mut RenderStats) -> Ray {
+        let mut ray = ray.with_lod_threshold(self.tau).with_backface_culling(self.cull_backfaces);
+        ray.cone.spread *= self.footprint_scale;
+        stats.primary_rays += 1;
+        ray
     }
 }
+
+/// Camera rays made at once where a pixel takes many samples through a pinhole.
+const RAY_BATCH: usize = 8;
 
 fn render_pixel<A: Accel>(
     accel: &A,
@@ -281,32 +296,44 @@ fn render_pixel<A: Accel>(
     } else {
         [0.0; 2]
     };
-    for sample in 0..samples {
-        // Each sample its own stream: how many numbers a path draws (roulette, total internal
-        // reflection, which disks it meets) never shifts another sample's.
-        let mut rng = SampleRng::new(config.seed, x, y, sample);
-        let (dx, dy) = if samples > 1 {
-            let u = match config.sampler {
-                Sampler::Random => [rng.get().random(), rng.get().random()],
-                Sampler::R2 => r2(sample, pixel_shift),
-            };
-            match config.filter {
-                Filter::Box => (u[0], u[1]),
-                Filter::Tent => (0.5 + tent(u[0]), 0.5 + tent(u[1])),
+    // Where in the pixel a sample looks: the centre, a point of the R2 sequence, or two numbers
+    // from the sample's own stream, which it then traces with (how many numbers a path draws,
+    // roulette, total internal reflection, which disks it meets, never shifts another
+    // sample's); filtered.
+    let filtered = |u: [f32; 2]| match config.filter {
+        Filter::Box => u,
+        Filter::Tent => [0.5 + tent(u[0]), 0.5 + tent(u[1])],
+    };
+    if samples > 1 && camera.lens_radius <= 0.0 && config.sampler == Sampler::R2 {
+        // Pinhole rays through the R2 points, which draw no numbers, made a batch at a time
+        // and traced in order (`Camera::rays`: the dragon's distant samples, 64 a pixel, 1,233
+        // → 1,165 instructions each, callgrind, and 7 % more a second, alternating runs).
+        for start in (0..samples).step_by(RAY_BATCH) {
+            let (mut px, mut py) = ([0.0; RAY_BATCH], [0.0; RAY_BATCH]);
+            for i in 0..RAY_BATCH {
+                // Past the last sample too: those rays are made and never traced.
+                let [dx, dy] = filtered(r2(start + i as u32, pixel_shift));
+                (px[i], py[i]) = (x as f32 + dx, y as f32 + dy);
             }
-        } else {
-            (0.5, 0.5)
-        };
-        let lens = if camera.lens_radius > 0.0 { [rng.get().random(), rng.get().random()] } else { [0.5; 2] };
-        let mut ray = camera
-            .lens_ray(x as f32 + dx, y as f32 + dy, lens)
-            .with_lod_threshold(primary.tau)
-            // A ray-facing disk faces every ray: nothing is a back face.
-            .with_backface_culling(config.cull_backfaces && config.scheme.kind.shape() == DiskShape::Oriented);
-        ray.cone.spread *= primary.footprint_scale;
-        stats.primary_rays += 1;
-        let mut tracer = Tracer { accel, config, rng, first: &mut first, stats: &mut *stats };
-        sum += tracer.radiance(&ray, 0, false);
+            let rays = camera.rays(px, py);
+            for i in 0..(samples - start).min(RAY_BATCH as u32) {
+                let rng = SampleRng::new(config.seed, x, y, start + i);
+                let ray = primary.finish(rays.ray(i as usize), stats);
+                sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.radiance(&ray, 0, false);
+            }
+        }
+    } else {
+        for sample in 0..samples {
+            let mut rng = SampleRng::new(config.seed, x, y, sample);
+            let [dx, dy] = match config.sampler {
+                _ if samples == 1 => [0.5, 0.5],
+                Sampler::Random => filtered([rng.get().random(), rng.get().random()]),
+                Sampler::R2 => filtered(r2(sample, pixel_shift)),
+            };
+            let lens = if camera.lens_radius > 0.0 { [rng.get().random(), rng.get().random()] } else { [0.5; 2] };
+            let ray = primary.finish(camera.lens_ray(x as f32 + dx, y as f32 + dy, lens), stats);
+            sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.radiance(&ray, 0, false);
+        }
     }
     let nodes = (stats.traversal.nodes_visited - nodes_before).min(u32::MAX as u64) as u32;
     Pixel { rgb: (sum / samples as f32).to_array(), nodes, first }

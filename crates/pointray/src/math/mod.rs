@@ -8,7 +8,7 @@ mod ray;
 
 pub use bounds::Aabb;
 pub use glam::{DVec3, Vec3};
-pub use ray::{Ray, RayCone};
+pub use ray::{Ray, RayCone, RayLanes};
 
 /// Two unit vectors orthogonal to `n` and to each other (Duff et al. 2017, branchless).
 pub fn orthonormal_basis(n: Vec3) -> (Vec3, Vec3) {
