@@ -49,6 +49,7 @@ impl Accel for BruteForce {
         f32::INFINITY
     }
 
+    /// No level of detail.
     fn may_stop_at_representatives(&self, _ray: &Ray) -> bool {
         false
     }

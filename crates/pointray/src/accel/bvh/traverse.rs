@@ -236,7 +236,7 @@ fn dispatch<V: SplatVisitor, K: LeafKernel, const COUNT: bool>(
 /// The multiresolution loop, for `traverse`'s `multires`: compiled as a function of its own
 /// (per instruction set), so that the full-detail loop's registers and stack frame are its
 /// own. Inlined into one function, a change to either moved the other's instruction counts
-/// by up to 17 a pixel, in code it never ran; apart, the dragon's first hits took 703 → 693
+/// by up to 27 a pixel, in code it never ran; apart, the dragon's first hits took 703 → 693
 /// instructions a pixel and SJ 968 → 959, and its distant samples (SJ, 64 a pixel, level of
 /// detail) 1,202 → 1,233, the price of the call (callgrind).
 #[inline(always)]
