@@ -41,7 +41,9 @@ impl Isa {
     }
 }
 
-/// The path this process runs: the best the CPU has, unless `POINTRAY_ISA=baseline`.
+/// The path this process runs: the best the CPU has, unless `POINTRAY_ISA=baseline`. Inlined:
+/// every traversal asks, and the answer, once made, is one load.
+#[inline]
 pub fn active() -> Isa {
     static ACTIVE: std::sync::OnceLock<Isa> = std::sync::OnceLock::new();
     *ACTIVE.get_or_init(|| {

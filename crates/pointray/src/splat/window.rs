@@ -7,7 +7,7 @@
 use std::marker::PhantomData;
 
 use arrayvec::ArrayVec;
-use glam::{Vec3, Vec3A};
+use glam::{Vec3, Vec3A, Vec4};
 
 use super::scheme::{SurfaceHit, facing, tie_key};
 use super::{DiskShape, DiskTest, color_linear_in, srgb8_to_linear_table};
@@ -157,7 +157,10 @@ impl<D: DiskTest> Window<D> {
         let Sums { wsum, t, n, c, coverage, blended } = sums;
         let (n, c) = (Vec3::from(n), Vec3::from(c));
         let (t, n, c) = if wsum > 0.0 && n.length_squared() > 0.0 {
-            (t / wsum, n.normalize(), c / wsum)
+            // The colour and t divided in one vector instruction (each lane as `c / wsum`
+            // and `t / wsum` divide it): a hit's chain of divisions is what it waits on.
+            let [cx, cy, cz, t] = (Vec4::from((c, t)) / wsum).to_array();
+            (t, n.normalize(), Vec3::new(cx, cy, cz))
         } else {
             // Crossings exactly on the rims carry no weight: fall back to the first disk.
             (first.t, first.normal, Vec3::from(color_linear_in(first.color, srgb8_to_linear_table())))
