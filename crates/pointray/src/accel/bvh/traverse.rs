@@ -249,7 +249,10 @@ pub(crate) fn multires_walk<V: SplatVisitor, K: LeafKernel>(
     kernel: K,
 ) {
     let mut stack = Stack::new();
-    // Counted in a local, as `dispatch` does.
+    // Counted in a local, as `dispatch` does. The two arms call the same loop, and the second
+    // never reads the local, so the compiler drops the counting from that copy: one arm
+    // adding the counts only when asked cost the distant samples 1,166 → 1,204 instructions
+    // each (callgrind), a counted loop for the uncounted ones too.
     let mut counts = TraversalStats::default();
     if stats.counting() {
         traverse_from::<V, K, true>(bvh, ray, visitor, &mut counts, &mut stack, levels, kernel);
