@@ -459,14 +459,14 @@ impl Binning {
         }
     }
 
-    /// [`Binning::bin`] of many primitives, in parallel chunks.
+    /// [`Binning::bin`] of many primitives, in parallel chunks ([`over_chunks`]).
     fn bin_in_chunks(&self, prims: &[Prim]) -> Bins {
         let chunk = |c: &[Prim]| {
             let mut bins = Bins::empty();
             self.bin(c, &mut bins);
             bins
         };
-        prims.par_chunks(PARALLEL_BINNING / 2).map(chunk).reduce(Bins::empty, Bins::merge)
+        over_chunks(prims, chunk, Bins::empty, Bins::merge)
     }
 }
 
