@@ -16,23 +16,121 @@
 use super::bvh::lanes::{Lanes, Wide};
 use crate::math::Ray;
 use crate::splat::oriented_disk::DiskHit;
-use crate::splat::{DiskShape, Splat};
+use crate::splat::{DiskShape, NORMAL_SCALE, Splat};
 use glam::Vec3;
+use rayon::prelude::*;
 
 /// Disks per block.
 pub(crate) const BLOCK: usize = 8;
 
 /// Up to eight consecutive splats of one leaf: the only copy of the BVH's splats. Lane i of
 /// block b is splat `BLOCK·b + i`. Unused lanes hold a disk of radius 0 and no normal, which
-/// no ray hits. Four cache lines: the kernel reads the first three and a half; the colours,
-/// at the end, only the visitors' look-ups read.
-#[repr(C, align(32))]
+/// no ray hits.
+///
+/// Compact: a lane's centre is `origin + step·offset` (16-bit offsets, `step` a power of two)
+/// and its normal `NORMAL_UNIT·normal` (16-bit components), both exact in f32, so the kernel
+/// computes on the very values [`SplatBlock::splat`] gives back. 176 bytes for eight disks where
+/// f32 centres and normals took 256. A leaf block holds its splats without loss when they are
+/// [`snap`]ped and the leaf spans at most [`SnapGrid::leaf_span`] (the BVH's build sees to
+/// both); a block of representatives rounds their centres to its step (see [`SplatBlock::new`]).
+/// The kernel reads the first 144 bytes; the colours, at the end, only the visitors' look-ups.
+#[repr(C, align(16))]
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct SplatBlock {
-    pub(super) center: [[f32; BLOCK]; 3],
-    pub(super) normal: [[f32; BLOCK]; 3],
+    pub(super) origin: [f32; 3],
+    pub(super) step: f32,
+    pub(super) offset: [[u16; BLOCK]; 3],
+    pub(super) normal: [[i16; BLOCK]; 3],
     pub(super) radius: [f32; BLOCK],
     pub(super) color: [u32; BLOCK],
+}
+
+/// A stored normal component is a multiple of this (2⁻¹⁴: ±1 fits an `i16`, and every multiple
+/// is an exact f32). The oriented-disk test scales normals by its inverse, so the kernel uses
+/// the stored integers as they are.
+pub(crate) const NORMAL_UNIT: f32 = 1.0 / NORMAL_SCALE;
+
+/// The largest centre offset a block stores.
+const MAX_OFFSET: f64 = u16::MAX as f64;
+
+/// The grid every accelerator snaps its splats' centres to (see [`snap`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct SnapGrid {
+    /// A power of two, about a two-thousandth of the median radius.
+    pub(crate) step: f32,
+}
+
+impl SnapGrid {
+    /// The grid for `splats`: 2⁻¹⁰ of the largest power of two not above their median radius
+    /// (taken over at most 65,536 evenly spaced splats, so that the choice is O(1) per splat and
+    /// snapping does not change it). A centre moves by at most a 2,048th of that radius.
+    pub(crate) fn of(splats: &[Splat]) -> SnapGrid {
+        let stride = (splats.len() / 65_536).max(1);
+        let radii: Vec<f32> =
+            splats.iter().step_by(stride).map(|s| s.radius).filter(|r| r.is_finite() && *r > 0.0).collect();
+        let median = if radii.is_empty() { 1.0 } else { radius_median(radii) };
+        SnapGrid { step: power_of_two_at_most(f64::from(median) / 1024.0) }
+    }
+
+    /// The widest a leaf may be along any axis, as measured on its centres in f32, for its
+    /// blocks to hold their snapped centres exactly: half the 65,535 steps a block can span
+    /// (the half covers the rounding of the measure), 16 median radii or more.
+    pub(crate) fn leaf_span(self) -> f32 {
+        self.step * 32_768.0
+    }
+
+    /// `c` moved to the nearest multiple of the step along each axis (a no-op for coordinates
+    /// whose f32 spacing is the step or coarser: they are multiples already), −0 made +0 as a
+    /// block gives it back.
+    pub(crate) fn snap_center(self, c: Vec3) -> Vec3 {
+        let g = f64::from(self.step);
+        c.to_array().map(|x| ((f64::from(x) / g).round() * g + 0.0) as f32).into()
+    }
+}
+
+/// The median of `radii` (not empty).
+fn radius_median(mut radii: Vec<f32>) -> f32 {
+    let at = radii.len() / 2;
+    *radii.select_nth_unstable_by(at, f32::total_cmp).1
+}
+
+/// The largest power of two not above `x` (within f32's normal range).
+fn power_of_two_at_most(x: f64) -> f32 {
+    let e = x.log2().floor().clamp(-126.0, 127.0) as i32;
+    2f32.powi(e)
+}
+
+/// The smallest power of two `s` (within f32's normal range) with `extent ≤ MAX_OFFSET·s`.
+fn block_step(extent: f64) -> f32 {
+    let mut e = (extent / MAX_OFFSET).log2().ceil().clamp(-126.0, 127.0) as i32;
+    // `log2` may round across an integer: settle on the exact condition.
+    while e > -126 && extent <= MAX_OFFSET * f64::from(2f32.powi(e - 1)) {
+        e -= 1;
+    }
+    while e < 127 && extent > MAX_OFFSET * f64::from(2f32.powi(e)) {
+        e += 1;
+    }
+    2f32.powi(e)
+}
+
+/// `n` with each component moved to the nearest multiple of [`NORMAL_UNIT`]: what a block
+/// stores. Not renormalised (its length stays within 10⁻⁴ of one); the ray–disk test does not
+/// depend on the normal's length, and shading normalises.
+pub(crate) fn snap_normal(n: Vec3) -> Vec3 {
+    n.to_array().map(|x| unit(quantize_normal(x))).into()
+}
+
+/// Snaps `splats` to what the blocks store, the same for every accelerator built from them so
+/// that all find the same hits: centres onto the set's [`SnapGrid`], normals onto multiples of
+/// [`NORMAL_UNIT`]; radii and colours as they are. Snapping twice changes nothing (the grid
+/// depends on the radii alone). Returns the grid.
+pub(crate) fn snap(splats: &mut [Splat]) -> SnapGrid {
+    let grid = SnapGrid::of(splats);
+    splats.par_iter_mut().for_each(|s| {
+        s.center = grid.snap_center(s.center);
+        s.normal = snap_normal(s.normal);
+    });
+    grid
 }
 
 /// The leaf kernel a traversal runs: [`Portable`], or one written for an instruction set
@@ -69,16 +167,48 @@ impl BlockHits {
     }
 }
 
+/// A normal component as a block stores it (NaN as 0).
+fn quantize_normal(x: f32) -> i16 {
+    (x.clamp(-1.0, 1.0) / NORMAL_UNIT).round() as i16
+}
+
+/// A stored offset as a float.
+#[inline(always)]
+fn widen(q: u16) -> f32 {
+    f32::from(q)
+}
+
+/// A stored normal component as a float.
+#[inline(always)]
+fn unit(q: i16) -> f32 {
+    f32::from(q) * NORMAL_UNIT
+}
+
 impl SplatBlock {
-    /// The block of `splats` (at most [`BLOCK`]).
+    /// The block of `splats` (at most [`BLOCK`]). Centres are stored as offsets from their
+    /// least corner in steps of the smallest power of two that spans them: exactly where every
+    /// centre is a multiple of that step away (snapped leaves), rounded to the nearest step
+    /// otherwise (representatives, a 65,535th of the block's extent at most). Normals are
+    /// rounded as [`snap_normal`] does.
     pub(crate) fn new(splats: &[Splat]) -> Self {
         debug_assert!((1..=BLOCK).contains(&splats.len()));
-        let mut block =
-            Self { center: [[0.0; BLOCK]; 3], normal: [[0.0; BLOCK]; 3], radius: [0.0; BLOCK], color: [0; BLOCK] };
+        let lo = splats.iter().fold(Vec3::INFINITY, |m, s| m.min(s.center));
+        let hi = splats.iter().fold(Vec3::NEG_INFINITY, |m, s| m.max(s.center));
+        let extent = (hi - lo).max_element();
+        let step = block_step(if extent.is_finite() { f64::from(extent) } else { 0.0 });
+        let mut block = Self {
+            origin: lo.to_array(),
+            step,
+            offset: [[0; BLOCK]; 3],
+            normal: [[0; BLOCK]; 3],
+            radius: [0.0; BLOCK],
+            color: [0; BLOCK],
+        };
         for (i, s) in splats.iter().enumerate() {
             for k in 0..3 {
-                block.center[k][i] = s.center[k];
-                block.normal[k][i] = s.normal[k];
+                let off = (f64::from(s.center[k]) - f64::from(lo[k])) / f64::from(step);
+                block.offset[k][i] = off.round().clamp(0.0, MAX_OFFSET) as u16;
+                block.normal[k][i] = quantize_normal(s.normal[k]);
             }
             block.radius[i] = s.radius;
             block.color[i] = s.color;
@@ -86,21 +216,45 @@ impl SplatBlock {
         block
     }
 
+    /// Component `k` of the eight centres.
+    #[inline(always)]
+    pub(crate) fn center_lanes(&self, k: usize) -> [f32; BLOCK] {
+        let (o, step) = (self.origin[k], self.step);
+        self.offset[k].map(|q| o + widen(q) * step)
+    }
+
+    /// Component `k` of the eight normals.
+    #[inline(always)]
+    pub(crate) fn normal_lanes(&self, k: usize) -> [f32; BLOCK] {
+        self.normal[k].map(unit)
+    }
+
+    /// The eight radii.
+    pub(crate) fn radii(&self) -> &[f32; BLOCK] {
+        &self.radius
+    }
+
+    /// The eight packed colours.
+    pub(crate) fn colors(&self) -> &[u32; BLOCK] {
+        &self.color
+    }
+
     /// Component `k` of the eight normals, as node lanes (the cone axes of a node's
     /// representatives).
     #[inline(always)]
-    pub(crate) fn normal_lanes(&self, k: usize) -> Lanes {
-        Lanes::from_array(self.normal[k])
+    pub(crate) fn normal_node_lanes(&self, k: usize) -> Lanes {
+        Lanes::from_array(self.normal_lanes(k))
     }
 
     /// The splat in `lane`.
     #[inline]
     pub(crate) fn splat(&self, lane: usize) -> Splat {
-        let (c, n) = (&self.center, &self.normal);
+        let center = |k: usize| self.origin[k] + widen(self.offset[k][lane]) * self.step;
+        let normal = |k: usize| unit(self.normal[k][lane]);
         Splat {
-            center: Vec3::new(c[0][lane], c[1][lane], c[2][lane]),
+            center: Vec3::new(center(0), center(1), center(2)),
             radius: self.radius[lane],
-            normal: Vec3::new(n[0][lane], n[1][lane], n[2][lane]),
+            normal: Vec3::new(normal(0), normal(1), normal(2)),
             color: self.color[lane],
         }
     }
@@ -120,7 +274,9 @@ impl SplatBlock {
     fn oriented(&self, ray: &Ray, t_max: f32) -> BlockHits {
         const SLACK: f32 = 1.0 / 65536.0;
         let (o, d, t_min) = (ray.origin.to_array(), ray.dir.to_array(), ray.t_min);
-        let (c, n) = (&self.center, &self.normal);
+        let c = [self.center_lanes(0), self.center_lanes(1), self.center_lanes(2)];
+        // In units of `NORMAL_UNIT`, as the scalar test scales them.
+        let n = self.normal.map(|k| k.map(f32::from));
         let mut num = [0.0; BLOCK];
         let mut den = [0.0; BLOCK];
         let mut q2 = [0.0; BLOCK];
@@ -158,7 +314,7 @@ impl SplatBlock {
     #[inline(always)]
     fn ray_facing(&self, ray: &Ray, t_max: f32) -> BlockHits {
         let (o, d, t_min) = (ray.origin.to_array(), ray.dir.to_array(), ray.t_min);
-        let c = &self.center;
+        let c = [self.center_lanes(0), self.center_lanes(1), self.center_lanes(2)];
         let mut hits = BlockHits { mask: 0, t: [0.0; BLOCK], dist2: [0.0; BLOCK] };
         let mut hit = [0u32; BLOCK];
         for i in 0..BLOCK {
@@ -200,25 +356,55 @@ pub(crate) mod tests {
         assert!(hits > 5_000 && misses > 50_000, "the test must see both: {hits} hits, {misses} misses");
     }
 
-    /// A block gives back the splats it was made of, bit for bit.
+    /// A block gives back snapped splats bit for bit when they lie within a leaf's span, and
+    /// any others within half a step of each coordinate (the centres' step, `NORMAL_UNIT`).
     #[test]
     fn block_holds_its_splats() {
-        for (round, (splats, _, _)) in random_disks_and_rays(3, BLOCK, 64).into_iter().enumerate() {
+        let mut exact = 0;
+        for (round, (splats, _, _)) in random_disks_and_rays(3, BLOCK, 200).into_iter().enumerate() {
             let colored =
                 |(i, s): (usize, Splat)| Splat { color: ((round * BLOCK + i) as u32).wrapping_mul(0x0101_0101), ..s };
-            let splats: Vec<Splat> = splats.into_iter().enumerate().map(colored).collect();
+            let mut splats: Vec<Splat> = splats.into_iter().enumerate().map(colored).collect();
+            // Half the rounds narrowed to a leaf's span: those must be held exactly.
+            let grid = SnapGrid::of(&splats);
+            let narrow = round % 2 == 0;
+            if narrow {
+                let scale = grid.leaf_span() / 2.0;
+                splats.iter_mut().for_each(|s| s.center *= scale);
+                snap(&mut splats);
+                assert_eq!(SnapGrid::of(&splats), grid, "snapping changed the grid");
+            }
             let block = SplatBlock::new(&splats);
             for (lane, s) in splats.iter().enumerate() {
-                let bits = |s: Splat| {
-                    (
-                        s.center.to_array().map(f32::to_bits),
-                        s.normal.to_array().map(f32::to_bits),
-                        s.radius.to_bits(),
-                        s.color,
-                    )
-                };
-                assert_eq!(bits(block.splat(lane)), bits(*s));
+                let got = block.splat(lane);
+                assert_eq!((got.radius.to_bits(), got.color), (s.radius.to_bits(), s.color));
+                if narrow {
+                    let bits = |v: Vec3| v.to_array().map(f32::to_bits);
+                    assert_eq!((bits(got.center), bits(got.normal)), (bits(s.center), bits(s.normal)));
+                    exact += 1;
+                }
+                assert!(
+                    (got.center - s.center).abs().max_element() <= 0.5 * block.step * (1.0 + 1e-6),
+                    "{got:?} {s:?}"
+                );
+                assert!((got.normal - s.normal).abs().max_element() <= 0.5 * NORMAL_UNIT, "{got:?} {s:?}");
             }
+        }
+        assert!(exact > 300, "{exact} exact lanes");
+    }
+
+    /// Snapping twice changes nothing, and moves a centre by at most half the grid's step.
+    #[test]
+    fn snapping_is_idempotent() {
+        let (splats, _, _) = random_disks_and_rays(8, 64, 64).pop().unwrap();
+        let mut once = splats.clone();
+        let grid = snap(&mut once);
+        let mut twice = once.clone();
+        assert_eq!(snap(&mut twice), grid);
+        assert_eq!(once, twice);
+        for (a, b) in splats.iter().zip(&once) {
+            assert!((a.center - b.center).abs().max_element() <= 0.5 * grid.step);
+            assert_eq!(snap_normal(b.normal), b.normal);
         }
     }
 
@@ -243,6 +429,7 @@ pub(crate) mod tests {
         let mut hits = 0;
         for (s, ray, t_max) in cases {
             let block = SplatBlock::new(&[s]);
+            let s = block.splat(0);
             for shape in [DiskShape::Oriented, DiskShape::RayFacing] {
                 let got = kernel(&block, shape, &ray, t_max);
                 let lane = (got.mask & 1 != 0).then(|| got.hit(0));
@@ -265,6 +452,8 @@ pub(crate) mod tests {
         for (splats, ray, t_max) in random_disks_and_rays(11, BLOCK, 20_000) {
             let lanes = splats.len();
             let block = SplatBlock::new(&splats);
+            // The splats as the block holds them (rounded: these are not snapped).
+            let splats: Vec<Splat> = (0..lanes).map(|i| block.splat(i)).collect();
             for shape in [DiskShape::Oriented, DiskShape::RayFacing] {
                 let got = kernel(&block, shape, &ray, t_max);
                 assert_eq!(got.mask >> lanes, 0, "an unused lane hit");

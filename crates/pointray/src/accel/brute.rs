@@ -12,7 +12,9 @@ pub struct BruteForce {
 }
 
 impl BruteForce {
-    pub fn new(splats: Vec<Splat>) -> Self {
+    /// The oracle over `splats` as every accelerator stores them (`block::snap`).
+    pub fn new(mut splats: Vec<Splat>) -> Self {
+        super::block::snap(&mut splats);
         let bounds = splats.iter().fold(Aabb::EMPTY, |b, s| b.union(s.bounds()));
         let wide_radius = super::representative::wide_radius(&splats);
         Self { splats, bounds, wide_radius }

@@ -309,6 +309,33 @@ mod avx2 {
         [_mm256_set1_ps(v.x), _mm256_set1_ps(v.y), _mm256_set1_ps(v.z)]
     }
 
+    /// The eight centres, `origin + step·offset` lane by lane as `SplatBlock::center_lanes`
+    /// computes them (a multiply, then an add: the same bits).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn centers(block: &SplatBlock) -> [__m256; 3] {
+        let step = _mm256_set1_ps(block.step);
+        std::array::from_fn(|k| {
+            // SAFETY: eight `u16`s (16 bytes) behind a reference; `loadu` needs no alignment.
+            #[allow(unsafe_code)]
+            let q = unsafe { _mm_loadu_si128(block.offset[k].as_ptr().cast()) };
+            let q = _mm256_cvtepi32_ps(_mm256_cvtepu16_epi32(q));
+            _mm256_add_ps(_mm256_set1_ps(block.origin[k]), _mm256_mul_ps(q, step))
+        })
+    }
+
+    /// The eight normals in units of `NORMAL_UNIT`, as the oriented-disk test scales them.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    fn normals(block: &SplatBlock) -> [__m256; 3] {
+        std::array::from_fn(|k| {
+            // SAFETY: eight `i16`s (16 bytes) behind a reference; `loadu` needs no alignment.
+            #[allow(unsafe_code)]
+            let q = unsafe { _mm_loadu_si128(block.normal[k].as_ptr().cast()) };
+            _mm256_cvtepi32_ps(_mm256_cvtepi16_epi32(q))
+        })
+    }
+
     /// `x·y + z·w + u·v` in the scalar code's order: `(x·y + z·w) + u·v`.
     #[inline]
     #[target_feature(enable = "avx2,fma")]
@@ -322,8 +349,7 @@ mod avx2 {
     fn oriented(block: &SplatBlock, ray: &Ray, t_max: f32) -> BlockHits {
         const SLACK: f32 = 1.0 / 65536.0;
         let (o, d) = (splat3(ray.origin), splat3(ray.dir));
-        let c = [load(&block.center[0]), load(&block.center[1]), load(&block.center[2])];
-        let n = [load(&block.normal[0]), load(&block.normal[1]), load(&block.normal[2])];
+        let (c, n) = (centers(block), normals(block));
         let zero = _mm256_setzero_ps();
         let sign = _mm256_set1_ps(-0.0);
         let dn = dot(d, n);
@@ -369,7 +395,7 @@ mod avx2 {
     #[target_feature(enable = "avx2,fma")]
     fn ray_facing(block: &SplatBlock, ray: &Ray, t_max: f32) -> BlockHits {
         let (o, d) = (splat3(ray.origin), splat3(ray.dir));
-        let c = [load(&block.center[0]), load(&block.center[1]), load(&block.center[2])];
+        let c = centers(block);
         let to_center = [_mm256_sub_ps(c[0], o[0]), _mm256_sub_ps(c[1], o[1]), _mm256_sub_ps(c[2], o[2])];
         let t = dot(to_center, d);
         let q = [

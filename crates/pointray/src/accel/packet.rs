@@ -5,7 +5,7 @@
 use glam::{Mat4, Vec4};
 
 use crate::math::Ray;
-use crate::splat::{DiskShape, Splat};
+use crate::splat::{DiskShape, NORMAL_SCALE, Splat};
 
 /// Disks tested together.
 pub(crate) const LANES: usize = 4;
@@ -25,7 +25,8 @@ impl DiskLanes {
         // transposes, a few shuffles, gather the lanes, where 28 scalar inserts would not.
         let [a, b, c, d] = lanes;
         let first = |s: &Splat| Vec4::new(s.center.x, s.center.y, s.center.z, s.radius);
-        let second = |s: &Splat| Vec4::new(s.normal.x, s.normal.y, s.normal.z, 0.0);
+        // Normals scaled as the scalar test scales them.
+        let second = |s: &Splat| Vec4::new(s.normal.x, s.normal.y, s.normal.z, 0.0) * NORMAL_SCALE;
         let centers = Mat4::from_cols(first(a), first(b), first(c), first(d)).transpose();
         let normals = Mat4::from_cols(second(a), second(b), second(c), second(d)).transpose();
         Self {

@@ -4,7 +4,7 @@
 
 use glam::DVec3;
 
-use crate::accel::block::{BLOCK, SplatBlock};
+use crate::accel::block::{BLOCK, SplatBlock, snap_normal};
 use crate::film::linear_to_srgb;
 use crate::splat::{Splat, color_linear_in, material_of, pack_color, srgb8_to_linear_table};
 
@@ -83,11 +83,11 @@ impl Moments {
     /// dragon's build, this 67 (callgrind).
     pub(crate) fn add_block(&mut self, block: &SplatBlock, count: usize) {
         let table = srgb8_to_linear_table();
-        let [cx, cy, cz] = block.center.map(|x| x.map(f64::from));
-        let [nx, ny, nz] = block.normal.map(|x| x.map(f64::from));
+        let [cx, cy, cz] = [0, 1, 2].map(|k| block.center_lanes(k).map(f64::from));
+        let [nx, ny, nz] = [0, 1, 2].map(|k| block.normal_lanes(k).map(f64::from));
+        let (radius, color) = (block.radii(), block.colors());
         for i in 0..count {
-            let disk =
-                (DVec3::new(cx[i], cy[i], cz[i]), DVec3::new(nx[i], ny[i], nz[i]), block.radius[i], block.color[i]);
+            let disk = (DVec3::new(cx[i], cy[i], cz[i]), DVec3::new(nx[i], ny[i], nz[i]), radius[i], color[i]);
             self.add_disk(disk, table);
         }
     }
@@ -120,6 +120,8 @@ impl Moments {
         let center = self.center / self.area;
         let coherent = self.normal.length() > 1e-3 * self.area;
         let axis = if coherent { self.normal.normalize() } else { first_normal.as_dvec3() };
+        // As a block stores it, so that the normal cone about it bounds what the traversal reads.
+        let axis = snap_normal(axis.as_vec3()).as_dvec3();
         let color = (self.color / self.area).as_vec3().to_array().map(linear_to_srgb);
         // Materials do not blend: the one covering the most area (by the disks' areas) wins.
         let material =
@@ -150,12 +152,12 @@ impl Spread {
     /// lane by lane (which the compiler vectorizes), then taken in the lanes' order.
     pub(crate) fn add_block(&mut self, frame: &Frame, block: &SplatBlock, count: usize) {
         let (o, a) = (frame.center, frame.axis.to_array());
-        let [cx, cy, cz] = block.center.map(|x| x.map(f64::from));
+        let [cx, cy, cz] = [0, 1, 2].map(|k| block.center_lanes(k).map(f64::from));
         let mut off = [0.0; BLOCK];
         for i in 0..BLOCK {
             off[i] = along_and_off([cx[i] - o.x, cy[i] - o.y, cz[i] - o.z], a).1;
         }
-        for (&off, &r) in off.iter().zip(&block.radius).take(count) {
+        for (&off, &r) in off.iter().zip(block.radii()).take(count) {
             self.include(off, f64::from(r));
         }
     }

@@ -78,10 +78,21 @@ pub struct Splat {
     pub color: u32,
 }
 
+/// The oriented-disk test scales normals by this (2¹⁴, exactly) before it uses them; the BVH's
+/// blocks store normals as multiples of its inverse (`accel::block`).
+pub(crate) const NORMAL_SCALE: f32 = 16384.0;
+
 /// The colour of splats whose cloud has none: a light warm grey, as in the Embree bench.
 pub const DEFAULT_COLOR: [f32; 3] = [0.92, 0.88, 0.80];
 
 impl Splat {
+    /// Every field's bits (centre, radius, normal, colour): equal only for the same splat, −0
+    /// and +0 told apart.
+    pub fn bits(&self) -> [u32; 8] {
+        let (c, n, b) = (self.center, self.normal, f32::to_bits);
+        [b(c.x), b(c.y), b(c.z), b(self.radius), b(n.x), b(n.y), b(n.z), self.color]
+    }
+
     /// Tight bounds of the disk: along axis `i` it extends `r·sqrt(1 − nᵢ²)` from the centre.
     pub fn bounds(&self) -> Aabb {
         let half = self.radius * (Vec3::ONE - self.normal * self.normal).max(Vec3::ZERO).sqrt();

@@ -1,6 +1,6 @@
 //! Ray versus oriented disk (thesis §A1, Schaufler & Jensen 2000).
 
-use super::Splat;
+use super::{NORMAL_SCALE, Splat};
 use crate::math::Ray;
 
 /// Where a ray crosses a disk: the ray parameter and the squared distance from the disk's
@@ -19,9 +19,13 @@ pub struct DiskHit {
 /// `q = (o − c)·den + num·d`, so it is inside the disk iff |q|² < r²·den².
 #[inline(always)]
 pub fn intersect(ray: &Ray, splat: &Splat, t_max: f32) -> Option<DiskHit> {
-    let den = ray.dir.dot(splat.normal);
+    // The test does not depend on the normal's length. Scaled by 2¹⁴ (exactly), a normal that
+    // blocks store (`accel::block`) has integer components, which their kernel reads as they
+    // are: the same bits without a multiply a component.
+    let normal = splat.normal * NORMAL_SCALE;
+    let den = ray.dir.dot(normal);
     let to_center = splat.center - ray.origin;
-    let num = to_center.dot(splat.normal);
+    let num = to_center.dot(normal);
     // t ∈ [t_min, t_max] ⇔ num·sign(den) ∈ [t_min·|den|, t_max·|den|]; false for den = 0 and
     // for NaN. The bounds are widened by a few ulps here, because t·den rounds differently
     // from num, and the exact test on t itself comes last: a disk that ties with the current

@@ -274,9 +274,7 @@ pub(crate) fn facing(n: Vec3, dir: Vec3) -> Vec3 {
 /// Total order on splats by their contents, to break exact ties in `t` the same way whatever
 /// order an accelerator visits them in (coincident duplicates occur in real scans).
 pub(crate) fn tie_key(s: &Splat) -> [u32; 8] {
-    let (c, n) = (s.center, s.normal);
-    let b = f32::to_bits;
-    [b(c.x), b(c.y), b(c.z), b(s.radius), b(n.x), b(n.y), b(n.z), s.color]
+    s.bits()
 }
 
 /// The nearest crossing, exact ties broken by [`tie_key`]. The keys are made only for a tie

@@ -132,11 +132,13 @@ fn bvh_nodes_bound_their_splats_and_visit_fewer_than_brute_force() {
     let bvh = Bvh::build(splats.clone(), &BvhParams::standard());
     assert!(bvh.depth() < 64, "depth {}", bvh.depth());
     pointray::accel::bvh::check_invariants(&bvh).expect("BVH invariants");
-    // The BVH holds the input's splats, reordered: the same multiset, bit for bit.
+    // The BVH holds the input's splats as every accelerator stores them (snapped; the brute
+    // force's), reordered: the same multiset, bit for bit.
     let bits = |s: &Splat| {
         (s.center.to_array().map(f32::to_bits), s.normal.to_array().map(f32::to_bits), s.radius.to_bits(), s.color)
     };
-    let mut input: Vec<_> = splats.iter().map(bits).collect();
+    let oracle = BruteForce::new(splats.clone());
+    let mut input: Vec<_> = (0..splats.len() as u32).map(|i| bits(&oracle.splat(i))).collect();
     let mut held: Vec<_> = bvh.splats().map(|(_, s)| bits(&s)).collect();
     input.sort_unstable();
     held.sort_unstable();

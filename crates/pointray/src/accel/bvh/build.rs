@@ -8,7 +8,7 @@ use rayon::join;
 use rayon::prelude::*;
 
 use super::{Bvh, MAX_LEAF_SIZE, MAX_SPLATS, MEDIAN_SPLIT_DEPTH, Node, NodeBounds, WIDTH, leaf_ref};
-use crate::accel::block::{BLOCK, SplatBlock};
+use crate::accel::block::{BLOCK, SplatBlock, snap};
 use crate::accel::representative::{LOD_FLOOR_QUANTILE, radius_quantile, wide_radius};
 use crate::math::Aabb;
 use crate::splat::{DiskShape, Splat};
@@ -98,6 +98,11 @@ impl Box3 {
     fn aabb(self) -> Aabb {
         Aabb::new(self.min.into(), self.max.into())
     }
+
+    /// The longest side (−∞ for an empty box).
+    fn widest(self) -> f32 {
+        (self.max - self.min).max_element()
+    }
 }
 
 /// A primitive during the build: its bounds and the splat it stands for, in 32 bytes, the
@@ -173,13 +178,14 @@ impl Bvh {
     /// splats kept only in blocks and the level of detail read from them, a 20-million-point
     /// torus's render 1.72 → 1.59 GB; with 32-byte primitives and the blocks gathered from the
     /// input, 1.67 GB, for a build 10 % faster).
-    pub fn build(input: Vec<Splat>, params: &BvhParams) -> Bvh {
+    pub fn build(mut input: Vec<Splat>, params: &BvhParams) -> Bvh {
         assert!((2..=MAX_BINS).contains(&params.bins) && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
         assert!(input.len() <= MAX_SPLATS, "a BVH indexes at most {MAX_SPLATS} splats");
+        let grid = snap(&mut input);
         let mut prims: Vec<Prim> =
             input.par_iter().enumerate().map(|(i, s)| Prim::new(s.bounds_as(params.shape), i as u32)).collect();
         let extent = Extent::of(&prims);
-        let root = build_node(&mut prims, extent, 0, params, 0);
+        let root = build_node(&mut prims, extent, 0, &Build { params, leaf_span: grid.leaf_span() }, 0);
         // The leaf order alone (4 bytes a splat), so that the primitives (32) are gone before
         // the blocks are made.
         let order: Vec<u32> = prims.iter().map(Prim::index).collect();
@@ -208,7 +214,12 @@ impl Bvh {
             .map(|&(first, count)| {
                 let splats: ArrayVec<Splat, BLOCK> =
                     order[first..first + count].iter().map(|&i| input[i as usize]).collect();
-                SplatBlock::new(&splats)
+                let block = SplatBlock::new(&splats);
+                debug_assert!(
+                    splats.iter().enumerate().all(|(i, s)| block.splat(i).bits() == s.bits()),
+                    "a lossy block"
+                );
+                block
             })
             .collect();
         drop((input, order));
@@ -305,16 +316,26 @@ impl Extent {
     }
 }
 
+/// What every step of the build reads.
+struct Build<'a> {
+    params: &'a BvhParams,
+    /// The widest a leaf's centres may spread along an axis.
+    leaf_span: f32,
+}
+
 /// Builds the subtree over `prims` (of extent `extent`), which start at `offset` in the final
 /// splat order.
-fn build_node(prims: &mut [Prim], extent: Extent, offset: usize, params: &BvhParams, depth: usize) -> BuildNode {
-    let bounds = extent.bounds.aabb();
+fn build_node(prims: &mut [Prim], extent: Extent, offset: usize, build: &Build, depth: usize) -> BuildNode {
+    let (bounds, params) = (extent.bounds.aabb(), build.params);
     let n = prims.len();
     let leaf = || BuildNode::Leaf { bounds, first: offset, count: n };
+    // A leaf's blocks hold their centres exactly only within a span (`SnapGrid::leaf_span`);
+    // wider ones (a few strays) are split whatever the cost.
+    let must_split = n > params.max_leaf_size || n > 1 && extent.centroids.widest() > build.leaf_span;
     // A split costs more than a traversal step, so a leaf that costs no more stays a leaf:
     // the same tree without binning it (with the default costs, every node of up to 16 splats;
     // loading the prepared dragon and building its BVH 2.54 → 2.28 billion instructions).
-    if n <= 1 || n <= params.max_leaf_size && blocks(n) * params.intersection_cost <= params.traversal_cost {
+    if n <= 1 || !must_split && blocks(n) * params.intersection_cost <= params.traversal_cost {
         return leaf();
     }
     let split = if depth >= MEDIAN_SPLIT_DEPTH {
@@ -328,7 +349,7 @@ fn build_node(prims: &mut [Prim], extent: Extent, offset: usize, params: &BvhPar
     // further pass over the primitives (the 1-million-point torus's build 3.73 → 3.61 billion
     // instructions, the same tree).
     let (mid, halves) = match split {
-        Some(s) if s.cost < blocks(n) * params.intersection_cost || n > params.max_leaf_size => {
+        Some(s) if s.cost < blocks(n) * params.intersection_cost || must_split => {
             let (mid, centroids) = partition(prims, &s);
             let halves = [
                 Extent { bounds: s.left, centroids: centroids[0] },
@@ -336,7 +357,7 @@ fn build_node(prims: &mut [Prim], extent: Extent, offset: usize, params: &BvhPar
             ];
             (mid, Some(halves))
         }
-        None if n > params.max_leaf_size => (median_split(prims), None),
+        None if must_split => (median_split(prims), None),
         _ => return leaf(),
     };
     let (mid, halves) = if mid == 0 || mid == n { (median_split(prims), None) } else { (mid, halves) };
@@ -344,13 +365,13 @@ fn build_node(prims: &mut [Prim], extent: Extent, offset: usize, params: &BvhPar
     let [l_extent, r_extent] = halves.unwrap_or_else(|| [Extent::of(left), Extent::of(right)]);
     let (l, r) = if n >= PARALLEL_THRESHOLD {
         join(
-            || build_node(left, l_extent, offset, params, depth + 1),
-            || build_node(right, r_extent, offset + mid, params, depth + 1),
+            || build_node(left, l_extent, offset, build, depth + 1),
+            || build_node(right, r_extent, offset + mid, build, depth + 1),
         )
     } else {
         (
-            build_node(left, l_extent, offset, params, depth + 1),
-            build_node(right, r_extent, offset + mid, params, depth + 1),
+            build_node(left, l_extent, offset, build, depth + 1),
+            build_node(right, r_extent, offset + mid, build, depth + 1),
         )
     };
     BuildNode::Inner { bounds, children: Box::new([l, r]) }

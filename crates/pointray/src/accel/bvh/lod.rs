@@ -160,9 +160,9 @@ fn child_lod(box_center: Vec3, disks: &Disks, blocks: Range<usize>, moments: &Mo
 /// took 779 splat by splat (callgrind).
 #[inline(always)]
 fn farthest_lanes(p: DVec3, block: &SplatBlock, shape: DiskShape) -> [f64; BLOCK] {
-    let [cx, cy, cz] = block.center.map(|x| x.map(f64::from));
-    let [nx, ny, nz] = block.normal.map(|x| x.map(f64::from));
-    let r = block.radius.map(f64::from);
+    let [cx, cy, cz] = [0, 1, 2].map(|k| block.center_lanes(k).map(f64::from));
+    let [nx, ny, nz] = [0, 1, 2].map(|k| block.normal_lanes(k).map(f64::from));
+    let r = block.radii().map(f64::from);
     let mut far = [0.0; BLOCK];
     for i in 0..BLOCK {
         far[i] = farthest_of([cx[i] - p.x, cy[i] - p.y, cz[i] - p.z], [nx[i], ny[i], nz[i]], r[i], shape);
@@ -173,7 +173,7 @@ fn farthest_lanes(p: DVec3, block: &SplatBlock, shape: DiskShape) -> [f64; BLOCK
 /// The cosine between `axis` and each lane's normal.
 #[inline(always)]
 fn cos_lanes(axis: DVec3, block: &SplatBlock) -> [f64; BLOCK] {
-    let [nx, ny, nz] = block.normal.map(|x| x.map(f64::from));
+    let [nx, ny, nz] = [0, 1, 2].map(|k| block.normal_lanes(k).map(f64::from));
     let mut cos = [0.0; BLOCK];
     for i in 0..BLOCK {
         cos[i] = nx[i] * axis.x + ny[i] * axis.y + nz[i] * axis.z;
@@ -355,6 +355,8 @@ mod tests {
         let blocks: Vec<SplatBlock> = splats.chunks(BLOCK).map(SplatBlock::new).collect();
         let counts: Vec<u8> = splats.chunks(BLOCK).map(|c| c.len() as u8).collect();
         let disks = Disks { blocks: &blocks, counts: &counts };
+        // The splats as the blocks hold them (rounded: these are not snapped).
+        let splats: Vec<Splat> = (0..splats.len()).map(|i| blocks[i / BLOCK].splat(i % BLOCK)).collect();
         let box_center = Vec3::new(0.3, 2.0, -0.1);
         for shape in [DiskShape::Oriented, DiskShape::RayFacing] {
             let lanes = child_lod(box_center, &disks, 0..blocks.len(), &disks.moments(0..blocks.len()), shape);

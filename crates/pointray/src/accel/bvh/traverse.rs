@@ -101,7 +101,7 @@ impl<W: Wide> SlabRay<W> {
     #[inline(always)]
     fn facing_away(&self, lod: &NodeLod, reps: &SplatBlock, oc: &[W; 3]) -> u32 {
         // The cones' axes are the representatives' normals.
-        let axis = [W::load(&reps.normal_lanes(0)), W::load(&reps.normal_lanes(1)), W::load(&reps.normal_lanes(2))];
+        let axis = [0, 1, 2].map(|k| W::load(&reps.normal_node_lanes(k)));
         let s = dot3(oc, &axis);
         let cos = W::load(&lod.cos_angle);
         // A slightly larger sphere: rounding must not cull a subtree that just faces the ray.

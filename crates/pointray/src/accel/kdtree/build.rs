@@ -98,7 +98,9 @@ enum BuildNode {
 }
 
 impl KdTree {
-    pub fn build(splats: Vec<Splat>, params: &KdTreeParams) -> Self {
+    pub fn build(mut splats: Vec<Splat>, params: &KdTreeParams) -> Self {
+        // As every accelerator stores them, so that all find the same hits.
+        crate::accel::block::snap(&mut splats);
         assert!((2..=MAX_BINS).contains(&params.bins), "the build needs 2 to {MAX_BINS} bins");
         assert!(splats.len() <= u32::MAX as usize, "too many splats for a kd-tree");
         let boxes: Vec<Aabb> = splats.par_iter().map(|s| padded_bounds(s, params.shape)).collect();
