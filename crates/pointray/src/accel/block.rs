@@ -51,7 +51,7 @@ pub(crate) struct SplatBlock {
 pub(crate) const NORMAL_UNIT: f32 = 1.0 / NORMAL_SCALE;
 
 /// The largest centre offset a block stores.
-const MAX_OFFSET: f64 = u16::MAX as f64;
+const MAX_OFFSET: f32 = u16::MAX as f32;
 
 /// The grid every accelerator snaps its splats' centres to (see [`snap`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -83,8 +83,10 @@ impl SnapGrid {
     /// whose f32 spacing is the step or coarser: they are multiples already), −0 made +0 as a
     /// block gives it back.
     pub(crate) fn snap_center(self, c: Vec3) -> Vec3 {
-        let g = f64::from(self.step);
-        c.to_array().map(|x| ((f64::from(x) / g).round() * g + 0.0) as f32).into()
+        // Exact but for the rounding: g is a power of two, and a multiple of it below 2²⁴ steps
+        // is a float.
+        let (g, inv) = (self.step, 1.0 / self.step);
+        c.to_array().map(|x| round_to_integer(x * inv) * g + 0.0).into()
     }
 }
 
@@ -94,23 +96,28 @@ fn radius_median(mut radii: Vec<f32>) -> f32 {
     *radii.select_nth_unstable_by(at, f32::total_cmp).1
 }
 
-/// The largest power of two not above `x` (within f32's normal range).
+/// The largest power of two not above `x` (within f32's normal range): `x` with its mantissa
+/// cleared.
 fn power_of_two_at_most(x: f64) -> f32 {
-    let e = x.log2().floor().clamp(-126.0, 127.0) as i32;
-    2f32.powi(e)
+    pow2(exponent(x))
 }
 
-/// The smallest power of two `s` (within f32's normal range) with `extent ≤ MAX_OFFSET·s`.
+/// The smallest power of two `s` (within f32's normal range) with `extent ≤ MAX_OFFSET·s`. (From
+/// the bits: with `log2` and `powi`, library calls, blocks took 130 instructions a splat to make.)
 fn block_step(extent: f64) -> f32 {
-    let mut e = (extent / MAX_OFFSET).log2().ceil().clamp(-126.0, 127.0) as i32;
-    // `log2` may round across an integer: settle on the exact condition.
-    while e > -126 && extent <= MAX_OFFSET * f64::from(2f32.powi(e - 1)) {
-        e -= 1;
-    }
-    while e < 127 && extent > MAX_OFFSET * f64::from(2f32.powi(e)) {
-        e += 1;
-    }
-    2f32.powi(e)
+    let x = extent / f64::from(MAX_OFFSET);
+    let exact = x.to_bits() & ((1 << 52) - 1) == 0;
+    pow2(exponent(x) + i32::from(!exact))
+}
+
+/// ⌊log₂ x⌋ for a positive normal `x` (−1,023 for 0 and subnormals).
+fn exponent(x: f64) -> i32 {
+    ((x.to_bits() >> 52) & 0x7ff) as i32 - 1023
+}
+
+/// 2ᵉ, `e` clamped to f32's normal exponents.
+fn pow2(e: i32) -> f32 {
+    f32::from_bits(((e.clamp(-126, 127) + 127) as u32) << 23)
 }
 
 /// `n` with each component moved to the nearest multiple of [`NORMAL_UNIT`]: what a block
@@ -167,9 +174,31 @@ impl BlockHits {
     }
 }
 
+/// `v` rounded to an integer (ties to even) by adding and taking away 1.5·2²³, where `round`
+/// was a library call that took a fifth of a build's instructions. From 2²³ on, every float is
+/// an integer.
+#[inline(always)]
+fn round_to_integer(v: f32) -> f32 {
+    if v.abs() <= 4_194_304.0 {
+        round_small(v)
+    } else if v.abs() < 8_388_608.0 {
+        v.round_ties_even()
+    } else {
+        v
+    }
+}
+
+/// [`round_to_integer`] for |v| ≤ 2²² (and NaN, which stays NaN).
+#[inline(always)]
+fn round_small(v: f32) -> f32 {
+    const MAGIC: f32 = 12_582_912.0; // 1.5·2²³
+    (v + MAGIC) - MAGIC
+}
+
 /// A normal component as a block stores it (NaN as 0).
 fn quantize_normal(x: f32) -> i16 {
-    (x.clamp(-1.0, 1.0) / NORMAL_UNIT).round() as i16
+    // Within ±2¹⁴ for a unit normal; the cast saturates anything else.
+    round_small(x * NORMAL_SCALE) as i16
 }
 
 /// A stored offset as a float.
@@ -196,6 +225,7 @@ impl SplatBlock {
         let hi = splats.iter().fold(Vec3::NEG_INFINITY, |m, s| m.max(s.center));
         let extent = (hi - lo).max_element();
         let step = block_step(if extent.is_finite() { f64::from(extent) } else { 0.0 });
+        let inv_step = 1.0 / step; // exact: a power of two
         let mut block = Self {
             origin: lo.to_array(),
             step,
@@ -206,8 +236,9 @@ impl SplatBlock {
         };
         for (i, s) in splats.iter().enumerate() {
             for k in 0..3 {
-                let off = (f64::from(s.center[k]) - f64::from(lo[k])) / f64::from(step);
-                block.offset[k][i] = off.round().clamp(0.0, MAX_OFFSET) as u16;
+                // Exact for snapped centres (multiples of the step, fewer than 2¹⁶ of them).
+                let off = (s.center[k] - lo[k]) * inv_step;
+                block.offset[k][i] = round_small(off) as u16; // the cast saturates
                 block.normal[k][i] = quantize_normal(s.normal[k]);
             }
             block.radius[i] = s.radius;
@@ -220,13 +251,43 @@ impl SplatBlock {
     #[inline(always)]
     pub(crate) fn center_lanes(&self, k: usize) -> [f32; BLOCK] {
         let (o, step) = (self.origin[k], self.step);
-        self.offset[k].map(|q| o + widen(q) * step)
+        // A loop, not `array::map`, which the build's calls did not inline.
+        let mut lanes = [0.0; BLOCK];
+        for (x, &q) in lanes.iter_mut().zip(&self.offset[k]) {
+            *x = o + widen(q) * step;
+        }
+        lanes
     }
 
     /// Component `k` of the eight normals.
     #[inline(always)]
     pub(crate) fn normal_lanes(&self, k: usize) -> [f32; BLOCK] {
         self.normal[k].map(unit)
+    }
+
+    /// [`Self::center_lanes`] for every axis, in f64 (the level-of-detail build's sums).
+    #[inline(always)]
+    pub(crate) fn centers_f64(&self) -> [[f64; BLOCK]; 3] {
+        let mut lanes = [[0.0; BLOCK]; 3];
+        for (k, axis) in lanes.iter_mut().enumerate() {
+            let (o, step) = (self.origin[k], self.step);
+            for (x, &q) in axis.iter_mut().zip(&self.offset[k]) {
+                *x = f64::from(o + widen(q) * step);
+            }
+        }
+        lanes
+    }
+
+    /// [`Self::normal_lanes`] for every axis, in f64.
+    #[inline(always)]
+    pub(crate) fn normals_f64(&self) -> [[f64; BLOCK]; 3] {
+        let mut lanes = [[0.0; BLOCK]; 3];
+        for (axis, q) in lanes.iter_mut().zip(&self.normal) {
+            for (x, &q) in axis.iter_mut().zip(q) {
+                *x = f64::from(unit(q));
+            }
+        }
+        lanes
     }
 
     /// The eight radii.

@@ -83,8 +83,8 @@ impl Moments {
     /// dragon's build, this 67 (callgrind).
     pub(crate) fn add_block(&mut self, block: &SplatBlock, count: usize) {
         let table = srgb8_to_linear_table();
-        let [cx, cy, cz] = [0, 1, 2].map(|k| block.center_lanes(k).map(f64::from));
-        let [nx, ny, nz] = [0, 1, 2].map(|k| block.normal_lanes(k).map(f64::from));
+        let [cx, cy, cz] = block.centers_f64();
+        let [nx, ny, nz] = block.normals_f64();
         let (radius, color) = (block.radii(), block.colors());
         for i in 0..count {
             let disk = (DVec3::new(cx[i], cy[i], cz[i]), DVec3::new(nx[i], ny[i], nz[i]), radius[i], color[i]);
@@ -152,7 +152,7 @@ impl Spread {
     /// lane by lane (which the compiler vectorizes), then taken in the lanes' order.
     pub(crate) fn add_block(&mut self, frame: &Frame, block: &SplatBlock, count: usize) {
         let (o, a) = (frame.center, frame.axis.to_array());
-        let [cx, cy, cz] = [0, 1, 2].map(|k| block.center_lanes(k).map(f64::from));
+        let [cx, cy, cz] = block.centers_f64();
         let mut off = [0.0; BLOCK];
         for i in 0..BLOCK {
             off[i] = along_and_off([cx[i] - o.x, cy[i] - o.y, cz[i] - o.z], a).1;

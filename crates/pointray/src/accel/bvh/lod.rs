@@ -160,8 +160,8 @@ fn child_lod(box_center: Vec3, disks: &Disks, blocks: Range<usize>, moments: &Mo
 /// took 779 splat by splat (callgrind).
 #[inline(always)]
 fn farthest_lanes(p: DVec3, block: &SplatBlock, shape: DiskShape) -> [f64; BLOCK] {
-    let [cx, cy, cz] = [0, 1, 2].map(|k| block.center_lanes(k).map(f64::from));
-    let [nx, ny, nz] = [0, 1, 2].map(|k| block.normal_lanes(k).map(f64::from));
+    let [cx, cy, cz] = block.centers_f64();
+    let [nx, ny, nz] = block.normals_f64();
     let r = block.radii().map(f64::from);
     let mut far = [0.0; BLOCK];
     for i in 0..BLOCK {
@@ -173,7 +173,7 @@ fn farthest_lanes(p: DVec3, block: &SplatBlock, shape: DiskShape) -> [f64; BLOCK
 /// The cosine between `axis` and each lane's normal.
 #[inline(always)]
 fn cos_lanes(axis: DVec3, block: &SplatBlock) -> [f64; BLOCK] {
-    let [nx, ny, nz] = [0, 1, 2].map(|k| block.normal_lanes(k).map(f64::from));
+    let [nx, ny, nz] = block.normals_f64();
     let mut cos = [0.0; BLOCK];
     for i in 0..BLOCK {
         cos[i] = nx[i] * axis.x + ny[i] * axis.y + nz[i] * axis.z;
