@@ -31,8 +31,8 @@ pub(crate) const BLOCK: usize = 8;
 /// and its normal `NORMAL_UNIT·normal` (16-bit components), both exact in f32, so the kernel
 /// computes on the very values [`SplatBlock::splat`] gives back. 176 bytes for eight disks where
 /// f32 centres and normals took 256. A leaf block holds its splats without loss when they are
-/// [`snap`]ped and the leaf spans at most [`SnapGrid::leaf_span`] (the BVH's build sees to
-/// both); a block of representatives rounds their centres to its step (see [`SplatBlock::new`]).
+/// [`snap`]ped and the leaf spans at most [`leaf_span`] of its finest grid (the BVH's build sees
+/// to both); a block of representatives rounds their centres to its step (see [`SplatBlock::new`]).
 /// The kernel reads the first 144 bytes; the colours, at the end, only the visitors' look-ups.
 #[repr(C, align(16))]
 #[derive(Clone, Copy, Debug)]
@@ -53,53 +53,34 @@ pub(crate) const NORMAL_UNIT: f32 = 1.0 / NORMAL_SCALE;
 /// The largest centre offset a block stores.
 const MAX_OFFSET: f32 = u16::MAX as f32;
 
-/// The grid every accelerator snaps its splats' centres to (see [`snap`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct SnapGrid {
-    /// A power of two, about a two-thousandth of the median radius.
-    pub(crate) step: f32,
+/// The grid step of a splat of radius `r`: 2⁻¹⁰ of the largest power of two not above it (so a
+/// centre moves by at most a 2,048th of its radius); 2⁻¹²⁶ for a radius that is not positive.
+/// Each splat's own, so that snapping depends on nothing else and a sparse region's wide disks
+/// get a grid as coarse as they are.
+pub(crate) fn grid_step(r: f32) -> f32 {
+    if r > 0.0 && r.is_finite() { pow2(exponent(f64::from(r)) - 10) } else { f32::MIN_POSITIVE }
 }
 
-impl SnapGrid {
-    /// The grid for `splats`: 2⁻¹⁰ of the largest power of two not above their median radius
-    /// (taken over at most 65,536 evenly spaced splats, so that the choice is O(1) per splat and
-    /// snapping does not change it). A centre moves by at most a 2,048th of that radius.
-    pub(crate) fn of(splats: &[Splat]) -> SnapGrid {
-        let stride = (splats.len() / 65_536).max(1);
-        let radii: Vec<f32> =
-            splats.iter().step_by(stride).map(|s| s.radius).filter(|r| r.is_finite() && *r > 0.0).collect();
-        let median = if radii.is_empty() { 1.0 } else { radius_median(radii) };
-        SnapGrid { step: power_of_two_at_most(f64::from(median) / 1024.0) }
-    }
-
-    /// The widest a leaf may be along any axis, as measured on its centres in f32, for its
-    /// blocks to hold their snapped centres exactly: half the 65,535 steps a block can span
-    /// (the half covers the rounding of the measure), 16 median radii or more.
-    pub(crate) fn leaf_span(self) -> f32 {
-        self.step * 32_768.0
-    }
-
-    /// `c` moved to the nearest multiple of the step along each axis (a no-op for coordinates
-    /// whose f32 spacing is the step or coarser: they are multiples already), −0 made +0 as a
-    /// block gives it back.
-    pub(crate) fn snap_center(self, c: Vec3) -> Vec3 {
-        // Exact but for the rounding: g is a power of two, and a multiple of it below 2²⁴ steps
-        // is a float.
-        let (g, inv) = (self.step, 1.0 / self.step);
-        c.to_array().map(|x| round_to_integer(x * inv) * g + 0.0).into()
-    }
+/// The widest a leaf whose finest grid step is `step` may be along any axis, as measured on its
+/// centres in f32, for its blocks to hold their snapped centres exactly: half the 65,535 steps a
+/// block can span (the half covers the rounding of the measure), 16 of its narrowest radii.
+pub(crate) fn leaf_span(step: f32) -> f32 {
+    step * 32_768.0
 }
 
-/// The median of `radii` (not empty).
-fn radius_median(mut radii: Vec<f32>) -> f32 {
-    let at = radii.len() / 2;
-    *radii.select_nth_unstable_by(at, f32::total_cmp).1
-}
-
-/// The largest power of two not above `x` (within f32's normal range): `x` with its mantissa
-/// cleared.
-fn power_of_two_at_most(x: f64) -> f32 {
-    pow2(exponent(x))
+/// `c` moved to the nearest multiple of `step` along each axis (a no-op for coordinates whose
+/// f32 spacing is the step or coarser: they are multiples already), −0 made +0 as a block gives
+/// it back.
+fn snap_center(c: Vec3, step: f32) -> Vec3 {
+    // Exact but for the rounding: the step is a power of two, and a multiple of it below 2²⁴
+    // steps is a float. From 2²³ steps on (or where x/step overflows, for a tiny step), x is a
+    // multiple already.
+    let inv = 1.0 / step;
+    let snap = |x: f32| {
+        let v = x * inv;
+        if v.abs() < 8_388_608.0 { round_to_integer(v) * step + 0.0 } else { x + 0.0 }
+    };
+    c.to_array().map(snap).into()
 }
 
 /// The smallest power of two `s` (within f32's normal range) with `extent ≤ MAX_OFFSET·s`. (From
@@ -128,16 +109,13 @@ pub(crate) fn snap_normal(n: Vec3) -> Vec3 {
 }
 
 /// Snaps `splats` to what the blocks store, the same for every accelerator built from them so
-/// that all find the same hits: centres onto the set's [`SnapGrid`], normals onto multiples of
-/// [`NORMAL_UNIT`]; radii and colours as they are. Snapping twice changes nothing (the grid
-/// depends on the radii alone). Returns the grid.
-pub(crate) fn snap(splats: &mut [Splat]) -> SnapGrid {
-    let grid = SnapGrid::of(splats);
+/// that all find the same hits: each centre onto its splat's grid ([`grid_step`]), normals onto
+/// multiples of [`NORMAL_UNIT`]; radii and colours as they are. Snapping twice changes nothing.
+pub(crate) fn snap(splats: &mut [Splat]) {
     splats.par_iter_mut().for_each(|s| {
-        s.center = grid.snap_center(s.center);
+        s.center = snap_center(s.center, grid_step(s.radius));
         s.normal = snap_normal(s.normal);
     });
-    grid
 }
 
 /// The leaf kernel a traversal runs: [`Portable`], or one written for an instruction set
@@ -175,17 +153,11 @@ impl BlockHits {
 }
 
 /// `v` rounded to an integer (ties to even) by adding and taking away 1.5·2²³, where `round`
-/// was a library call that took a fifth of a build's instructions. From 2²³ on, every float is
-/// an integer.
+/// was a library call that took a fifth of a build's instructions (from 2²³ on, every float
+/// is an integer).
 #[inline(always)]
 fn round_to_integer(v: f32) -> f32 {
-    if v.abs() <= 4_194_304.0 {
-        round_small(v)
-    } else if v.abs() < 8_388_608.0 {
-        v.round_ties_even()
-    } else {
-        v
-    }
+    if v.abs() <= 4_194_304.0 { round_small(v) } else { v.round_ties_even() }
 }
 
 /// [`round_to_integer`] for |v| ≤ 2²² (and NaN, which stays NaN).
@@ -426,22 +398,21 @@ pub(crate) mod tests {
             let colored =
                 |(i, s): (usize, Splat)| Splat { color: ((round * BLOCK + i) as u32).wrapping_mul(0x0101_0101), ..s };
             let mut splats: Vec<Splat> = splats.into_iter().enumerate().map(colored).collect();
-            // Half the rounds narrowed to a leaf's span: those must be held exactly.
-            let grid = SnapGrid::of(&splats);
+            // Half the rounds narrowed to a leaf's span of their finest grid: those must be held
+            // exactly.
             let narrow = round % 2 == 0;
             if narrow {
-                let scale = grid.leaf_span() / 2.0;
+                let finest = splats.iter().map(|s| grid_step(s.radius)).fold(f32::INFINITY, f32::min);
+                let scale = leaf_span(finest) / 2.0;
                 splats.iter_mut().for_each(|s| s.center *= scale);
                 snap(&mut splats);
-                assert_eq!(SnapGrid::of(&splats), grid, "snapping changed the grid");
             }
             let block = SplatBlock::new(&splats);
             for (lane, s) in splats.iter().enumerate() {
                 let got = block.splat(lane);
                 assert_eq!((got.radius.to_bits(), got.color), (s.radius.to_bits(), s.color));
                 if narrow {
-                    let bits = |v: Vec3| v.to_array().map(f32::to_bits);
-                    assert_eq!((bits(got.center), bits(got.normal)), (bits(s.center), bits(s.normal)));
+                    assert_eq!(got.bits(), s.bits());
                     exact += 1;
                 }
                 assert!(
@@ -454,17 +425,20 @@ pub(crate) mod tests {
         assert!(exact > 300, "{exact} exact lanes");
     }
 
-    /// Snapping twice changes nothing, and moves a centre by at most half the grid's step.
+    /// Snapping twice changes nothing, and moves a centre by at most half its grid step (a
+    /// 2,048th of its radius at most).
     #[test]
     fn snapping_is_idempotent() {
         let (splats, _, _) = random_disks_and_rays(8, 64, 64).pop().unwrap();
         let mut once = splats.clone();
-        let grid = snap(&mut once);
+        snap(&mut once);
         let mut twice = once.clone();
-        assert_eq!(snap(&mut twice), grid);
+        snap(&mut twice);
         assert_eq!(once, twice);
         for (a, b) in splats.iter().zip(&once) {
-            assert!((a.center - b.center).abs().max_element() <= 0.5 * grid.step);
+            let step = grid_step(a.radius);
+            assert!(step <= a.radius / 1024.0 && step > a.radius / 2048.0);
+            assert!((a.center - b.center).abs().max_element() <= 0.5 * step);
             assert_eq!(snap_normal(b.normal), b.normal);
         }
     }

@@ -154,7 +154,7 @@ pub trait Accel: Send + Sync {
     /// representative. Indices are the accelerator's own (it may store its splats in any
     /// order, with gaps); a copy, not a reference, so that it may store them in any form.
     /// Every accelerator holds its input splats snapped as the BVH's compact blocks store them
-    /// (centres moved by at most a 2,048th of the median radius, normals by 2⁻¹⁵ a component;
+    /// (centres moved by at most a 2,048th of their radius, normals by 2⁻¹⁵ a component;
     /// `block::snap`), so that all find the same hits.
     fn splat(&self, index: u32) -> Splat;
     /// Whether `index` is a level-of-detail representative rather than an input splat.

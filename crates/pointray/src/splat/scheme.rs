@@ -361,11 +361,12 @@ mod tests {
     #[test]
     fn sj_window_does_not_depend_on_visiting_order() {
         let disk = |z: f32, r: f32| Splat { center: Vec3::new(0.0, 0.0, z), radius: r, normal: Vec3::Z, color: 0 };
-        // The nearest disk (z = 1.05) is wide, so its window reaches the disk at z = 0.5,
-        // which a narrow disk found first (z = 1) would have cut off. And a tie at z = 1.05.
+        // The nearest disk (z = 1.0625) is wide, so its window reaches the disk at z = 0.5,
+        // which a narrow disk found first (z = 1) would have cut off. And a tie at z = 1.0625
+        // (on every disk's grid, so snapping keeps the tie).
         let cases = [
-            vec![disk(1.0, 0.1), disk(0.5, 0.3), disk(1.05, 1.0)],
-            vec![disk(1.05, 0.1), disk(0.5, 0.3), disk(1.05, 1.0)],
+            vec![disk(1.0, 0.1), disk(0.5, 0.3), disk(1.0625, 1.0)],
+            vec![disk(1.0625, 0.1), disk(0.5, 0.3), disk(1.0625, 1.0)],
         ];
         let ray = Ray::new(Vec3::new(0.01, 0.0, 10.0), -Vec3::Z, RayCone::default());
         let scheme = SurfaceScheme { min_coverage: 0.0, ..SurfaceScheme::sj() };

@@ -8,7 +8,7 @@ use rayon::join;
 use rayon::prelude::*;
 
 use super::{Bvh, MAX_LEAF_SIZE, MAX_SPLATS, MEDIAN_SPLIT_DEPTH, Node, NodeBounds, WIDTH, leaf_ref};
-use crate::accel::block::{BLOCK, SplatBlock, snap};
+use crate::accel::block::{BLOCK, SplatBlock, grid_step, leaf_span, snap};
 use crate::accel::representative::{LOD_FLOOR_QUANTILE, radius_quantile, wide_radius};
 use crate::math::Aabb;
 use crate::splat::{DiskShape, Splat};
@@ -110,7 +110,8 @@ impl Box3 {
 /// into lanes took four instructions: the 1-million-point torus's build 3.58 → 3.40 billion
 /// instructions, callgrind). The splat's index rides in the lower corner's fourth lane, as
 /// the bits of a float with bit 30 set: a normal number between 2 and 2¹⁷, which no lane's
-/// arithmetic slows down, where a bare index would be subnormal.
+/// arithmetic slows down, where a bare index would be subnormal. The upper corner's fourth lane
+/// holds the splat's grid step (`block::grid_step`), which decides how wide a leaf may be.
 #[derive(Clone, Copy)]
 struct Prim {
     min: Vec4,
@@ -122,9 +123,13 @@ const INDEX_TAG: u32 = 1 << 30;
 const _: () = assert!(MAX_SPLATS <= 1 << 27, "an index lane's exponent must stay below 2^17");
 
 impl Prim {
-    fn new(bounds: Aabb, index: u32) -> Prim {
+    fn new(bounds: Aabb, index: u32, grid_step: f32) -> Prim {
         debug_assert!((index as usize) < MAX_SPLATS);
-        Prim { min: bounds.min.extend(f32::from_bits(index | INDEX_TAG)), max: bounds.max.extend(0.0) }
+        Prim { min: bounds.min.extend(f32::from_bits(index | INDEX_TAG)), max: bounds.max.extend(grid_step) }
+    }
+
+    fn grid_step(&self) -> f32 {
+        self.max.w
     }
 
     fn index(&self) -> u32 {
@@ -181,11 +186,14 @@ impl Bvh {
     pub fn build(mut input: Vec<Splat>, params: &BvhParams) -> Bvh {
         assert!((2..=MAX_BINS).contains(&params.bins) && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
         assert!(input.len() <= MAX_SPLATS, "a BVH indexes at most {MAX_SPLATS} splats");
-        let grid = snap(&mut input);
-        let mut prims: Vec<Prim> =
-            input.par_iter().enumerate().map(|(i, s)| Prim::new(s.bounds_as(params.shape), i as u32)).collect();
+        snap(&mut input);
+        let mut prims: Vec<Prim> = input
+            .par_iter()
+            .enumerate()
+            .map(|(i, s)| Prim::new(s.bounds_as(params.shape), i as u32, grid_step(s.radius)))
+            .collect();
         let extent = Extent::of(&prims);
-        let root = build_node(&mut prims, extent, 0, &Build { params, leaf_span: grid.leaf_span() }, 0);
+        let root = build_node(&mut prims, extent, 0, params, 0);
         // The leaf order alone (4 bytes a splat), so that the primitives (32) are gone before
         // the blocks are made.
         let order: Vec<u32> = prims.iter().map(Prim::index).collect();
@@ -316,22 +324,19 @@ impl Extent {
     }
 }
 
-/// What every step of the build reads.
-struct Build<'a> {
-    params: &'a BvhParams,
-    /// The widest a leaf's centres may spread along an axis.
-    leaf_span: f32,
-}
-
 /// Builds the subtree over `prims` (of extent `extent`), which start at `offset` in the final
 /// splat order.
-fn build_node(prims: &mut [Prim], extent: Extent, offset: usize, build: &Build, depth: usize) -> BuildNode {
-    let (bounds, params) = (extent.bounds.aabb(), build.params);
+fn build_node(prims: &mut [Prim], extent: Extent, offset: usize, params: &BvhParams, depth: usize) -> BuildNode {
+    let bounds = extent.bounds.aabb();
     let n = prims.len();
     let leaf = || BuildNode::Leaf { bounds, first: offset, count: n };
-    // A leaf's blocks hold their centres exactly only within a span (`SnapGrid::leaf_span`);
-    // wider ones (a few strays) are split whatever the cost.
-    let must_split = n > params.max_leaf_size || n > 1 && extent.centroids.widest() > build.leaf_span;
+    // A leaf's blocks hold their centres exactly only within a span of its finest grid
+    // (`block::leaf_span`); wider ones (a few strays) are split whatever the cost.
+    let too_wide = || {
+        let finest = prims.iter().map(Prim::grid_step).fold(f32::INFINITY, f32::min);
+        extent.centroids.widest() > leaf_span(finest)
+    };
+    let must_split = n > params.max_leaf_size || n > 1 && too_wide();
     // A split costs more than a traversal step, so a leaf that costs no more stays a leaf:
     // the same tree without binning it (with the default costs, every node of up to 16 splats;
     // loading the prepared dragon and building its BVH 2.54 → 2.28 billion instructions).
@@ -365,13 +370,13 @@ fn build_node(prims: &mut [Prim], extent: Extent, offset: usize, build: &Build, 
     let [l_extent, r_extent] = halves.unwrap_or_else(|| [Extent::of(left), Extent::of(right)]);
     let (l, r) = if n >= PARALLEL_THRESHOLD {
         join(
-            || build_node(left, l_extent, offset, build, depth + 1),
-            || build_node(right, r_extent, offset + mid, build, depth + 1),
+            || build_node(left, l_extent, offset, params, depth + 1),
+            || build_node(right, r_extent, offset + mid, params, depth + 1),
         )
     } else {
         (
-            build_node(left, l_extent, offset, build, depth + 1),
-            build_node(right, r_extent, offset + mid, build, depth + 1),
+            build_node(left, l_extent, offset, params, depth + 1),
+            build_node(right, r_extent, offset + mid, params, depth + 1),
         )
     };
     BuildNode::Inner { bounds, children: Box::new([l, r]) }
@@ -604,12 +609,30 @@ mod tests {
         }
     }
 
+    /// A dense patch beside a sparse one, with disks 100 times wider: each splat's own grid
+    /// lets the sparse leaves be as wide as their disks. (On one grid for the whole set, from
+    /// the median radius, the sparse leaves were split down to single splats: 107 bytes a splat
+    /// where this takes 33.)
     #[test]
-    fn a_prim_keeps_its_index_and_bounds() {
+    fn sparse_regions_keep_their_leaves() {
+        let disk =
+            |x: f32, y: f32, radius: f32| Splat { center: Vec3::new(x, y, 0.0), radius, normal: Vec3::Z, color: 0 };
+        let dense = (0..10_000).map(|i| disk((i % 100) as f32 * 0.01, (i / 100) as f32 * 0.01, 0.012));
+        let sparse = (0..10_000).map(|i| disk(10.0 + (i % 100) as f32, (i / 100) as f32, 1.2));
+        let splats: Vec<Splat> = dense.chain(sparse).collect();
+        let n = splats.len();
+        let bvh = Bvh::build(splats, &BvhParams::standard());
+        // Leaves of about eight splats under 8-wide nodes: one node for every 40 splats or so;
+        // single-splat leaves in the sparse half would take one for every 13.
+        assert!(bvh.nodes.len() < n / 25, "{} nodes for {n} splats", bvh.nodes.len());
+    }
+
+    #[test]
+    fn a_prim_keeps_its_index_bounds_and_grid() {
         let b = Aabb::new(Vec3::new(-1.0, 2.0, 3.0), Vec3::new(4.0, 5.0, 6.5));
         for index in [0, 1, 12_345, (1 << 23) - 1, 1 << 23, MAX_SPLATS as u32 - 1] {
-            let p = Prim::new(b, index);
-            assert_eq!(p.index(), index);
+            let p = Prim::new(b, index, 0.125);
+            assert_eq!((p.index(), p.grid_step()), (index, 0.125));
             assert!(p.min.w.is_normal());
             assert_eq!(p.bounds().aabb(), b);
             assert_eq!(Vec3::from(p.centroid()), b.center());
