@@ -58,7 +58,10 @@ const MAX_OFFSET: f32 = u16::MAX as f32;
 /// Each splat's own, so that snapping depends on nothing else and a sparse region's wide disks
 /// get a grid as coarse as they are.
 pub(crate) fn grid_step(r: f32) -> f32 {
-    if r > 0.0 && r.is_finite() { pow2(exponent(f64::from(r)) - 10) } else { f32::MIN_POSITIVE }
+    // 2^⌊log₂ r⌋ is r with its mantissa cleared (+∞ for an infinite or NaN radius). (Through
+    // f64's bits and a clamp, 22 instructions a splat, twice in a build.)
+    let power = f32::from_bits(r.to_bits() & 0x7f80_0000);
+    if r > 0.0 && power < f32::INFINITY { (power * (1.0 / 1024.0)).max(f32::MIN_POSITIVE) } else { f32::MIN_POSITIVE }
 }
 
 /// The widest a leaf whose finest grid step is `step` may be along any axis, as measured on its
