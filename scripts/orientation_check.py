@@ -34,41 +34,47 @@ def read_ply(path):
             elements.append((p[1], int(p[2]), []))
         elif p[0] == "property":
             elements[-1][2].append(p[1:])
-    data = {}
-    if fmt == "ascii":
-        tokens = body.split()
-        at = 0
-        for name, count, props in elements:
-            rows = []
-            for _ in range(count):
-                row = []
-                for prop in props:
-                    if prop[0] == "list":
-                        n = int(tokens[at]); at += 1
-                        row.append([int(t) for t in tokens[at:at + n]]); at += n
-                    else:
-                        row.append(float(tokens[at])); at += 1
-                rows.append(row)
-            data[name] = rows
-        return elements, data
-    if fmt != "binary_little_endian":
+    if fmt not in ("ascii", "binary_little_endian"):
         sys.exit(f"{path}: {fmt} PLY is not supported here")
-    at = 0
+    reader = Ascii(body) if fmt == "ascii" else Binary(body)
+    data = {}
     for name, count, props in elements:
         rows = []
         for _ in range(count):
             row = []
             for prop in props:
                 if prop[0] == "list":
-                    (n,) = struct.unpack_from("<" + FMT[prop[1]], body, at); at += struct.calcsize(FMT[prop[1]])
-                    f = "<%d%s" % (n, FMT[prop[2]])
-                    row.append(list(struct.unpack_from(f, body, at))); at += struct.calcsize(f)
+                    n = int(reader.scalar(prop[1]))
+                    row.append([int(reader.scalar(prop[2])) for _ in range(n)])
                 else:
-                    f = "<" + FMT[prop[0]]
-                    row.append(struct.unpack_from(f, body, at)[0]); at += struct.calcsize(f)
+                    row.append(reader.scalar(prop[0]))
             rows.append(row)
         data[name] = rows
     return elements, data
+
+
+class Ascii:
+    """Values of an ASCII PLY body, one after another."""
+
+    def __init__(self, body):
+        self.tokens, self.at = body.split(), 0
+
+    def scalar(self, kind):
+        self.at += 1
+        return float(self.tokens[self.at - 1])
+
+
+class Binary:
+    """Values of a binary little-endian PLY body, one after another."""
+
+    def __init__(self, body):
+        self.body, self.at = body, 0
+
+    def scalar(self, kind):
+        f = "<" + FMT[kind]
+        (v,) = struct.unpack_from(f, self.body, self.at)
+        self.at += struct.calcsize(f)
+        return v
 
 
 def sub(a, b):
