@@ -159,8 +159,9 @@ impl Spread {
         for i in 0..BLOCK {
             off[i] = along_and_off([cx[i] - o.x, cy[i] - o.y, cz[i] - o.z], a).1;
         }
-        for (&off, &r) in off.iter().zip(block.radii()).take(count) {
-            self.include(off, f64::from(r));
+        let radii = block.radii();
+        for i in 0..count.min(BLOCK) {
+            self.include(off[i], f64::from(radii[i]));
         }
     }
 
