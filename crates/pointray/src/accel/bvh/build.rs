@@ -302,9 +302,9 @@ impl Bvh {
 /// least SAH cost of a subtree as at most j children of a wide node, each child a leaf or the
 /// root of a wide node of its own (a traversal step where a ray enters it, plus its children).
 /// Found bottom-up as the build returns (a dynamic programme over the binary tree), then
-/// followed top-down by [`flatten`]. The greedy collapse it replaced (open the largest child
-/// until there are eight) left the 1-million-point torus with 32,668 nodes, half of them with
-/// two children: 14,734 now, and 30.4 bytes a splat where that took 39.3.
+/// followed top-down by [`flatten`] near the leaves. Opening the largest child until there
+/// are eight, all the way down, left the 1-million-point torus with 32,668 nodes, half of them
+/// with two children: 14,584 now, and 30.3 bytes a splat where that took 39.3.
 #[derive(Clone, Copy, Debug)]
 struct Slots([f32; WIDTH]);
 
@@ -332,10 +332,10 @@ const LARGEST_FIRST_ABOVE: usize = 64;
 /// the binary subtrees the costs of [`Slots`] pick, which fills the nodes. Above, the child
 /// with the largest surface is opened until there are eight: the children stay of like size,
 /// and so do their representatives, which is where level of detail stops distant rays. (The
-/// slots' choice all the way up took the dragon's distant samples from 1,199 to 1,219
-/// instructions, at 16 diagonals, and from 1,147 to 1,178 at 2, for 1 % fewer nodes; this,
-/// 1,199 and 1,157.) A root that is a single leaf becomes a node with one child. `spans` gets
-/// each leaf block's first splat and splat count, in the order of the blocks.
+/// dragon's distant samples, callgrind: chosen by the slots all the way up, 1,219 instructions
+/// at 16 diagonals and 1,178 at 2, for 3 % fewer nodes; this way, 1,199 and 1,157; the largest
+/// child first everywhere, 1,189 and 1,147.) A root that is a single leaf becomes a node with
+/// one child. `spans` gets each leaf block's first splat and splat count, in block order.
 fn flatten(node: BuildNode, nodes: &mut Vec<Node>, spans: &mut Vec<(usize, usize)>, params: &BvhParams) -> usize {
     // On the stack: allocated, the two vectors took a fifth of the time `flatten` took.
     let mut children: ArrayVec<BuildNode, WIDTH> = ArrayVec::new();
