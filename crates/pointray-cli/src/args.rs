@@ -363,6 +363,12 @@ pub struct CompareArgs {
     /// of a `--crop-to-model` render's stats, so that background does not inflate the PSNR.
     #[arg(long, value_parser = parse_region)]
     pub region: Option<pointray::camera::Region>,
+    /// Also count the first image's isolated dark speckles (pixels 60 levels of luma darker
+    /// than each of their four neighbours) and how many of them the second lacks at the same
+    /// place. The foreground is this PNG's non-black pixels: the first render's depth AOV
+    /// (`--aov depth`).
+    #[arg(long, value_name = "FOREGROUND.png")]
+    pub speckles: Option<PathBuf>,
 }
 
 #[derive(Copy, Clone, Debug, ValueEnum)]

@@ -1291,6 +1291,33 @@ fn compare_identical_and_different_images() {
     assert_dir_contains_exactly(dir.path(), &["a.png", "b.png", "c.png"]);
 }
 
+/// `--speckles`: a lone dark pixel on a lit patch is one in the first image; the second has it
+/// too, or not; a mask of another size is refused, naming it.
+#[test]
+fn compare_counts_the_first_images_speckles() {
+    let dir = temp_dir();
+    let mut speckled = vec![200u8; 6 * 5 * 3];
+    speckled[(2 * 6 + 2) * 3..][..3].fill(40);
+    pointray_io::write_png(&dir.path().join("a.png"), 6, 5, &speckled).unwrap();
+    write_flat_png(dir.path(), "smooth.png", 6, 5, 200);
+    write_flat_png(dir.path(), "mask.png", 6, 5, 255);
+    write_flat_png(dir.path(), "small.png", 5, 5, 255);
+    let count = |b: &str| {
+        let run = run_in(dir.path(), &["compare", "a.png", b, "--speckles", "mask.png", "--json"]);
+        run.assert_success();
+        let json: serde_json::Value = serde_json::from_str(&run.stdout).unwrap_or_else(|e| panic!("{e}: {run}"));
+        (json["speckles"]["first"].as_u64().unwrap(), json["speckles"]["not_in_second"].as_u64().unwrap())
+    };
+    assert_eq!(count("smooth.png"), (1, 1));
+    assert_eq!(count("a.png"), (1, 0));
+    run_in(dir.path(), &["compare", "a.png", "smooth.png", "--speckles", "mask.png"])
+        .assert_success()
+        .assert_stdout_contains("1 dark speckles in the first, 1 of them not in the second");
+    let run = run_in(dir.path(), &["compare", "a.png", "smooth.png", "--speckles", "small.png"]);
+    run.assert_failure(1).assert_stderr_contains("small.png is 5x5");
+    assert!(run.stdout.is_empty(), "{run}");
+}
+
 #[test]
 fn compare_refuses_images_of_different_sizes() {
     let dir = temp_dir();

@@ -1,4 +1,5 @@
-//! Image metrics: how far two renders are apart, and per-pixel counts as a colour image.
+//! Image metrics: how far two renders are apart, their isolated dark speckles, and per-pixel
+//! counts as a colour image.
 //!
 //! Both work on tightly packed sRGB8 (`[r, g, b, r, g, b, …]`), the format `Film::frame_srgb8`
 //! produces and PNGs store; comparing there measures what a viewer of the files would see.
@@ -48,6 +49,43 @@ pub fn compare_rgb8(a: &[u8], b: &[u8]) -> ImageDiff {
         differing_pixels,
         pixels: a.len() / 3,
     }
+}
+
+/// How much darker than each of its four neighbours a pixel must be, in levels of luma (sRGB8),
+/// to count as a speckle: a lone dark dot a viewer notices on a lit surface.
+pub const SPECKLE_DROP: u8 = 60;
+
+/// Isolated dark speckles of a `width`-wide RGB8 image: the indices of the pixels, row by row,
+/// that are at least `drop` levels of luma darker than each of their four neighbours, the pixel
+/// and all four in the `foreground` (one flag a pixel: where the render hit a surface). Edge
+/// pixels have no four neighbours and never count.
+///
+/// # Panics
+///
+/// If `rgb` and `foreground` disagree on the pixel count, or it is not a whole number of rows.
+pub fn dark_speckles(rgb: &[u8], width: usize, foreground: &[bool], drop: u8) -> Vec<usize> {
+    let pixels = foreground.len();
+    assert_eq!(rgb.len(), pixels * 3, "dark_speckles: {} bytes for {pixels} pixels", rgb.len());
+    assert!(width > 0 && pixels.is_multiple_of(width), "dark_speckles: {pixels} pixels in rows of {width}");
+    let height = pixels / width;
+    let luma: Vec<i32> = rgb.chunks_exact(3).map(luma).collect();
+    let mut found = Vec::new();
+    for y in 1..height.saturating_sub(1) {
+        for x in 1..width - 1 {
+            let i = y * width + x;
+            let around = [i - 1, i + 1, i - width, i + width];
+            let lone = foreground[i] && around.iter().all(|&j| foreground[j] && luma[j] - luma[i] >= i32::from(drop));
+            if lone {
+                found.push(i);
+            }
+        }
+    }
+    found
+}
+
+/// Rec. 709 luma of an sRGB8 pixel, 0–255 (rounded).
+fn luma(p: &[u8]) -> i32 {
+    (2126 * i32::from(p[0]) + 7152 * i32::from(p[1]) + 722 * i32::from(p[2]) + 5000) / 10_000
 }
 
 /// Control points of the heat map at evenly spaced positions, sRGB8: black through purple, red
@@ -104,6 +142,26 @@ fn heat_table() -> [[u8; 3]; HEAT_LEVELS] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A lit 5×5 patch with one dark pixel in the middle, one dark pixel beside the background,
+    /// and a dark pair (not isolated): only the middle one is a speckle.
+    #[test]
+    fn a_lone_dark_pixel_is_a_speckle_and_others_are_not() {
+        let (w, h) = (7, 6);
+        let mut rgb = vec![200u8; w * h * 3];
+        let mut fg = vec![true; w * h];
+        (0..h).for_each(|y| fg[y * w + 6] = false); // the right column is background
+        let set = |rgb: &mut Vec<u8>, x: usize, y: usize, v: u8| rgb[(y * w + x) * 3..][..3].fill(v);
+        set(&mut rgb, 2, 2, 100); // lone, 100 levels darker
+        set(&mut rgb, 5, 2, 0); // beside the background
+        set(&mut rgb, 2, 4, 50); // a pair
+        set(&mut rgb, 3, 4, 50);
+        set(&mut rgb, 4, 1, 150); // only 50 levels darker
+        assert_eq!(dark_speckles(&rgb, w, &fg, SPECKLE_DROP), vec![2 * w + 2]);
+        // One neighbour only 59 levels brighter: no speckle.
+        set(&mut rgb, 2, 1, 159);
+        assert!(dark_speckles(&rgb, w, &fg, SPECKLE_DROP).is_empty());
+    }
 
     #[test]
     fn identical_images_have_no_psnr_and_no_differences() {

@@ -3,7 +3,7 @@
 use std::io::{self, Write};
 
 use anyhow::Context;
-use pointray::metrics::compare_rgb8;
+use pointray::metrics::{self, compare_rgb8};
 
 use crate::args::CompareArgs;
 
@@ -27,6 +27,10 @@ pub fn run(a: &CompareArgs) -> anyhow::Result<()> {
             (crop(&rgb_a, wa, r), crop(&rgb_b, wa, r))
         }
     };
+    let speckles = match &a.speckles {
+        None => None,
+        Some(mask) => Some(speckles(&rgb_a, &rgb_b, wa, ha, mask)?),
+    };
     let diff = compare_rgb8(&rgb_a, &rgb_b);
     let (w, h) = a.region.map_or((wa, ha), |r| (r.width(), r.height()));
     let flip = crate::perceptual::flip_mean(&rgb_a, &rgb_b, w, h);
@@ -38,8 +42,10 @@ pub fn run(a: &CompareArgs) -> anyhow::Result<()> {
             diff: pointray::metrics::ImageDiff,
             /// Mean FLIP error of the second image against the first (0: the same).
             flip_mean: f64,
+            #[serde(skip_serializing_if = "Option::is_none")]
+            speckles: Option<Speckles>,
         }
-        serde_json::to_writer(&mut out, &Comparison { diff, flip_mean: flip })
+        serde_json::to_writer(&mut out, &Comparison { diff, flip_mean: flip, speckles })
             .context("cannot encode the comparison as JSON")?;
         writeln!(out)?;
     } else {
@@ -49,9 +55,36 @@ pub fn run(a: &CompareArgs) -> anyhow::Result<()> {
             "PSNR {psnr} dB, RMSE {:.4}, max diff {}, {} of {} pixels differ, mean FLIP {flip:.4}",
             diff.rmse, diff.max_abs_diff, diff.differing_pixels, diff.pixels
         )?;
+        if let Some(s) = speckles {
+            writeln!(out, "{} dark speckles in the first, {} of them not in the second", s.first, s.not_in_second)?;
+        }
     }
     out.flush()?;
     Ok(())
+}
+
+/// The first image's isolated dark speckles (`metrics::dark_speckles`), and how many of them
+/// the second lacks.
+#[derive(serde::Serialize)]
+struct Speckles {
+    first: usize,
+    not_in_second: usize,
+}
+
+/// Counts [`Speckles`] in the whole images, the foreground read from `mask`.
+fn speckles(a: &[u8], b: &[u8], width: u32, height: u32, mask: &std::path::Path) -> anyhow::Result<Speckles> {
+    let (wm, hm, rgb_mask) = pointray_io::read_png(mask)?;
+    anyhow::ensure!(
+        (wm, hm) == (width, height),
+        "the foreground {} is {wm}x{hm}, the images {width}x{height}",
+        mask.display()
+    );
+    let foreground: Vec<bool> = rgb_mask.chunks_exact(3).map(|p| p.iter().any(|&c| c != 0)).collect();
+    let (w, drop) = (width as usize, metrics::SPECKLE_DROP);
+    let first = metrics::dark_speckles(a, w, &foreground, drop);
+    let in_second = metrics::dark_speckles(b, w, &foreground, drop);
+    let not_in_second = first.iter().filter(|i| in_second.binary_search(i).is_err()).count();
+    Ok(Speckles { first: first.len(), not_in_second })
 }
 
 /// The RGB8 pixels of `region` of a `width`-wide image, row by row.
