@@ -117,6 +117,10 @@ pub struct RenderArgs {
     /// surface (lone disks crossed at their rims are skipped).
     #[arg(long, default_value_t = pointray::splat::scheme::SurfaceScheme::sj().min_coverage)]
     pub sj_min_coverage: f32,
+    /// SJ and RFD: the same for a window whose disks face away from the viewer (seen past a
+    /// silhouette or through a gap; a thin part seen from behind is covered and still shows).
+    #[arg(long, default_value_t = pointray::splat::scheme::SurfaceScheme::sj().min_coverage_facing_away)]
+    pub sj_min_coverage_facing_away: f32,
     /// Samples per pixel (jittered, anti-aliasing).
     #[arg(long, default_value_t = 1)]
     pub spp: u32,

@@ -374,6 +374,7 @@ mod tests {
             "accel",
             "sj_window",
             "sj_min_coverage",
+            "sj_min_coverage_facing_away",
             "region",
             "shadow_offset",
             "diffuse_spread",

@@ -97,6 +97,9 @@ fn warn_about_repairs(input: &str, s: &PreprocessStats) {
             tracing::warn!("{input}: {before}{n} {} {after}", if n == 1 { one } else { many });
         }
     }
+    if s.turned_outward {
+        tracing::warn!("{input}: the normals pointed into the shape; turned outward");
+    }
 }
 
 /// The process's peak resident set so far (`VmHWM` in `/proc/self/status`); `None` where the

@@ -146,6 +146,10 @@ pub fn check_args(a: &RenderArgs) -> anyhow::Result<()> {
     ensure!(a.threads.is_none_or(|t| (1..=1024).contains(&t)), "--threads must be between 1 and 1024");
     ensure!(a.sj_window.is_none_or(|w| w >= 0.0 && w.is_finite()), "--sj-window must be a non-negative number");
     ensure!(a.sj_min_coverage >= 0.0 && a.sj_min_coverage.is_finite(), "--sj-min-coverage must be non-negative");
+    ensure!(
+        a.sj_min_coverage_facing_away >= 0.0 && a.sj_min_coverage_facing_away.is_finite(),
+        "--sj-min-coverage-facing-away must be non-negative"
+    );
     ensure!(a.shadow_offset >= 0.0 && a.shadow_offset.is_finite(), "--shadow-offset must be non-negative");
     ensure!(a.lod_threshold > 0.0 && a.lod_threshold.is_finite(), "--lod-threshold must be a positive number");
     ensure!(a.ior > 0.0 && a.ior.is_finite(), "--ior must be a positive number");
@@ -291,6 +295,11 @@ fn render_cloud(a: &RenderArgs, quiet: bool, threads: usize, input: Input, input
     let scheme = SurfaceScheme {
         window: a.sj_window.unwrap_or(defaults.window),
         min_coverage: if matches!(a.surface, SurfaceArg::FirstHit) { 0.0 } else { a.sj_min_coverage },
+        min_coverage_facing_away: if matches!(a.surface, SurfaceArg::FirstHit) {
+            0.0
+        } else {
+            a.sj_min_coverage_facing_away
+        },
         ..defaults
     };
     // Level of detail lives in the BVH's and the kd-tree's nodes, normal cones in the BVH's

@@ -96,6 +96,9 @@ pub struct PreprocessStats {
     /// direction was used, see [`normals::pca_normal`]).
     pub degenerate_normals: usize,
     pub orientation_components: usize,
+    /// The given normals pointed into the shape and were turned outward
+    /// (`orient::turn_given_outward`).
+    pub turned_outward: bool,
 }
 
 impl PreprocessStats {
@@ -110,6 +113,7 @@ impl PreprocessStats {
         self.flipped_normals += o.flipped_normals;
         self.degenerate_normals += o.degenerate_normals;
         self.orientation_components += o.orientation_components;
+        self.turned_outward |= o.turned_outward;
         let (s, t) = (&mut self.seconds, &o.seconds);
         (s.clean, s.sort, s.knn, s.normals, s.orient, s.radii) = (
             s.clean + t.clean,
@@ -174,8 +178,10 @@ pub fn preprocess_with_progress(
     let radii_missing = invalid_radii(cloud);
     let need_normals = cloud.normals.is_none() || normals_missing.contains(&true);
     let need_radii = cloud.radii.is_none() || radii_missing.contains(&true);
-    if cloud.normals.is_some() {
+    if let Some(normals) = &mut cloud.normals {
         stats.invalid_normals = normals_missing.iter().filter(|&&m| m).count();
+        let given: Vec<bool> = normals_missing.iter().map(|m| !m).collect();
+        stats.turned_outward = orient::turn_given_outward(&cloud.positions, normals, &given);
     }
     if cloud.radii.is_some() {
         stats.invalid_radii = radii_missing.iter().filter(|&&m| m).count();
@@ -394,15 +400,23 @@ mod tests {
         assert!(normals.iter().all(|n| n.is_normalized()));
     }
 
+    /// Given normals and radii are kept, but normals that all point into the shape are turned
+    /// outward (and the turn reported).
     #[test]
     fn given_attributes_are_kept() {
-        let (points, given) = sphere(1_000, 4);
-        let mut cloud = PointCloud::from_positions(points);
-        cloud.normals = Some(given.iter().map(|n| -*n).collect());
-        cloud.radii = Some(vec![0.1; 1_000]);
-        let stats = preprocess(&mut cloud, &PreprocessConfig { sort: false, ..PreprocessConfig::standard() }).unwrap();
-        assert!(!stats.computed_normals && !stats.computed_radii);
-        assert!((cloud.normals.unwrap()[0] + given[0]).length() < 1e-6);
+        let (points, outward) = sphere(1_000, 4);
+        for (sign, turned) in [(1.0, false), (-1.0, true)] {
+            let mut cloud = PointCloud::from_positions(points.clone());
+            cloud.normals = Some(outward.iter().map(|n| *n * sign).collect());
+            cloud.radii = Some(vec![0.1; 1_000]);
+            let stats =
+                preprocess(&mut cloud, &PreprocessConfig { sort: false, ..PreprocessConfig::standard() }).unwrap();
+            assert!(!stats.computed_normals && !stats.computed_radii);
+            assert_eq!(stats.turned_outward, turned);
+            let normals = cloud.normals.unwrap();
+            assert!(normals.iter().zip(&outward).all(|(n, o)| (*n - *o).length() < 1e-6), "sign {sign}");
+            assert_eq!(cloud.radii.unwrap(), vec![0.1; 1_000]);
+        }
     }
 
     #[test]

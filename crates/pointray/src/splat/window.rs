@@ -123,15 +123,10 @@ impl<D: DiskTest> Window<D> {
         self.ties |= i > 0 && list[i - 1].t == c.t;
     }
 
-    /// The blended hit and the window's coverage Σ(1 − dᵢ/rᵢ) over the blended disks. With
-    /// `tangent_planes`, each crossing's distance is moved onto its splat's tangent plane
-    /// first (for ray-facing disks, whose crossings lie at the centres' projections).
-    pub(crate) fn blend<A: Accel + ?Sized>(
-        &mut self,
-        ray: &Ray,
-        accel: &A,
-        tangent_planes: bool,
-    ) -> Option<(SurfaceHit, f32)> {
+    /// The blended window (see [`Blend`]). With `tangent_planes`, each crossing's distance is
+    /// moved onto its splat's tangent plane first (for ray-facing disks, whose crossings lie at
+    /// the centres' projections).
+    pub(crate) fn blend<A: Accel + ?Sized>(&mut self, ray: &Ray, accel: &A, tangent_planes: bool) -> Option<Blend> {
         // Crossings past the end were collected in case the window grew.
         self.keep_until(self.end);
         let list = &mut self.crossings[..];
@@ -144,10 +139,16 @@ impl<D: DiskTest> Window<D> {
                 a.t.total_cmp(&b.t).then_with(|| tie_key(&accel.splat(a.splat)).cmp(&tie_key(&accel.splat(b.splat))))
             });
         }
-        let first = *list.first()?;
-        // Blend the disks facing the same way as the first, and of its material: the back of a
-        // thin part may lie within the window, and so may another cloud where two touch.
-        let side = first.normal.dot(ray.dir) > 0.0;
+        // Blend the disks facing the same way, and of one material: the back of a thin part may
+        // lie within the window, and so may another cloud where two touch. The side facing the
+        // viewer, if any disk does (the first such, and its material): at a silhouette the
+        // window can begin with a far-side disk sticking out past the rim, whose normal points
+        // away from the light. (Blending the first disk's side, the default renders had 80
+        // dark speckles on the Happy Buddha, 20 on the bunny, 4 on Igea; so, 17, 7, 0.)
+        let away = |x: &Crossing| x.normal.dot(ray.dir) > 0.0;
+        let lead = list.iter().position(|x| !away(x)).unwrap_or(0);
+        let first = *list.get(lead)?;
+        let side = away(&first);
         let material = first.material();
         let sums = if tangent_planes {
             blend_sums::<A, true>(list, accel, ray, side, material)
@@ -174,8 +175,16 @@ impl<D: DiskTest> Window<D> {
             splat: first.splat,
             blended: blended.max(1),
         };
-        Some((hit, coverage))
+        Some(Blend { hit, coverage, facing_away: side })
     }
+}
+
+/// A window blended: the hit, the coverage Σ(1 − dᵢ/rᵢ) over the blended disks, and whether
+/// they face away from the ray's origin (their oriented normals along the ray).
+pub(crate) struct Blend {
+    pub(crate) hit: SurfaceHit,
+    pub(crate) coverage: f32,
+    pub(crate) facing_away: bool,
 }
 
 /// The weighted sums of a window's crossings that face `side` and are of `material`.
