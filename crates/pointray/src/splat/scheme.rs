@@ -217,7 +217,8 @@ fn windowed<A: Accel + ?Sized, D: DiskTest>(
 ) -> Option<SurfaceHit> {
     let tangent_planes = scheme.tangent_planes && D::SHAPE == DiskShape::RayFacing;
     let mut ray = *ray;
-    let mut weak = None;
+    // The first weak window's hit, and whether it faced the viewer.
+    let mut weak: Option<(SurfaceHit, bool)> = None;
     for _ in 0..MAX_WEAK_WINDOWS {
         let mut v = Window::<D>::new(scheme.window, accel.wide_radius(), A::REPEATS_SPLATS);
         accel.traverse(&ray, &mut v, stats);
@@ -236,16 +237,21 @@ fn windowed<A: Accel + ?Sized, D: DiskTest>(
         let Some(Blend { hit, coverage, facing_away }) = v.blend(&ray, accel, tangent_planes) else {
             // Spelled out: `return weak` copied all of an absent hit, field by field, for every
             // ray that missed (22 instructions).
-            return if weak.is_some() { weak } else { None };
+            return if let Some((hit, _)) = weak { Some(hit) } else { None };
         };
         if coverage >= if facing_away { scheme.min_coverage_facing_away } else { scheme.min_coverage } {
-            return Some(hit);
+            // Past a thin spot facing the viewer, the inside of the shape: the ray went between
+            // the near side's disks, and the thin spot was the surface.
+            return match weak {
+                Some((thin, true)) if facing_away => Some(thin),
+                _ => Some(hit),
+            };
         }
-        weak.get_or_insert(hit);
+        weak.get_or_insert((hit, !facing_away));
         ray.t_min = v.end;
     }
     // Weak windows all the way: keep the first rather than open a hole.
-    weak
+    weak.map(|(hit, _)| hit)
 }
 
 /// Most windows a ray skips as too weakly covered before it settles for one.
@@ -427,6 +433,19 @@ mod tests {
             assert_eq!(results[0].1, 3, "the wide first disk's window holds all three");
             assert!(results.iter().all(|r| *r == results[0]), "{results:?}");
         }
+    }
+
+    /// A lone disk facing the viewer, crossed at its rim (a thin spot), with the far side of a
+    /// shape behind it, seen from within (facing away): the ray went between the near side's
+    /// disks, and the thin spot is the surface. With a surface facing the viewer behind it
+    /// instead, the lone disk is one sticking out, and the ray goes on (as before).
+    #[test]
+    fn sj_keeps_a_thin_spot_with_the_inside_behind_it() {
+        let mut splats = plane(0.0, -Vec3::Z);
+        splats.push(Splat { center: Vec3::new(0.0, 0.0, 0.5), radius: 0.2, normal: Vec3::Z, color: 0 });
+        let inside = BruteForce::new(splats);
+        assert!((hit_z(&inside, 0.19, SurfaceScheme::sj()) - 0.5).abs() < 1e-5);
+        assert!(hit_z(&plane_and_lone_disk(), 0.19, SurfaceScheme::sj()).abs() < 1e-5);
     }
 
     /// A tilted disk facing away from the viewer just in front of a plane facing it, within
