@@ -35,21 +35,35 @@ use crate::knn::Neighbourhoods;
 /// back-face culling): the Armadillo's file, its normals all pointing in (−0.59), rendered
 /// with dark specks along every silhouette.
 pub fn turn_given_outward(points: &[Vec3], normals: &mut [Vec3], given: &[bool]) -> bool {
-    let chosen = || points.iter().zip(normals.iter()).zip(given).filter(|(_, g)| **g).map(|(pn, _)| pn);
-    let count = chosen().count();
-    if count == 0 {
+    let [x, y, z, count] = given_sums(given, |i| {
+        let p = points[i].as_dvec3();
+        [p.x, p.y, p.z, 1.0]
+    });
+    if count == 0.0 {
         return false;
     }
-    let c = chosen().fold(glam::DVec3::ZERO, |s, (p, _)| s + p.as_dvec3()) / count as f64;
-    let (along, away) = chosen().fold((0.0, 0.0), |(a, b), (p, n)| {
-        let d = p.as_dvec3() - c;
-        (a + n.as_dvec3().normalize_or_zero().dot(d), b + d.length())
+    let c = glam::DVec3::new(x, y, z) / count;
+    let [along, away, ..] = given_sums(given, |i| {
+        let d = points[i].as_dvec3() - c;
+        [normals[i].as_dvec3().normalize_or_zero().dot(d), d.length(), 0.0, 0.0]
     });
     let inward = along < INWARD * away;
     if inward {
         normals.iter_mut().zip(given).filter(|(_, g)| **g).for_each(|(n, _)| *n = -*n);
     }
     inward
+}
+
+/// Σ `term(i)` over the indices `given` marks, in parallel over fixed chunks added in order: the
+/// same bits for any number of threads.
+fn given_sums(given: &[bool], term: impl Fn(usize) -> [f64; 4] + Sync) -> [f64; 4] {
+    const CHUNK: usize = 1 << 16;
+    let add = |a: [f64; 4], b: [f64; 4]| std::array::from_fn(|k| a[k] + b[k]);
+    let chunk =
+        |start: usize| (start..(start + CHUNK).min(given.len())).filter(|&i| given[i]).map(&term).fold([0.0; 4], add);
+    let starts: Vec<usize> = (0..given.len()).step_by(CHUNK).collect();
+    let parts: Vec<[f64; 4]> = starts.into_par_iter().map(chunk).collect();
+    parts.into_iter().fold([0.0; 4], add)
 }
 
 /// The mean nᵢ·(pᵢ − c) against the mean |pᵢ − c| below which given normals are turned (see

@@ -390,7 +390,7 @@ mod tests {
     /// The rays come down −z: a disk with normal −z faces away from them. Crossed at d/r = 0.25
     /// (coverage 0.75), a lone disk facing the viewer is surface, one facing away (a far-side
     /// disk sticking out past a silhouette) is not, and the ray goes on to the plane behind. A
-    /// whole sheet facing away (a thin part seen from behind) is covered and still shows.
+    /// whole sheet facing away (an open scan seen from behind) is covered and still shows.
     #[test]
     fn sj_skips_a_lone_disk_facing_away_but_keeps_a_sheet() {
         let away = plane_and_lone_disk_facing(-Vec3::Z);

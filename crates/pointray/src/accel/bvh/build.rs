@@ -232,28 +232,6 @@ impl Bvh {
         );
         // The capacity guessed above is about twice the 8-wide tree's nodes: 8 bytes a splat.
         nodes.shrink_to_fit();
-        if std::env::var_os("PR_FILL").is_some() {
-            let mut h = [0usize; 9];
-            for n in &nodes {
-                h[(n.used & 0xff).count_ones() as usize] += 1;
-            }
-            let mut below = vec![0usize; nodes.len()];
-            let mut work = 0usize;
-            for k in (0..nodes.len()).rev() {
-                let n = &nodes[k];
-                for i in (0..8).filter(|i| n.used >> i & 1 != 0) {
-                    let c = n.child[i];
-                    let b = if c & (1 << 31) != 0 {
-                        ((c & !(1 << 31)) >> super::FIRST_BITS) as usize + 1
-                    } else {
-                        below[c as usize]
-                    };
-                    below[k] += b;
-                    work += b;
-                }
-            }
-            eprintln!("fill {h:?} depth {depth} work {work}");
-        }
         let splat_count = input.len();
         // The blocks in parallel, each gathering its splats from the input in leaf order; from
         // then on they are the only copy of the splats. (Gathered first into a vector in leaf
@@ -772,7 +750,7 @@ mod tests {
     #[test]
     fn a_small_tree_costs_what_the_slots_found() {
         let params = BvhParams::standard();
-        // At most 2 blocks a leaf of at least 8 splats (leaves of fewer are rare): 50 blocks.
+        // Few enough splats for one subtree of at most 64 blocks (checked below).
         let splats = sphere(480);
         let (nodes, expected) = collapse(&splats, &params);
         let leaf_refs =

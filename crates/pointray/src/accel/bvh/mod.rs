@@ -1,7 +1,7 @@
 //! Bounding volume hierarchy over splats: binned SAH build, eight children per node.
 //!
-//! The build makes a binary SAH tree and collapses it into an 8-wide one (as Embree's BVH8),
-//! picking each node's children for the least SAH cost of the wide tree (`build::Slots`):
+//! The build makes a binary SAH tree and collapses it into an 8-wide one (as Embree's BVH8;
+//! near the leaves, each node's children chosen for the least SAH cost, `build::Slots`):
 //! each node stores the boxes of its up to eight children side by side (`lanes`), so one
 //! traversal step tests eight boxes and never fetches a child the ray misses, and the tree is
 //! a third as deep as the binary one. The build puts the splats in leaf order and stores them
