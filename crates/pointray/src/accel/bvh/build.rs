@@ -208,11 +208,7 @@ impl Bvh {
         assert!((2..=MAX_BINS).contains(&params.bins) && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
         assert!(input.len() <= MAX_SPLATS, "a BVH indexes at most {MAX_SPLATS} splats");
         snap(&mut input);
-        let mut prims: Vec<Prim> = input
-            .par_iter()
-            .enumerate()
-            .map(|(i, s)| Prim::new(s.bounds_as(params.shape), i as u32, grid_step(s.radius)))
-            .collect();
+        let mut prims = prims_of(&input, params);
         let extent = Extent::of(&prims);
         let root = build_node(&mut prims, extent, 0, params, 0);
         // The leaf order alone (4 bytes a splat), so that the primitives (32) are gone before
@@ -303,6 +299,15 @@ impl Slots {
 
 /// Subtrees of more blocks than this take the largest child first (see [`flatten`]).
 const LARGEST_FIRST_ABOVE: usize = 64;
+
+/// The build's primitives for `splats`, in their order.
+fn prims_of(splats: &[Splat], params: &BvhParams) -> Vec<Prim> {
+    splats
+        .par_iter()
+        .enumerate()
+        .map(|(i, s)| Prim::new(s.bounds_as(params.shape), i as u32, grid_step(s.radius)))
+        .collect()
+}
 
 /// Writes the 8-wide node for `node` and, depth first, the nodes below it; returns the depth.
 ///
@@ -727,11 +732,7 @@ mod tests {
 
     /// The wide tree of `splats`: its nodes, and the least SAH cost [`Slots`] found for it.
     fn collapse(splats: &[Splat], params: &BvhParams) -> (Vec<Node>, f32) {
-        let mut prims: Vec<Prim> = splats
-            .iter()
-            .enumerate()
-            .map(|(i, s)| Prim::new(s.bounds_as(params.shape), i as u32, grid_step(s.radius)))
-            .collect();
+        let mut prims = prims_of(splats, params);
         let extent = Extent::of(&prims);
         let root = build_node(&mut prims, extent, 0, params, 0);
         let cost = root.slots(params).0[0];
