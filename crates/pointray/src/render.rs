@@ -114,6 +114,14 @@ pub struct RenderConfig {
 /// Pixels per tile edge: small enough to balance 2–64 threads, big enough for coherence.
 const TILE: u32 = 16;
 
+/// Rows a band of `height` takes (see `render_into`): [`TILE`], or fewer where the region is
+/// too short to give each of `threads` threads about eight bands. A distant model covers few
+/// rows (the dragon at 16 diagonals, 41): in bands of 16 one of two threads took 25 rows and
+/// the other 16.
+fn band_rows(height: u32, threads: usize) -> u32 {
+    (height / (8 * threads as u32).max(1)).clamp(1, TILE)
+}
+
 /// Renders `config.region` of the frame (the film covers just that region). `progress` is told how many pixels each finished
 /// tile held.
 pub fn render<A: Accel>(
@@ -154,16 +162,18 @@ pub fn render_into<A: Accel>(
     if width == 0 || region.height() == 0 {
         return RenderStats::default();
     }
-    // One task per band of TILE rows, written straight into the film; within a band, pixels
-    // go tile by tile (TILE × TILE) so that neighbouring rays share nodes in cache.
-    let band = TILE as usize * width;
+    // One task per band of TILE rows (fewer for a short region), written straight into the
+    // film; within a band, pixels go tile by tile (TILE wide) so that neighbouring rays share
+    // nodes in cache. Pixels do not depend on the bands: the same image for any split.
+    let rows_per_band = band_rows(region.height(), rayon::current_num_threads());
+    let band = rows_per_band as usize * width;
     let primary = PrimaryRays::new(accel, camera, config);
     let render_band = |b: usize, rgb: &mut [[f32; 3]], nodes: &mut [u32], mut first_hits: Option<BandFirstHits>| {
         let mut stats = RenderStats::default();
         if !config.count_work {
             stats.traversal = TraversalStats::uncounted();
         }
-        let y0 = region.y0 + b as u32 * TILE;
+        let y0 = region.y0 + b as u32 * rows_per_band;
         let rows = (rgb.len() / width) as u32;
         let mut centres: Option<RayLanes<RAY_BATCH>> = None;
         for tx in (region.x0..region.x1).step_by(TILE as usize) {
@@ -607,6 +617,17 @@ fn secondary(incoming: &Ray, hit: &scheme::SurfaceHit, direction: Vec3, config: 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Full frames keep bands of a tile's height; a short region gets bands enough for every
+    /// thread to take several (`determinism.rs` checks that the image does not change).
+    #[test]
+    fn short_regions_get_thin_bands() {
+        assert_eq!(band_rows(1024, 2), TILE);
+        assert_eq!(band_rows(41, 2), 2);
+        assert_eq!(band_rows(41, 1), 5);
+        assert_eq!(band_rows(3, 64), 1);
+        assert_eq!(band_rows(0, 0), 1);
+    }
 
     #[test]
     fn the_tent_filter_maps_uniform_numbers_to_its_density() {
