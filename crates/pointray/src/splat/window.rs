@@ -144,7 +144,8 @@ impl<D: DiskTest> Window<D> {
         // viewer, if any disk does (the first such, and its material): at a silhouette the
         // window can begin with a far-side disk sticking out past the rim, whose normal points
         // away from the light. (Blending the first disk's side, the default renders had 80
-        // dark speckles on the Happy Buddha, 20 on the bunny, 4 on Igea; so, 17, 7, 0.)
+        // dark speckles on the Happy Buddha, 20 on the bunny, 4 on Igea; so, 17, 7, 0, with
+        // `min_coverage_facing_away` at 1 and before the thin-spot rule of `scheme::windowed`.)
         let away = |x: &Crossing| x.normal.dot(ray.dir) > 0.0;
         let lead = list.iter().position(|x| !away(x)).unwrap_or(0);
         let first = *list.get(lead)?;

@@ -134,12 +134,9 @@ fn bvh_nodes_bound_their_splats_and_visit_fewer_than_brute_force() {
     pointray::accel::bvh::check_invariants(&bvh).expect("BVH invariants");
     // The BVH holds the input's splats as every accelerator stores them (snapped; the brute
     // force's), reordered: the same multiset, bit for bit.
-    let bits = |s: &Splat| {
-        (s.center.to_array().map(f32::to_bits), s.normal.to_array().map(f32::to_bits), s.radius.to_bits(), s.color)
-    };
     let oracle = BruteForce::new(splats.clone());
-    let mut input: Vec<_> = (0..splats.len() as u32).map(|i| bits(&oracle.splat(i))).collect();
-    let mut held: Vec<_> = bvh.splats().map(|(_, s)| bits(&s)).collect();
+    let mut input: Vec<_> = (0..splats.len() as u32).map(|i| oracle.splat(i).bits()).collect();
+    let mut held: Vec<_> = bvh.splats().map(|(_, s)| s.bits()).collect();
     input.sort_unstable();
     held.sort_unstable();
     assert!(input == held, "the BVH's splats are not the input's");

@@ -285,8 +285,10 @@ struct Slots([f32; WIDTH]);
 impl Slots {
     /// An inner node's costs from its children's (`area`: its half surface area).
     fn of_inner(area: f32, l: &Slots, r: &Slots, params: &BvhParams) -> Slots {
-        let own = area * params.traversal_cost + Self::split(l, r, WIDTH).1;
-        Slots(std::array::from_fn(|i| if i == 0 { own } else { own.min(Self::split(l, r, i + 1).1) }))
+        let shared: [f32; WIDTH] =
+            std::array::from_fn(|i| if i == 0 { f32::INFINITY } else { Self::split(l, r, i + 1).1 });
+        let own = area * params.traversal_cost + shared[WIDTH - 1];
+        Slots(shared.map(|cost| own.min(cost)))
     }
 
     /// The cheapest sharing of `j ≥ 2` slots between children with costs `l` and `r`: the
