@@ -205,7 +205,11 @@ pub fn render_into<A: Accel>(
         a += b;
         a
     };
-    let bands = film.rgb.par_chunks_mut(band).zip(film.nodes_visited.par_chunks_mut(band)).enumerate();
+    // Every band a job of its own: left to itself, rayon ran a quarter of the bands as one
+    // job, and a thread done early had nothing to steal (1M torus, two threads: 9.6 → 12.6
+    // Mrays/s, first hits; frames 31–40 ms → 29–31 ms).
+    let bands = film.rgb.par_chunks_mut(band).zip(film.nodes_visited.par_chunks_mut(band));
+    let bands = bands.enumerate().with_max_len(1);
     match &mut film.first_hits {
         Some(c) if config.first_hit_aovs => {
             let channels =
