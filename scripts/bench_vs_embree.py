@@ -11,7 +11,9 @@ radii. For each distance it runs one pointray benchmark (`--surface SURFACE --no
 Embree's bench shades them, so that the ratio measures the ray query; `--integrator whitted` gives
 the Phong shading of the figures before 2026-11-25's third session) and then
 Embree's bench (`--geom oriented --crop --reps REPS`), and prints a Markdown table of median
-frame times (ten times as many frames for k ≥ 2, whose crops hold few rays). With `--spp N` both
+frame times (ten times as many frames for k ≥ 2, whose crops hold few rays) and the median of
+three builds each (Embree's bench's default `--build-reps`; a process's first build pays for its
+fresh memory). With `--spp N` both
 trace N rays a pixel; `--tau T` sets the level-of-detail threshold at one ray a pixel (pointray
 gets T·√N, since each of N samples' footprints is 1/√N of the pixel: the same work a ray),
 and without it pointray runs with `--lod off`. `--rounds R` repeats every measurement R times,
@@ -62,7 +64,8 @@ def main():
             subprocess.run([pointray_bin, "-q", "render", prepared, "-o", os.path.join(tmp, "p.png"), "--distance", k,
                             "--crop-to-model", "--surface", a.surface, "--no-shadows", "--threads", str(a.threads),
                             "--width", str(a.size), "--height", str(a.size), "--bench-frames", str(reps),
-                            "--spp", str(a.spp), "--integrator", a.integrator, *lod, "--stats", stats], check=True)
+                            "--spp", str(a.spp), "--integrator", a.integrator, *lod, "--bench-builds", "3",
+                            "--stats", stats], check=True)
             ps.append(json.load(open(stats)))
             out = subprocess.run([embree, prepared, "--geom", "oriented", "--threads", str(a.threads), "--dist", k,
                                   "--crop", "--reps", str(reps), "--size", f"{a.size}x{a.size}", "--spp", str(a.spp)],

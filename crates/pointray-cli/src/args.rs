@@ -256,6 +256,11 @@ pub struct RenderArgs {
     /// Timed frames after one untimed warm-up frame (benchmarking; median and min reported).
     #[arg(long, default_value_t = 0)]
     pub bench_frames: u32,
+    /// Builds of the accelerator, the last one kept, their median and min reported
+    /// (benchmarking: the first build in a process pays for its fresh memory, as Embree's bench's
+    /// first of its `--build-reps` does).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    pub bench_builds: u32,
     /// Points in the demo scene.
     #[arg(long, default_value_t = 300_000)]
     pub demo_points: usize,

@@ -383,6 +383,7 @@ mod tests {
             "aov",
             "stats",
             "bench_frames",
+            "bench_builds",
             "k_normals",
             "k_radius",
             "radius_scale",
