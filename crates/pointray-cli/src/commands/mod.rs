@@ -78,12 +78,17 @@ pub fn prepare_cloud(
 
 /// One warning per kind of bad point the preprocessing dropped or repaired.
 fn warn_about_repairs(input: &str, s: &PreprocessStats) {
+    let clamped = format!(
+        "over {} times the median of the neighbours' radii (stray points); clamped to that",
+        pointray::preprocess::radii::MAX_OVER_NEIGHBOURS
+    );
     // (count, what comes before it, the noun for one and for many, what comes after)
     let repairs = [
         (s.dropped_non_finite, "dropped ", "point", "points", "with a non-finite coordinate"),
         (s.dropped_duplicates, "dropped ", "point", "points", "at the exact position of an earlier point"),
         (s.invalid_normals, "", "normal was", "normals were", "zero or non-finite; estimated from the neighbours"),
         (s.invalid_radii, "", "radius was", "radii were", "zero, negative or non-finite; computed from the neighbours"),
+        (s.clamped_radii, "", "radius was", "radii were", &clamped),
         (
             s.degenerate_normals,
             "",

@@ -99,6 +99,9 @@ pub struct PreprocessStats {
     /// The given normals pointed into the shape and were turned outward
     /// (`orient::turn_given_outward`).
     pub turned_outward: bool,
+    /// Computed radii clamped to [`radii::MAX_OVER_NEIGHBOURS`] times their neighbours' median
+    /// (stray points, see [`radii::clamp_to_neighbours`]).
+    pub clamped_radii: usize,
 }
 
 impl PreprocessStats {
@@ -114,6 +117,7 @@ impl PreprocessStats {
         self.degenerate_normals += o.degenerate_normals;
         self.orientation_components += o.orientation_components;
         self.turned_outward |= o.turned_outward;
+        self.clamped_radii += o.clamped_radii;
         let (s, t) = (&mut self.seconds, &o.seconds);
         (s.clean, s.sort, s.knn, s.normals, s.orient, s.radii) = (
             s.clean + t.clean,
@@ -220,6 +224,7 @@ pub fn preprocess_with_progress(
                 *r = c;
             }
         }
+        stats.clamped_radii = radii::clamp_to_neighbours(radii, &radii_missing, &nbrs, cfg.k_normals.max(cfg.k_radius));
         stats.seconds.radii = start.elapsed().as_secs_f64();
         debug!(seconds = stats.seconds.radii, "radii");
     }

@@ -34,6 +34,48 @@ pub fn splat_radii(points: &[Vec3], nbrs: &Neighbourhoods, k: usize, scale: f32)
     radii
 }
 
+/// How many times the median of its neighbours' radii a computed radius may be.
+pub const MAX_OVER_NEIGHBOURS: f32 = 8.0;
+
+/// Neighbours whose median radius bounds a point's (the nearest, at most this many).
+const MEDIAN_OF: usize = 16;
+
+/// Clamps the radii `which` marks to [`MAX_OVER_NEIGHBOURS`] times the median radius of their
+/// `k` nearest neighbours (at most [`MEDIAN_OF`]), as the radii were before any was clamped;
+/// returns how many it clamped. A stray point (a stray return, a pixel without a return stored
+/// at the origin) lies far from its nearest neighbours, whose radii are the model's: by the
+/// k-th-neighbour rule alone it got a radius of its distance to the model, a big flat disc over
+/// it. A sparse region's points have neighbours as sparse as they are, and keep their radii.
+pub fn clamp_to_neighbours(radii: &mut [f32], which: &[bool], nbrs: &Neighbourhoods, k: usize) -> usize {
+    let k = k.min(nbrs.k).min(MEDIAN_OF);
+    if k == 0 {
+        return 0;
+    }
+    let limits: Vec<Option<f32>> = (0..radii.len())
+        .into_par_iter()
+        .map(|i| {
+            if !which[i] {
+                return None;
+            }
+            let mut near = [0.0f32; MEDIAN_OF];
+            for (r, &j) in near.iter_mut().zip(&nbrs.of(i)[..k]) {
+                *r = radii[j as usize];
+            }
+            let median = *near[..k].select_nth_unstable_by(k / 2, f32::total_cmp).1;
+            let limit = MAX_OVER_NEIGHBOURS * median;
+            (radii[i] > limit && limit > 0.0).then_some(limit)
+        })
+        .collect();
+    let mut clamped = 0;
+    for (r, limit) in radii.iter_mut().zip(limits) {
+        if let Some(limit) = limit {
+            *r = limit;
+            clamped += 1;
+        }
+    }
+    clamped
+}
+
 /// Gives points whose neighbours all coincide the mean positive radius, so that they stay
 /// visible.
 fn fill_zero_radii(radii: &mut [f32]) {
@@ -80,6 +122,31 @@ mod tests {
             })
             .count();
         covered as f32 / probes.len() as f32
+    }
+
+    /// A stray point far off a plane of splats gets a radius of at most eight times its
+    /// neighbours' median, not its distance to the plane; the plane's own radii, and those of
+    /// a sparse region beside a dense one, stay as the k-th-neighbour rule made them.
+    #[test]
+    fn a_stray_point_gets_no_giant_disc() {
+        let mut points = plane_patch(4_000, 3);
+        // A sparse patch beside it, ten times as far apart.
+        points.extend(plane_patch(400, 4).iter().map(|p| Vec3::new(2.0 + 10.0 * p.x, 10.0 * p.y, 0.0)));
+        points.push(Vec3::new(0.5, 0.5, 3.0));
+        let stray = points.len() - 1;
+        let nbrs = k_nearest(&points, 16);
+        let unclamped = splat_radii(&points, &nbrs, 8, 1.0);
+        assert!(unclamped[stray] > 2.0, "{}", unclamped[stray]);
+        let mut radii = unclamped.clone();
+        let all = vec![true; points.len()];
+        assert_eq!(clamp_to_neighbours(&mut radii, &all, &nbrs, 16), 1);
+        let near = nbrs.of(stray).iter().map(|&j| unclamped[j as usize]).fold(0.0, f32::max);
+        assert!(radii[stray] <= MAX_OVER_NEIGHBOURS * near && radii[stray] < 0.5, "{}", radii[stray]);
+        assert_eq!(radii[..stray], unclamped[..stray]);
+        // Only the radii asked for are clamped.
+        let mut radii = unclamped.clone();
+        let none = vec![false; points.len()];
+        assert_eq!((clamp_to_neighbours(&mut radii, &none, &nbrs, 16), radii), (0, unclamped));
     }
 
     fn mean_nn_spacing(nbrs: &Neighbourhoods) -> f32 {
