@@ -508,7 +508,8 @@ fn blocks(n: usize) -> f32 {
 /// tree binning all took most of the build. (The 1-million-point torus's build, two threads,
 /// medians of alternating runs: 0.1347 s binning all; 0.1279 binning every fourth primitive of
 /// nodes of more than 1,024; 0.119 from 1,024 of them, and 0.116 from 256; the dragon's first
-/// hits, 256² crop, 694.8 instructions a pixel binning all, 695.1 from 1,024, 698.4 from 256.)
+/// hits, 256² crop, 694.8 instructions a pixel binning all, 698.4 from 256, 695–697 from 1,024
+/// or 2,048 (which built the torus 3 % slower), as unrelated code moved the count.)
 const SAMPLES: usize = 1024;
 
 /// Most bins per axis (the binning arrays live on the stack).
@@ -629,7 +630,8 @@ fn best_sah_split(prims: &[Prim], bounds: &Aabb, cb: &Aabb, params: &BvhParams) 
     } else {
         binning.bin(prims, stride, &mut found);
     }
-    let sampled = n.div_ceil(stride);
+    // Counted, not ⌈n / stride⌉: in parallel chunks each chunk strides from its own start.
+    let sampled: usize = found.counts[0][..bins].iter().sum();
     let Bins { boxes: bin_boxes, counts: bin_counts } = &found;
     let parent_area = bounds.half_area().max(f32::MIN_POSITIVE);
     let mut best: Option<(f32, usize, usize)> = None;
@@ -807,25 +809,28 @@ mod tests {
     }
 
     /// A split chosen from a sample still moves every primitive, and the partition measures
-    /// both sides' bounds exactly.
+    /// both sides' bounds exactly; binned in parallel chunks too, whose strides start anew in
+    /// each chunk (with a stride that does not divide the chunks, counting the sample as
+    /// ⌈n / stride⌉ overflowed there).
     #[test]
     fn a_sampled_split_measures_both_sides() {
         let params = BvhParams::standard();
-        let mut prims = prims_of(&sphere(3 * SAMPLES), &params);
-        let extent = Extent::of(&prims);
-        let cb = extent.centroids.aabb();
-        let split = best_sah_split(&prims, &extent.bounds.aabb(), &cb, &params).expect("a split");
-        assert!(split.bounds.is_none(), "a sample's bins give no bounds");
-        let (mid, halves) = partition::<true>(&mut prims, &split, [Box3::EMPTY; 2]);
-        assert!(0 < mid && mid < prims.len());
-        let (left, right) = prims.split_at(mid);
-        for (side, half) in [left, right].into_iter().zip(halves) {
-            let exact = Extent::of(side);
-            assert_eq!((half.bounds.aabb(), half.centroids.aabb()), (exact.bounds.aabb(), exact.centroids.aabb()));
+        for n in [3 * SAMPLES, PARALLEL_BINNING + 12_345] {
+            let mut prims = prims_of(&sphere(n), &params);
+            let extent = Extent::of(&prims);
+            let cb = extent.centroids.aabb();
+            let split = best_sah_split(&prims, &extent.bounds.aabb(), &cb, &params).expect("a split");
+            assert!(split.bounds.is_none(), "a sample's bins give no bounds");
+            let (mid, halves) = partition::<true>(&mut prims, &split, [Box3::EMPTY; 2]);
+            assert!(0 < mid && mid < n);
+            let (left, right) = prims.split_at(mid);
+            for (side, half) in [left, right].into_iter().zip(halves) {
+                let exact = Extent::of(side);
+                assert_eq!((half.bounds.aabb(), half.centroids.aabb()), (exact.bounds.aabb(), exact.centroids.aabb()));
+            }
+            let left_ok = left.iter().all(|p| split.goes_left(p.centroid()));
+            assert!(left_ok && !right.iter().any(|p| split.goes_left(p.centroid())));
         }
-        assert!(
-            left.iter().all(|p| split.goes_left(p.centroid())) && !right.iter().any(|p| split.goes_left(p.centroid()))
-        );
     }
 
     #[test]
