@@ -976,6 +976,8 @@ fn bad_flags_are_rejected_with_clear_messages() {
         (&["--width", "48", "--height", "40", "--spp", "0"], 2, &["--spp"]),
         (&["--width", "48", "--height", "40", "--k-normals", "2"], 2, &["--k-normals"]),
         (&["--width", "48", "--height", "40", "--k-radius", "0"], 2, &["--k-radius"]),
+        (&["--width", "48", "--height", "40", "--k-normals", "100000"], 2, &["--k-normals", "at most 256"]),
+        (&["--width", "48", "--height", "40", "--k-radius", "257"], 2, &["--k-radius", "256"]),
         (&["--width", "48", "--height", "40", "--radius-scale", "0"], 2, &["--radius-scale"]),
         (&["--width", "48", "--height", "40", "--region", "5,5,2,2"], 2, &["--region", "empty region"]),
         (&["--width", "48", "--height", "40", "--region", "1,2,3"], 2, &["--region", "4"]),

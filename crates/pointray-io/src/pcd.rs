@@ -86,7 +86,14 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, IoError> {
             rest.iter().map(|v| v.parse::<usize>().map_err(|_| error(format!("{key}: '{v}' is not a count")))).collect()
         };
         match key {
-            "VERSION" | "VIEWPOINT" => {}
+            "VERSION" => {
+                // PCL writes 0.7 (".7" too); 0.5 and 0.6 lay out the same fields.
+                let version = rest.first().and_then(|v| v.parse::<f64>().ok());
+                if !version.is_some_and(|v| (0.5..=0.7).contains(&v)) {
+                    return Err(error(format!("VERSION {}: only PCD 0.5 to 0.7 is read", rest.join(" "))));
+                }
+            }
+            "VIEWPOINT" => {}
             "FIELDS" => names = Some(rest.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
             "SIZE" => sizes = Some(numbers()?),
             "COUNT" => counts = Some(numbers()?),
@@ -278,9 +285,12 @@ fn decompress(path: &Path, body_at: usize, body: &[u8], expected: Option<usize>)
     }
     let compressed = u32::from_le_bytes([body[0], body[1], body[2], body[3]]) as usize;
     let size = u32::from_le_bytes([body[4], body[5], body[6], body[7]]) as usize;
-    if Some(size) != expected {
+    let Some(expected) = expected else {
+        return Err(error("binary_compressed: the header's points take more bytes than can be addressed".into()));
+    };
+    if size != expected {
         return Err(error(format!(
-            "binary_compressed: {size} bytes uncompressed, the header's points need {expected:?}"
+            "binary_compressed: {size} bytes uncompressed, the header's points need {expected}"
         )));
     }
     let input = body

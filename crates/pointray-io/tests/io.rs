@@ -1110,7 +1110,17 @@ fn broken_pcd_files_are_refused_with_their_name_and_place() {
             "sizes.pcd",
             [header("binary_compressed").into_bytes(), 4u32.to_le_bytes().to_vec(), 99u32.to_le_bytes().to_vec()]
                 .concat(),
-            "99 bytes uncompressed",
+            "99 bytes uncompressed, the header's points need 36",
+        ),
+        (
+            "version.pcd",
+            header("ascii").replace("VERSION 0.7", "VERSION 2.0").into_bytes(),
+            "VERSION 2.0: only PCD 0.5 to 0.7",
+        ),
+        (
+            "dotversion.pcd",
+            (header("ascii").replace("VERSION 0.7", "VERSION .7") + "1 2 3\n4 5 6\n").into_bytes(),
+            "declares 3 points, the file holds 2",
         ),
         (
             "count.pcd",
