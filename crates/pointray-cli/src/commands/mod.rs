@@ -45,6 +45,8 @@ pub fn preprocess_config(a: &PreprocessArgs) -> anyhow::Result<PreprocessConfig>
     let check = |ok: bool, message: &str| if ok { Ok(()) } else { Err(failure::usage(anyhow::anyhow!("{message}"))) };
     check(a.k_normals >= 3, "--k-normals must be at least 3 (a plane needs 3 points)")?;
     check(a.k_radius >= 1, "--k-radius must be at least 1")?;
+    // One message for both: two formatted ones here moved the SJ traversal by 45 instructions a
+    // pixel (callgrind), which this crate compiles (the accelerators' generic code).
     let most = pointray::preprocess::MAX_NEIGHBOURS;
     if a.k_normals.max(a.k_radius) > most {
         let message = anyhow::anyhow!("--k-normals and --k-radius must be at most {most}");

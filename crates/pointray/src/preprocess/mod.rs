@@ -141,10 +141,7 @@ pub enum PreprocessError {
     TooManyNeighbours(usize),
 }
 
-/// Refuses more neighbours than [`MAX_NEIGHBOURS`]. Out of line: inlined here, this check
-/// moved the SJ traversal's instruction count by 45 a pixel, in code it never runs (the
-/// compiler's choices for the rest of the crate shifted).
-#[inline(never)]
+/// Refuses more neighbours than [`MAX_NEIGHBOURS`].
 fn check_neighbours(cfg: &PreprocessConfig) -> Result<(), PreprocessError> {
     let k = cfg.k_normals.max(cfg.k_radius);
     if k > MAX_NEIGHBOURS { Err(PreprocessError::TooManyNeighbours(k)) } else { Ok(()) }
