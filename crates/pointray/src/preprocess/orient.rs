@@ -205,9 +205,9 @@ const FREE_EDGE_OFF_PLANE: f32 = 0.25;
 
 /// The normal expected at a point `d` away from one with normal `n`: `n` reflected in the plane
 /// halfway between the points, which is `n` itself along a flat surface, follows an arc's
-/// turn, and points the other way across a thin sheet, where the far side faces away. With
-/// it the sign is carried across a sheet as it should be, where comparing the two normals
-/// turned the far side inside out (and an edge across the sheet had to be made dear).
+/// turn, and points the other way across a thin sheet, where the far side faces away: a sign
+/// carried across a sheet comes out right, where comparing the two normals turned the far side
+/// inside out.
 fn reflected(n: Vec3, d: Vec3) -> Vec3 {
     let d = d.normalize_or_zero();
     n - 2.0 * n.dot(d) * d

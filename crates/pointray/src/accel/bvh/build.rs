@@ -678,7 +678,8 @@ fn best_sah_split(prims: &[Prim], bounds: &Aabb, cb: &Aabb, params: &BvhParams) 
 fn partition<const BOUNDS: bool>(prims: &mut [Prim], split: &Split, bounds: [Box3; 2]) -> (usize, [Extent; 2]) {
     let mut i = 0;
     let [mut left, mut right] = bounds.map(|bounds| Extent { bounds, centroids: Box3::EMPTY });
-    // Two arms, not one through a reference to either side, which kept the sides in memory.
+    // Two arms, not one through a reference to either side, which kept the sides in memory (132
+    // million instructions more in the 1M torus's build, callgrind).
     for j in 0..prims.len() {
         let p = prims[j];
         let c = p.centroid();
