@@ -168,6 +168,7 @@ fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
             .collect(),
         comments: Vec::new(),
         file_bytes,
+        up: Some([0.0, 0.0, 1.0]),
     };
     Ok(LoadedCloud { cloud, info })
 }

@@ -47,6 +47,9 @@ pub struct FileInfo {
     /// PLY `comment` texts and whole `obj_info` lines; whole-line `#` comments for XYZ.
     pub comments: Vec<String>,
     pub file_bytes: u64,
+    /// The up axis the format's convention gives, where it gives one: +z for LAS and LAZ
+    /// (surveys in east, north and height).
+    pub up: Option<[f32; 3]>,
 }
 
 /// Extensions taken as XYZ text even when the first line would not tell.

@@ -226,6 +226,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
             .collect(),
         comments: (dropped > 0).then(|| format!("{dropped} NaN points dropped")).into_iter().collect(),
         file_bytes: bytes.len() as u64,
+        up: None,
     };
     Ok(LoadedCloud { cloud: builder.finish(), info })
 }

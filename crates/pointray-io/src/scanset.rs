@@ -103,6 +103,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         vertex_properties: loaded[0].info.vertex_properties.clone(),
         comments: Vec::new(),
         file_bytes: bytes.len() as u64 + loaded.iter().map(|l| l.info.file_bytes).sum::<u64>(),
+        up: None,
     };
     Ok(LoadedCloud { cloud: builder.finish(), info })
 }

@@ -168,6 +168,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         vertex_properties: layout.property_names(),
         comments,
         file_bytes: bytes.len() as u64,
+        up: None,
     };
     Ok(LoadedCloud { cloud, info })
 }

@@ -256,7 +256,7 @@ fn round_trip_positions_only() {
     let path = dir.path().join("plain.ply");
     write_ply(&path, &cloud).unwrap();
     let loaded = read_cloud(&path).unwrap();
-    assert_eq!(loaded.info.format, "PLY binary_little_endian 1.0");
+    assert_eq!((loaded.info.format.as_str(), loaded.info.up), ("PLY binary_little_endian 1.0", None));
     assert_eq!(loaded.info.vertex_properties, vec!["float x", "float y", "float z"]);
     assert_eq!(loaded.info.file_bytes, std::fs::metadata(&path).unwrap().len());
     assert!(loaded.cloud.normals.is_none() && loaded.cloud.radii.is_none() && loaded.cloud.colors.is_none());
@@ -932,6 +932,8 @@ fn las_and_laz_read_to_the_same_survey_cloud_with_its_colours() {
     let (a, b) = (read_cloud(&las).unwrap(), read_cloud(&laz).unwrap());
     assert_eq!(a.info.format, "LAS 1.2, point format 3");
     assert_eq!(b.info.format, "LAZ 1.2, point format 3");
+    // Surveys stand on z: the camera's default up for them.
+    assert_eq!((a.info.up, b.info.up), (Some([0.0, 0.0, 1.0]), Some([0.0, 0.0, 1.0])));
     assert!(std::fs::metadata(&laz).unwrap().len() < std::fs::metadata(&las).unwrap().len() / 2, "LAZ compresses");
     // Large offsets survive: recentred in f64, positions keep f32 precision over the cloud's
     // ~1,000-unit extent (6·10⁻⁵), where f32 at 636,000 would round to 0.06.

@@ -18,6 +18,9 @@ pub fn run(a: &InfoArgs, quiet: bool) -> anyhow::Result<()> {
     for c in &info.comments {
         writeln!(out, "comment:     {c}")?;
     }
+    if let Some([x, y, z]) = info.up {
+        writeln!(out, "up:          {x},{y},{z} (the format's convention)")?;
+    }
     writeln!(out, "points:      {}", cloud.len())?;
     let has = |b: bool| if b { "yes" } else { "no" };
     writeln!(out, "normals:     {}", has(cloud.normals.is_some()))?;

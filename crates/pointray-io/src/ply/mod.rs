@@ -95,6 +95,7 @@ fn file_info(header: &Header, vertex_index: usize, file_bytes: usize) -> FileInf
         vertex_properties,
         comments: header.comments.clone(),
         file_bytes: file_bytes as u64,
+        up: None,
     }
 }
 
