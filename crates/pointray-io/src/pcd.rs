@@ -63,6 +63,9 @@ impl Field {
 struct Header {
     fields: Vec<Field>,
     points: usize,
+    /// The sensor's position (`VIEWPOINT`'s translation), for an organised frame (`HEIGHT` > 1)
+    /// only: PCL writes `VIEWPOINT 0 0 0 1 0 0 0` into every file, frames or not.
+    viewpoint: Option<[f64; 3]>,
     data: String,
     /// Byte offset of the body.
     body: usize,
@@ -73,7 +76,7 @@ struct Header {
 fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, IoError> {
     let mut lines = Lines::new(bytes, 1);
     let (mut names, mut sizes, mut types, mut counts) = (None, None, None, None);
-    let (mut width, mut height, mut points) = (None, None, None);
+    let (mut width, mut height, mut points, mut viewpoint) = (None, None, None, None);
     while let Some((number, line)) = lines.next() {
         let error = |message: String| IoError::at_line(path, number, message);
         let text = as_text(line).ok_or_else(|| error("header line is not text".into()))?.trim();
@@ -93,7 +96,10 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, IoError> {
                     return Err(error(format!("VERSION {}: only PCD 0.5 to 0.7 is read", rest.join(" "))));
                 }
             }
-            "VIEWPOINT" => {}
+            "VIEWPOINT" => {
+                let t: Vec<f64> = rest.iter().take(3).filter_map(|v| v.parse().ok()).collect();
+                viewpoint = <[f64; 3]>::try_from(t).ok().filter(|t| t.iter().all(|x| x.is_finite()));
+            }
             "FIELDS" => names = Some(rest.iter().map(|s| s.to_string()).collect::<Vec<_>>()),
             "SIZE" => sizes = Some(numbers()?),
             "COUNT" => counts = Some(numbers()?),
@@ -122,7 +128,8 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, IoError> {
                 let points = points.or(width.zip(height).and_then(|(w, h)| w.checked_mul(h)));
                 let points = points.ok_or_else(|| error("no POINTS (nor WIDTH and HEIGHT)".into()))?;
                 let data = rest.first().map(|s| s.to_ascii_lowercase()).unwrap_or_default();
-                return Ok(Header { fields, points, data, body: lines.offset(), body_line: number + 1 });
+                let viewpoint = viewpoint.filter(|_| height.is_some_and(|h| h > 1));
+                return Ok(Header { fields, points, viewpoint, data, body: lines.offset(), body_line: number + 1 });
             }
             _ => return Err(error(format!("unknown header line '{key}'"))),
         }
@@ -228,7 +235,9 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         file_bytes: bytes.len() as u64,
         up: None,
     };
-    Ok(LoadedCloud { cloud: builder.finish(), info })
+    let mut cloud = builder.finish();
+    cloud.viewpoint = header.viewpoint.map(|v| (glam::DVec3::from(v) - cloud.origin).as_vec3());
+    Ok(LoadedCloud { cloud, info })
 }
 
 /// The values of the ascii body, `n` lines of every field's values. The packed colour (field

@@ -1047,6 +1047,23 @@ fn pcd_compressed(points: &[([f32; 3], u32)]) -> Vec<u8> {
     bytes
 }
 
+/// An organised frame's VIEWPOINT is where its sensor stood (kept in the cloud's local
+/// coordinates); PCL writes one into every file, so an unorganised cloud's is ignored.
+#[test]
+fn an_organised_pcd_frame_keeps_its_viewpoint() {
+    let dir = temp_dir();
+    let rows = "10 20 5\n11 20 5\n10 21 5\n11 21 6\n";
+    let frame =
+        pcd_header("x y z", "4 4 4", "F F F", "1 1 1", 2, 2, "ascii").replace("VIEWPOINT 0 0 0", "VIEWPOINT 1 2 3");
+    let cloud = read_cloud(&write_file(dir.path(), "frame.pcd", (frame + rows).as_bytes())).unwrap().cloud;
+    let local = (DVec3::new(1.0, 2.0, 3.0) - cloud.origin).as_vec3();
+    assert_eq!(cloud.viewpoint, Some(local));
+    let flat =
+        pcd_header("x y z", "4 4 4", "F F F", "1 1 1", 4, 1, "ascii").replace("VIEWPOINT 0 0 0", "VIEWPOINT 1 2 3");
+    let cloud = read_cloud(&write_file(dir.path(), "flat.pcd", (flat + rows).as_bytes())).unwrap().cloud;
+    assert_eq!(cloud.viewpoint, None);
+}
+
 #[test]
 fn pcd_ascii_binary_and_compressed_read_alike_and_drop_nan_points() {
     let dir = temp_dir();

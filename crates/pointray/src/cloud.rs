@@ -21,6 +21,9 @@ pub struct PointCloud {
     pub colors: Option<Vec<[f32; 3]>>,
     /// Offset subtracted from every input coordinate (see the type's doc).
     pub origin: DVec3,
+    /// Where the scanner stood, in the same local coordinates as `positions`, where the file
+    /// says (an organised depth frame's PCD `VIEWPOINT`): computed normals are turned to face it.
+    pub viewpoint: Option<Vec3>,
 }
 
 impl PointCloud {

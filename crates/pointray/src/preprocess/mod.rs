@@ -4,7 +4,8 @@
 //!
 //! Input normals and radii are trusted where valid; invalid entries (non-finite, zero-length
 //! normals; non-finite or non-positive radii) are treated as missing for that point only and
-//! recomputed. Computed normals are oriented to agree with any given ones.
+//! recomputed. Computed normals are oriented to agree with any given ones, or to face the
+//! scanner where the cloud knows where it stood (`PointCloud::viewpoint`).
 //!
 //! Bad input has defined outcomes, each counted in [`PreprocessStats`] for the caller to
 //! report: points with a non-finite coordinate are dropped, so are repeats of an earlier
@@ -95,6 +96,8 @@ pub struct PreprocessStats {
     /// Estimated normals whose neighbourhood was collinear or coincident (a defined fallback
     /// direction was used, see [`normals::pca_normal`]).
     pub degenerate_normals: usize,
+    /// Connected components oriented by a spanning tree each; 0 where the normals were turned
+    /// to face the scanner's viewpoint instead (`PointCloud::viewpoint`).
     pub orientation_components: usize,
     /// The given normals pointed into the shape and were turned outward
     /// (`orient::turn_given_outward`).
@@ -349,13 +352,17 @@ fn fill_normals(
 
     stage("orient");
     let start = Instant::now();
-    let fixed: Vec<bool> = missing.iter().map(|m| !m).collect();
-    let some_given = fixed.contains(&true);
-    let orientation = orient::orient_normals_from(positions, normals, nbrs, some_given.then_some(&fixed[..]));
-    stats.flipped_normals = orientation.flipped;
-    stats.orientation_components = orientation.components;
+    if let Some(viewpoint) = cloud.viewpoint {
+        stats.flipped_normals = orient::face_viewpoint(positions, normals, missing, viewpoint);
+    } else {
+        let fixed: Vec<bool> = missing.iter().map(|m| !m).collect();
+        let some_given = fixed.contains(&true);
+        let orientation = orient::orient_normals_from(positions, normals, nbrs, some_given.then_some(&fixed[..]));
+        stats.flipped_normals = orientation.flipped;
+        stats.orientation_components = orientation.components;
+    }
     stats.seconds.orient = start.elapsed().as_secs_f64();
-    debug!(?orientation, seconds = stats.seconds.orient, "orientation");
+    debug!(flipped = stats.flipped_normals, seconds = stats.seconds.orient, "orientation");
 }
 
 #[cfg(test)]
@@ -459,6 +466,14 @@ mod tests {
         let stats = preprocess(&mut cloud, &cfg).unwrap();
         assert_eq!((stats.dropped_duplicates, stats.degenerate_normals, cloud.len()), (99, 1, 1));
         assert_eq!((cloud.normals.unwrap(), cloud.radii.unwrap()), (vec![Vec3::Z], vec![0.5]));
+        // A scanner's viewpoint below a plane: every computed normal faces it, where the
+        // spanning tree would have seeded the plane's normals upwards.
+        let mut cloud =
+            PointCloud::from_positions((0..100).map(|i| Vec3::new((i % 10) as f32, (i / 10) as f32, 0.0)).collect());
+        cloud.viewpoint = Some(Vec3::new(4.5, 4.5, -5.0));
+        let stats = preprocess(&mut cloud, &PreprocessConfig { sort: false, ..cfg }).unwrap();
+        assert!(cloud.normals.unwrap().iter().all(|n| *n == -Vec3::Z));
+        assert_eq!((stats.orientation_components, stats.flipped_normals), (0, 100));
         // Too many neighbours asked for: refused before any work.
         let mut cloud = PointCloud::from_positions((0..10).map(|i| Vec3::X * i as f32).collect());
         let greedy = PreprocessConfig { k_normals: MAX_NEIGHBOURS + 1, ..cfg };
