@@ -1312,6 +1312,15 @@ fn compare_counts_the_first_images_speckles() {
     };
     assert_eq!(count("smooth.png"), (1, 1));
     assert_eq!(count("a.png"), (1, 0));
+    // Within a region: the speckle counts where it has its four neighbours there, and not
+    // where the region cuts them off.
+    let within = |region: &str| {
+        let run = run_in(dir.path(), &["compare", "a.png", "smooth.png", "--speckles", "mask.png", "--region", region]);
+        run.assert_success().assert_stdout_contains(" dark speckles in the first");
+        run.stdout.clone()
+    };
+    assert!(within("1,1,4,4").contains("1 dark speckles in the first"));
+    assert!(within("2,0,6,5").contains("0 dark speckles in the first"));
     run_in(dir.path(), &["compare", "a.png", "smooth.png", "--speckles", "mask.png"])
         .assert_success()
         .assert_stdout_contains("1 dark speckles in the first, 1 of them not in the second");

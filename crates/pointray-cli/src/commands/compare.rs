@@ -27,12 +27,12 @@ pub fn run(a: &CompareArgs) -> anyhow::Result<()> {
             (crop(&rgb_a, wa, r), crop(&rgb_b, wa, r))
         }
     };
+    let (w, h) = a.region.map_or((wa, ha), |r| (r.width(), r.height()));
     let speckles = match &a.speckles {
         None => None,
-        Some(mask) => Some(speckles(&rgb_a, &rgb_b, wa, ha, mask)?),
+        Some(mask) => Some(speckles(&rgb_a, &rgb_b, (wa, ha), mask, a.region)?),
     };
     let diff = compare_rgb8(&rgb_a, &rgb_b);
-    let (w, h) = a.region.map_or((wa, ha), |r| (r.width(), r.height()));
     let flip = crate::perceptual::flip_mean(&rgb_a, &rgb_b, w, h);
     let mut out = io::stdout().lock();
     if a.json {
@@ -71,16 +71,28 @@ struct Speckles {
     not_in_second: usize,
 }
 
-/// Counts [`Speckles`] in the whole images, the foreground read from `mask`.
-fn speckles(a: &[u8], b: &[u8], width: u32, height: u32, mask: &std::path::Path) -> anyhow::Result<Speckles> {
+/// Counts [`Speckles`] in `a` and `b` (the images, `size` before any `region` was cut from
+/// them), the foreground read from `mask`, an image of the same size.
+fn speckles(
+    a: &[u8],
+    b: &[u8],
+    (width, height): (u32, u32),
+    mask: &std::path::Path,
+    region: Option<pointray::camera::Region>,
+) -> anyhow::Result<Speckles> {
     let (wm, hm, rgb_mask) = pointray_io::read_png(mask)?;
     anyhow::ensure!(
         (wm, hm) == (width, height),
         "the foreground {} is {wm}x{hm}, the images {width}x{height}",
         mask.display()
     );
+    let rgb_mask = match region {
+        Some(r) => crop(&rgb_mask, width, r),
+        None => rgb_mask,
+    };
     let foreground: Vec<bool> = rgb_mask.chunks_exact(3).map(|p| p.iter().any(|&c| c != 0)).collect();
-    let (w, drop) = (width as usize, metrics::SPECKLE_DROP);
+    let w = region.map_or(width, |r| r.width()) as usize;
+    let drop = metrics::SPECKLE_DROP;
     let first = metrics::dark_speckles(a, w, &foreground, drop);
     let in_second = metrics::dark_speckles(b, w, &foreground, drop);
     let not_in_second = first.iter().filter(|i| in_second.binary_search(i).is_err()).count();
