@@ -240,7 +240,7 @@ pub fn preprocess_with_progress(
                 *r = c;
             }
         }
-        stats.clamped_radii = radii::clamp_to_neighbours(radii, &radii_missing, &nbrs, cfg.k_normals.max(cfg.k_radius));
+        stats.clamped_radii = radii::clamp_to_neighbours(radii, &radii_missing, &nbrs);
         stats.seconds.radii = start.elapsed().as_secs_f64();
         debug!(seconds = stats.seconds.radii, "radii");
     }

@@ -157,9 +157,8 @@ struct SymmetricGraph<'a> {
 impl<'a> SymmetricGraph<'a> {
     fn new(nbrs: &'a Neighbourhoods, n: usize) -> Self {
         let mut reverse_start = vec![0u32; n + 1];
-        let near = |i: usize| &nbrs.of(i)[..nbrs.k.min(GRAPH_K)];
         for i in 0..nbrs.len() {
-            for &j in near(i) {
+            for &j in nearest(nbrs, i) {
                 reverse_start[j as usize + 1] += 1;
             }
         }
@@ -169,7 +168,7 @@ impl<'a> SymmetricGraph<'a> {
         let mut fill = reverse_start.clone();
         let mut reverse = vec![0u32; reverse_start[n] as usize];
         for i in 0..nbrs.len() {
-            for &j in near(i) {
+            for &j in nearest(nbrs, i) {
                 reverse[fill[j as usize] as usize] = i as u32;
                 fill[j as usize] += 1;
             }
@@ -178,7 +177,7 @@ impl<'a> SymmetricGraph<'a> {
     }
 
     fn neighbours(&self, i: usize) -> impl Iterator<Item = u32> + '_ {
-        let forward = if self.nbrs.k == 0 { &[][..] } else { &self.nbrs.of(i)[..self.nbrs.k.min(GRAPH_K)] };
+        let forward = nearest(self.nbrs, i);
         let reverse = &self.reverse[self.reverse_start[i] as usize..self.reverse_start[i + 1] as usize];
         forward.iter().chain(reverse).copied()
     }
@@ -217,13 +216,12 @@ const FREE_EDGE_COST: f32 = 1.4e-3;
 /// ... and whose far end lies within about 15° of both tangent planes.
 const FREE_EDGE_OFF_PLANE: f32 = 0.25;
 
-/// The normal expected at a point `d` away from one with normal `n`: `n` reflected in the plane
-/// halfway between the points, which is `n` itself along a flat surface, follows an arc's
+/// The normal expected at a point in the unit direction `d` from one with normal `n`: `n`
+/// reflected in the plane halfway between the points, which is `n` itself along a flat surface, follows an arc's
 /// turn, and points the other way across a thin sheet, where the far side faces away: a sign
 /// carried across a sheet comes out right, where comparing the two normals turned the far side
 /// inside out.
 fn reflected(n: Vec3, d: Vec3) -> Vec3 {
-    let d = d.normalize_or_zero();
     n - 2.0 * n.dot(d) * d
 }
 
@@ -232,6 +230,11 @@ const BEND: f32 = 0.1;
 
 /// The nearest of each point's kNN neighbours that the orientation graph takes.
 const GRAPH_K: usize = 10;
+
+/// Point `i`'s neighbours in the graph: its [`GRAPH_K`] nearest.
+fn nearest(nbrs: &Neighbourhoods, i: usize) -> &[u32] {
+    &nbrs.of(i)[..nbrs.k.min(GRAPH_K)]
+}
 
 /// Prim's algorithm with lazy deletion. Heap entries are one `u64`: the edge cost's `f32`
 /// bits (order-preserving for non-negative floats) above the target index. The tree parent
@@ -270,7 +273,8 @@ impl Prim {
         while let Some(node) = self.next_node() {
             self.visited[node as usize] = true;
             let parent = self.parent[node as usize] as usize;
-            let expected = reflected(normals[parent], points[node as usize] - points[parent]);
+            let d = (points[node as usize] - points[parent]).normalize_or_zero();
+            let expected = reflected(normals[parent], d);
             if normals[node as usize].dot(expected) < 0.0 {
                 normals[node as usize] = -normals[node as usize];
                 flipped += 1;
@@ -412,11 +416,12 @@ mod tests {
     /// and turned with a circle's arc.
     #[test]
     fn the_reflected_normal_follows_a_surface_and_turns_across_a_sheet() {
-        assert_eq!(reflected(Vec3::Z, Vec3::new(0.3, -0.2, 0.0)), Vec3::Z);
-        assert_eq!(reflected(Vec3::Z, Vec3::new(0.0, 0.0, -0.1)), -Vec3::Z);
+        assert_eq!(reflected(Vec3::Z, Vec3::new(0.6, -0.8, 0.0)), Vec3::Z);
+        assert_eq!(reflected(Vec3::Z, -Vec3::Z), -Vec3::Z);
         let a = 0.3f32;
         let (p, q) = (Vec3::X, Vec3::new(a.cos(), a.sin(), 0.0));
-        assert!((reflected(p, q - p) - q).length() < 1e-6, "{}", reflected(p, q - p));
+        let d = (q - p).normalize();
+        assert!((reflected(p, d) - q).length() < 1e-6, "{}", reflected(p, d));
     }
 
     #[test]

@@ -41,13 +41,13 @@ pub const MAX_OVER_NEIGHBOURS: f32 = 8.0;
 const MEDIAN_OF: usize = 16;
 
 /// Clamps the radii `which` marks to [`MAX_OVER_NEIGHBOURS`] times the median radius of their
-/// `k` nearest neighbours (at most [`MEDIAN_OF`]), as the radii were before any was clamped;
+/// nearest neighbours (at most [`MEDIAN_OF`]), as the radii were before any was clamped;
 /// returns how many it clamped. A stray point (a stray return, a pixel without a return stored
 /// at the origin) lies far from its nearest neighbours, whose radii are the model's: by the
 /// k-th-neighbour rule alone it got a radius of its distance to the model, a big flat disc over
 /// it. A sparse region's points have neighbours as sparse as they are, and keep their radii.
-pub fn clamp_to_neighbours(radii: &mut [f32], which: &[bool], nbrs: &Neighbourhoods, k: usize) -> usize {
-    let k = k.min(nbrs.k).min(MEDIAN_OF);
+pub fn clamp_to_neighbours(radii: &mut [f32], which: &[bool], nbrs: &Neighbourhoods) -> usize {
+    let k = nbrs.k.min(MEDIAN_OF);
     if k == 0 {
         return 0;
     }
@@ -139,14 +139,14 @@ mod tests {
         assert!(unclamped[stray] > 2.0, "{}", unclamped[stray]);
         let mut radii = unclamped.clone();
         let all = vec![true; points.len()];
-        assert_eq!(clamp_to_neighbours(&mut radii, &all, &nbrs, 16), 1);
+        assert_eq!(clamp_to_neighbours(&mut radii, &all, &nbrs), 1);
         let near = nbrs.of(stray).iter().map(|&j| unclamped[j as usize]).fold(0.0, f32::max);
         assert!(radii[stray] <= MAX_OVER_NEIGHBOURS * near && radii[stray] < 0.5, "{}", radii[stray]);
         assert_eq!(radii[..stray], unclamped[..stray]);
         // Only the radii asked for are clamped.
         let mut radii = unclamped.clone();
         let none = vec![false; points.len()];
-        assert_eq!((clamp_to_neighbours(&mut radii, &none, &nbrs, 16), radii), (0, unclamped));
+        assert_eq!((clamp_to_neighbours(&mut radii, &none, &nbrs), radii), (0, unclamped));
     }
 
     fn mean_nn_spacing(nbrs: &Neighbourhoods) -> f32 {

@@ -77,10 +77,11 @@ pub struct SurfaceScheme {
     /// sticks out beyond the rim, or through a gap in the near side; both show as dark specks
     /// (the normal, turned to the viewer, points away from the light) and cover little. With
     /// 1.0 rather than `min_coverage` (0.15), the default renders' dark speckles
-    /// (`scripts/speckle_check.py`, 1024², before the thin-spot rule of `windowed`): the dragon 26 → 19, the bunny 19 → 7, the Happy
-    /// Buddha 27 → 17, Igea 13 → 0, the Armadillo 48 → 28 (2.0 took them lower still, but
-    /// a wall of a closed room seen from inside faces away too, covered only about 2.5). A
-    /// thin part seen from behind shows its own near side, which faces the viewer.
+    /// (`scripts/speckle_check.py`, 1024², before the thin-spot rule of `windowed`): the dragon
+    /// 26 → 19, the bunny 19 → 7, the Happy Buddha 27 → 17, Igea 13 → 0, the Armadillo 48 → 28
+    /// (2.0 took them lower still, but a wall of a closed room seen from inside faces away too,
+    /// covered only about 2.5). A thin part seen from behind shows its own near side, which
+    /// faces the viewer.
     pub min_coverage_facing_away: f32,
     /// RFD: blend the crossings' distances moved onto each splat's tangent plane, rather than
     /// the distances of the centres' projections.

@@ -329,12 +329,7 @@ fn flatten(node: BuildNode, nodes: &mut Vec<Node>, spans: &mut Vec<(usize, usize
             children.extend(*pair);
             open_largest(&mut children);
         }
-        BuildNode::Inner { children: pair, .. } => {
-            let [l, r] = *pair;
-            let (k, _) = Slots::split(&l.slots(params), &r.slots(params), WIDTH);
-            gather(l, k, &mut children, params);
-            gather(r, WIDTH - k, &mut children, params);
-        }
+        BuildNode::Inner { children: pair, .. } => share(*pair, WIDTH, &mut children, params),
         leaf => children.push(leaf),
     }
     let at = nodes.len();
@@ -380,13 +375,17 @@ fn open_largest(children: &mut ArrayVec<BuildNode, WIDTH>) {
 fn gather(node: BuildNode, j: usize, children: &mut ArrayVec<BuildNode, WIDTH>, params: &BvhParams) {
     match node {
         BuildNode::Inner { children: pair, slots, .. } if j > 1 && slots.0[j - 1] < slots.0[0] => {
-            let [l, r] = *pair;
-            let (k, _) = Slots::split(&l.slots(params), &r.slots(params), j);
-            gather(l, k, children, params);
-            gather(r, j - k, children, params);
+            share(*pair, j, children, params);
         }
         node => children.push(node),
     }
+}
+
+/// [`gather`]s a binary node's two children into `j` slots, shared as [`Slots`] found.
+fn share([l, r]: [BuildNode; 2], j: usize, children: &mut ArrayVec<BuildNode, WIDTH>, params: &BvhParams) {
+    let (k, _) = Slots::split(&l.slots(params), &r.slots(params), j);
+    gather(l, k, children, params);
+    gather(r, j - k, children, params);
 }
 
 /// The bounds of a node's primitives and of their centroids.
