@@ -505,10 +505,11 @@ fn blocks(n: usize) -> f32 {
 /// Nodes of at least twice this many primitives choose their split from about this many of
 /// them, evenly strided: the rest only move the split's cost a little, and at the top of the
 /// tree binning all took most of the build. (The 1-million-point torus's build, two threads,
-/// medians of alternating runs: 0.1347 s binning all; 0.1279 binning every fourth primitive of
-/// nodes of more than 1,024; 0.119 from 1,024 of them, and 0.116 from 256; the dragon's first
-/// hits, 256² crop, 694.8 instructions a pixel binning all, 698.4 from 256, 695–697 from 1,024
-/// or 2,048 (which built the torus 3 % slower), as unrelated code moved the count.)
+/// medians of alternating runs: 0.1347 s binning all against 0.1279 binning every fourth
+/// primitive of nodes of more than 1,024; in another set, 0.1228 so against 0.119 from 1,024
+/// of them and 0.116 from 256. The dragon's first hits, 256² crop, 694.8 instructions a pixel
+/// binning all, 698.4 from 256, 695–697 from 1,024 or 2,048 (which built the torus 3 %
+/// slower), as unrelated code moved the count.)
 const SAMPLES: usize = 1024;
 
 /// Most bins per axis (the binning arrays live on the stack).
@@ -810,13 +811,16 @@ mod tests {
 
     /// A split chosen from a sample still moves every primitive, and the partition measures
     /// both sides' bounds exactly; binned in parallel chunks too, whose strides start anew in
-    /// each chunk (with a stride that does not divide the chunks, counting the sample as
-    /// ⌈n / stride⌉ overflowed there).
+    /// each chunk. There a stray splat, sampled and alone in the last bin of every axis, makes
+    /// the sweep's right side one sample: counted as ⌈n / stride⌉ (with a stride that does not
+    /// divide the chunks), the sample was two short and the count overflowed (debug builds).
     #[test]
     fn a_sampled_split_measures_both_sides() {
         let params = BvhParams::standard();
         for n in [3 * SAMPLES, PARALLEL_BINNING + 12_345] {
-            let mut prims = prims_of(&sphere(n), &params);
+            let mut splats = sphere(n - 1);
+            splats.insert(0, Splat { center: Vec3::splat(10.0), radius: 0.01, normal: Vec3::Z, color: 0 });
+            let mut prims = prims_of(&splats, &params);
             let extent = Extent::of(&prims);
             let cb = extent.centroids.aabb();
             let split = best_sah_split(&prims, &extent.bounds.aabb(), &cb, &params).expect("a split");
