@@ -3,6 +3,14 @@
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use pointray::film::ToneCurve;
+use pointray::frame::Aov;
+use pointray::render::{Filter, Integrator, Sampler};
+use pointray::settings::{AccelKind, Cull, MaterialPreset, Settings};
+use pointray::splat::scheme::SurfaceKind;
+
+/// The settings' defaults, which the flags' defaults are.
+static D: std::sync::LazyLock<Settings> = std::sync::LazyLock::new(Settings::default);
 
 #[derive(Parser, Debug)]
 #[command(name = "pointray", version, about = "Ray tracing of point clouds rendered directly as splats")]
@@ -93,10 +101,10 @@ pub struct RenderArgs {
     #[arg(short, long)]
     pub output: PathBuf,
     /// Image width in pixels.
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, default_value_t = D.width)]
     pub width: u32,
     /// Image height in pixels.
-    #[arg(long, default_value_t = 1024)]
+    #[arg(long, default_value_t = D.height)]
     pub height: u32,
     /// Worker threads (default: all cores).
     #[arg(long)]
@@ -104,28 +112,28 @@ pub struct RenderArgs {
     /// Acceleration structure: the multiresolution BVH; the SAH kd-tree with level of detail
     /// (no normal cones: culling and spheres apply to the BVH only); brute force, which tests every
     /// splat (the reference for tests).
-    #[arg(long, value_enum, default_value_t = AccelArg::Bvh)]
-    pub accel: AccelArg,
+    #[arg(long, value_enum, default_value_t = D.accel)]
+    pub accel: AccelKind,
     /// How the disks a ray crosses become a surface point.
-    #[arg(long, value_enum, default_value_t = SurfaceArg::Sj)]
-    pub surface: SurfaceArg,
+    #[arg(long, value_enum, default_value_t = D.surface)]
+    pub surface: SurfaceKind,
     /// SJ and RFD interpolation window, in radii of the first disk hit [default: 1 for SJ and
     /// PSS, 2 for RFD].
     #[arg(long)]
     pub sj_window: Option<f32>,
     /// SJ and RFD: least coverage Σ(1 − d/r) of the disks in a window for it to count as
     /// surface (lone disks crossed at their rims are skipped).
-    #[arg(long, default_value_t = pointray::splat::scheme::SurfaceScheme::sj().min_coverage)]
+    #[arg(long, default_value_t = D.sj_min_coverage)]
     pub sj_min_coverage: f32,
     /// SJ and RFD: the same for a window whose disks face away from the viewer (seen past a
     /// silhouette or through a gap; a thin part seen from behind is covered and still shows).
-    #[arg(long, default_value_t = pointray::splat::scheme::SurfaceScheme::sj().min_coverage_facing_away)]
+    #[arg(long, default_value_t = D.sj_min_coverage_facing_away)]
     pub sj_min_coverage_facing_away: f32,
     /// Samples per pixel (jittered, anti-aliasing).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = D.spp)]
     pub spp: u32,
     /// Seed of the per-pixel random numbers (and of the demo scene's points).
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = D.seed)]
     pub seed: u64,
 
     /// Camera position, in the file's coordinates (then --look-at is needed).
@@ -138,24 +146,24 @@ pub struct RenderArgs {
     #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, default_value = "0,1,0")]
     pub up: glam::Vec3,
     /// Vertical field of view, degrees.
-    #[arg(long, default_value_t = 60.0)]
+    #[arg(long, default_value_t = D.fov)]
     pub fov: f32,
     /// Where a pixel's samples go: r2 (a low-discrepancy sequence) or random.
-    #[arg(long, value_enum, default_value_t = SamplerArg::R2)]
-    pub sampler: SamplerArg,
+    #[arg(long, value_enum, default_value_t = D.sampler)]
+    pub sampler: Sampler,
     /// Reconstruction filter: box (the pixel) or tent (two pixels wide, smoother edges); with
     /// --spp 1 the one sample goes through the pixel's centre.
-    #[arg(long, value_enum, default_value_t = FilterArg::Box)]
-    pub filter: FilterArg,
+    #[arg(long, value_enum, default_value_t = D.filter)]
+    pub filter: Filter,
     /// How a PNG shows radiance: clamp (exactly, up to 1; brighter clips to white) or filmic
     /// (an ACES-like curve that rolls highlights off). EXR output is always linear.
-    #[arg(long, value_enum, default_value_t = ToneArg::Clamp)]
-    pub tonemap: ToneArg,
+    #[arg(long, value_enum, default_value_t = D.tonemap)]
+    pub tonemap: ToneCurve,
     /// Exposure of a PNG in stops: radiance × 2^EXPOSURE before the tone map.
-    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    #[arg(long, default_value_t = D.exposure, allow_hyphen_values = true)]
     pub exposure: f32,
     /// Depth of field: the lens radius, in the model's units (0: everything sharp).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = D.lens_radius)]
     pub lens_radius: f32,
     /// Depth of field: the distance in focus (default: to the point looked at).
     #[arg(long)]
@@ -188,25 +196,25 @@ pub struct RenderArgs {
     /// Light intensity: the radiance a white Lambert surface facing the light shows, in every
     /// integrator (Whitted's Phong shows 1 − ambient of it); a point light's falls off with
     /// the squared distance from 1.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = D.light_intensity)]
     pub light_intensity: f32,
     /// No shadow rays.
     #[arg(long)]
     pub no_shadows: bool,
     /// Shadow- and secondary-ray start offset, in splat radii.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = D.shadow_offset)]
     pub shadow_offset: f32,
     /// What the points are made of: phong (lit by the light, with shadows), mirror, or glass
     /// (Fresnel reflection and refraction, --ior).
-    #[arg(long, value_enum, default_value_t = MaterialArg::Phong)]
-    pub material: MaterialArg,
+    #[arg(long, value_enum, default_value_t = D.material)]
+    pub material: MaterialPreset,
     /// Index of refraction of --material glass.
-    #[arg(long, default_value_t = 1.5)]
+    #[arg(long, default_value_t = D.ior)]
     pub ior: f32,
     /// whitted: direct light, shadows, reflection and refraction; path: a path tracer (global
     /// illumination: light bouncing between diffuse surfaces and from the sky; needs many --spp).
-    #[arg(long, value_enum, default_value_t = IntegratorArg::Whitted)]
-    pub integrator: IntegratorArg,
+    #[arg(long, value_enum, default_value_t = D.integrator)]
+    pub integrator: Integrator,
     /// --integrator ao: how far a surface looks for what occludes it (default: a tenth of the
     /// model's bounding-box diagonal).
     #[arg(long)]
@@ -215,10 +223,10 @@ pub struct RenderArgs {
     /// unit length), from which its level of detail follows; 0 keeps the camera ray's. The
     /// default, 0.1, renders a path-traced dragon 1.23-1.31x faster, 54 dB from full detail, where
     /// the Monte Carlo noise itself is 40 dB (docs/path-lod.md).
-    #[arg(long, default_value_t = 0.1)]
+    #[arg(long, default_value_t = D.diffuse_spread)]
     pub diffuse_spread: f32,
     /// Bounces a path may take (off mirrors and glass; with --integrator path, any).
-    #[arg(long, default_value_t = 5)]
+    #[arg(long, default_value_t = D.max_depth)]
     pub max_depth: u32,
     /// An analytic floor under the model: a checkered plane just below its bounding box
     /// along --up, which it stands on and shadows.
@@ -230,8 +238,9 @@ pub struct RenderArgs {
     pub sky: bool,
 
     /// Level of detail: a subtree narrower than this many pixels (its bounding sphere's
-    /// radius against the ray's footprint) is drawn as its representative splat.
-    #[arg(long, default_value_t = DEFAULT_LOD_THRESHOLD)]
+    /// radius against the ray's footprint) is drawn as its representative splat; 0 is full
+    /// detail, as --lod off is.
+    #[arg(long, default_value_t = D.lod_threshold)]
     pub lod_threshold: f32,
     /// Level of detail on or off (off: every ray descends to the input splats).
     #[arg(long, value_enum, default_value_t = Switch::On)]
@@ -240,15 +249,15 @@ pub struct RenderArgs {
     /// the model meet almost no back faces first (a closed, consistently oriented surface).
     /// Off by default: front-to-back traversal already skips what lies behind the first hit,
     /// and culling measured slower (docs/multires.md).
-    #[arg(long, value_enum, default_value_t = CullArg::Off)]
-    pub cull: CullArg,
+    #[arg(long, value_enum, default_value_t = D.cull)]
+    pub cull: Cull,
     /// Bounding volumes: boxes above this level of the tree (the root is 0), spheres from it
     /// down; "never" for boxes only, "auto" to choose per node by surface area.
     #[arg(long, value_parser = parse_sphere_level, default_value = "never")]
     pub sphere_from_level: pointray::accel::NodeBounds,
     /// Extra images beside the output, OUTPUT.KIND.png (comma-separated or repeated).
     #[arg(long, value_enum, value_delimiter = ',')]
-    pub aov: Vec<AovArg>,
+    pub aov: Vec<Aov>,
 
     /// Write statistics (timings, rays, traversal work, memory) as JSON.
     #[arg(long)]
@@ -276,6 +285,66 @@ impl RenderArgs {
     /// Whether the flag of field `id` was given on the command line.
     pub fn given(&self, id: &str) -> bool {
         self.given.iter().any(|g| g == id)
+    }
+
+    /// The render settings these flags give.
+    pub fn settings(&self) -> Settings {
+        Settings {
+            width: self.width,
+            height: self.height,
+            accel: self.accel,
+            sphere_from_level: self.sphere_from_level,
+            surface: self.surface,
+            sj_window: self.sj_window,
+            sj_min_coverage: self.sj_min_coverage,
+            sj_min_coverage_facing_away: self.sj_min_coverage_facing_away,
+            spp: self.spp,
+            seed: self.seed,
+            sampler: self.sampler,
+            filter: self.filter,
+            tonemap: self.tonemap,
+            exposure: self.exposure,
+            eye: self.eye,
+            look_at: self.look_at,
+            up: self.up,
+            fov: self.fov,
+            lens_radius: self.lens_radius,
+            focus_distance: self.focus_distance,
+            view_dir: self.view_dir,
+            distance: self.distance,
+            region: self.region,
+            crop_to_model: self.crop_to_model,
+            light_dir: self.light_dir,
+            light_pos: self.light_pos,
+            light_radius: self.light_radius,
+            light_intensity: self.light_intensity,
+            material: self.material,
+            ior: self.ior,
+            sky: self.sky,
+            ground: self.ground,
+            integrator: self.integrator,
+            ao_distance: self.ao_distance,
+            diffuse_spread: self.diffuse_spread,
+            max_depth: self.max_depth,
+            shadows: !self.no_shadows,
+            shadow_offset: self.shadow_offset,
+            lod_threshold: if self.lod == Switch::On { self.lod_threshold } else { 0.0 },
+            cull: self.cull,
+            aovs: self.aov.clone(),
+            count_work: self.stats.is_some(),
+        }
+    }
+}
+
+impl PreprocessArgs {
+    pub fn config(&self) -> pointray::preprocess::PreprocessConfig {
+        pointray::preprocess::PreprocessConfig {
+            k_normals: self.k_normals,
+            k_radius: self.k_radius,
+            radius_scale: self.radius_scale,
+            recompute: self.recompute,
+            ..pointray::preprocess::PreprocessConfig::standard()
+        }
     }
 }
 
@@ -380,120 +449,11 @@ pub struct CompareArgs {
     pub speckles: Option<PathBuf>,
 }
 
-#[derive(Copy, Clone, Debug, ValueEnum)]
-pub enum AccelArg {
-    Bvh,
-    Kdtree,
-    Brute,
-}
-
-#[derive(Copy, Clone, Debug, ValueEnum)]
-pub enum SurfaceArg {
-    /// Schaufler–Jensen: oriented disks, blended over a short window.
-    Sj,
-    /// Ray-facing disks, blended over the same window.
-    Rfd,
-    /// The moving least-squares point-set surface, projected onto from the SJ hit.
-    Pss,
-    /// The nearest oriented disk alone (flat shaded).
-    FirstHit,
-}
-
-#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
-pub enum SamplerArg {
-    Random,
-    R2,
-}
-
-#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
-pub enum FilterArg {
-    Box,
-    Tent,
-}
-
-#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
-pub enum ToneArg {
-    Clamp,
-    Filmic,
-}
-
-impl From<ToneArg> for pointray::film::ToneCurve {
-    fn from(t: ToneArg) -> Self {
-        match t {
-            ToneArg::Clamp => Self::Clamp,
-            ToneArg::Filmic => Self::Filmic,
-        }
-    }
-}
-
-impl From<pointray::film::ToneCurve> for ToneArg {
-    fn from(t: pointray::film::ToneCurve) -> Self {
-        match t {
-            pointray::film::ToneCurve::Clamp => Self::Clamp,
-            pointray::film::ToneCurve::Filmic => Self::Filmic,
-        }
-    }
-}
-
-#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
-pub enum IntegratorArg {
-    Whitted,
-    Path,
-    /// Ambient occlusion.
-    Ao,
-    /// Albedo × |N·D|, no lights (Embree's bench's shading; a quick preview).
-    EyeLight,
-}
-
-#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
-pub enum MaterialArg {
-    Phong,
-    Mirror,
-    Glass,
-}
-
 #[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
 pub enum Switch {
     On,
     Off,
 }
-
-#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum CullArg {
-    Auto,
-    On,
-    Off,
-}
-
-#[derive(Copy, Clone, Debug, PartialEq, Eq, ValueEnum)]
-pub enum AovArg {
-    /// A heat map of the accelerator nodes visited per pixel.
-    Nodes,
-    /// The camera rays' shading normals, as RGB = (n + 1) / 2.
-    Normal,
-    /// The distance to the first hit, nearest white, farthest dark, misses black.
-    Depth,
-    /// The surface colour, unlit.
-    Albedo,
-}
-
-impl AovArg {
-    pub fn name(self) -> &'static str {
-        match self {
-            AovArg::Nodes => "nodes",
-            AovArg::Normal => "normal",
-            AovArg::Depth => "depth",
-            AovArg::Albedo => "albedo",
-        }
-    }
-}
-
-/// `--lod-threshold`'s default, in pixels: subtrees up to one pixel across are drawn as their
-/// representative. On the dragon at 16 diagonals that is 1.8× faster than full detail and
-/// closer to the converged image (24.0 dB against 23.3 dB at 1 spp, docs/multires.md D); τ = 1
-/// is 2.6× faster but 1 dB further off.
-pub const DEFAULT_LOD_THRESHOLD: f32 = 0.5;
 
 fn parse_sphere_level(s: &str) -> Result<pointray::accel::NodeBounds, String> {
     use pointray::accel::NodeBounds;

@@ -1,7 +1,6 @@
 //! `pointray`: the command line. Argument parsing, logging and progress live here; the work is
 //! in the `pointray` and `pointray-io` libraries.
 
-mod any_accel;
 mod args;
 mod bench;
 mod commands;

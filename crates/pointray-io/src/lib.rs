@@ -12,6 +12,7 @@ mod pcd;
 pub mod ply;
 mod scanset;
 pub mod scene;
+pub mod source;
 pub mod xyz;
 
 mod builder;

@@ -1,12 +1,12 @@
 //! Scene files (TOML): the schema of `pointray render scene.toml`, parsed here with the other
-//! file formats; the command line loads the clouds a scene names and places them
-//! (`scenes/README.md` documents every key).
+//! file formats (`scenes/README.md` documents every key); [`crate::source`] loads the clouds
+//! a scene names and places them.
 
 use std::path::{Path, PathBuf};
 
 use pointray::film::{MAX_PIXELS, ToneCurve, ToneMap};
 use pointray::material::Phong;
-use pointray::render::{Filter, Sampler};
+use pointray::render::{Filter, Integrator, Sampler};
 use pointray::splat::scheme::SurfaceKind;
 use serde::Deserialize;
 
@@ -212,7 +212,7 @@ pub struct RenderSpec {
     pub max_depth: u32,
     pub seed: u64,
     pub surface: SurfaceKind,
-    pub integrator: IntegratorSpec,
+    pub integrator: Integrator,
     pub sampler: Sampler,
     pub filter: Filter,
     /// How a PNG shows radiance (`clamp` or `filmic`) and its exposure in stops.
@@ -234,7 +234,7 @@ impl Default for RenderSpec {
             max_depth: 5,
             seed: 1,
             surface: SurfaceKind::Sj,
-            integrator: IntegratorSpec::Whitted,
+            integrator: Integrator::Whitted,
             sampler: Sampler::R2,
             filter: Filter::Box,
             tonemap: ToneCurve::Clamp,
@@ -244,15 +244,6 @@ impl Default for RenderSpec {
             shadows: true,
         }
     }
-}
-
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum IntegratorSpec {
-    Whitted,
-    Path,
-    Ao,
-    EyeLight,
 }
 
 #[derive(Debug, Deserialize)]

@@ -8,6 +8,7 @@ use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 
 use crate::PointCloud;
+use crate::scene::SceneParts;
 use crate::shading::Light;
 
 /// About `points` points spread over the three surfaces in proportion to their areas.
@@ -58,6 +59,13 @@ pub const DEMO_VIEW: ([f32; 3], f32) = ([0.35, 0.5, 1.0], 0.62);
 /// The demo's light: high, to the left and in front, so both objects cast visible shadows.
 pub fn demo_light() -> Light {
     Light::Directional { direction: Vec3::new(-0.5, 1.0, 0.6), intensity: 1.0 }
+}
+
+/// The demo scene of a [`demo_cloud`], preprocessed: seen from its own view, lit by its own
+/// light (unless the settings name others).
+pub fn demo_scene_parts(cloud: PointCloud) -> SceneParts {
+    let view = Some((Vec3::from(DEMO_VIEW.0), DEMO_VIEW.1));
+    SceneParts { cloud, view, light: Some(demo_light()), ..SceneParts::default() }
 }
 
 pub fn uniform_sphere(rng: &mut Pcg64Mcg) -> Vec3 {

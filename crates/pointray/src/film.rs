@@ -85,6 +85,7 @@ pub struct ToneMap {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum ToneCurve {
     /// Radiance up to 1 shown exactly, brighter clipped to white: the default, and what the

@@ -22,7 +22,8 @@ use crate::splat::scheme::{self, SurfaceScheme};
 use crate::stats::RenderStats;
 
 /// How light is carried from the lights to the eye.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum Integrator {
     /// Whitted: Phong direct light with shadows, ambient for the rest; mirrors and glass
@@ -35,8 +36,9 @@ pub enum Integrator {
     /// reflectance. Russian roulette from the fourth bounce; unbiased but for `max_depth`.
     Path,
     /// Ambient occlusion: a diffuse surface shows its albedo times the fraction of
-    /// cosine-distributed rays (one per sample) that meet nothing within `distance`.
-    AmbientOcclusion { distance: f32 },
+    /// cosine-distributed rays (one per sample) that meet nothing within
+    /// [`RenderConfig::ao_distance`].
+    Ao,
     /// Eye light: every hit shows its albedo times |N·D|, the cosine between its normal and
     /// the ray; no lights, shadows or bounces. The shading of Embree's tutorials and bench,
     /// so that a comparison with it measures the ray query, not the shading; and a quick
@@ -46,6 +48,7 @@ pub enum Integrator {
 
 /// Where in and around its pixel each sample's camera ray goes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum Sampler {
     /// Independent uniform positions.
@@ -58,6 +61,7 @@ pub enum Sampler {
 /// The pixel's reconstruction filter, applied by importance sampling (as pbrt-v4 does):
 /// sample positions are drawn with the filter's density and averaged with equal weights.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum Filter {
     /// The pixel's square.
@@ -71,6 +75,8 @@ pub struct RenderConfig {
     pub sampler: Sampler,
     pub filter: Filter,
     pub integrator: Integrator,
+    /// [`Integrator::Ao`]: how far a surface looks for what occludes it.
+    pub ao_distance: f32,
     pub scheme: SurfaceScheme,
     /// Every light shines on Phong surfaces, each with its own shadow ray.
     pub lights: Vec<Light>,
@@ -465,12 +471,12 @@ impl<A: Accel> Tracer<'_, A> {
         let bounce = |direction: Vec3| secondary(ray, &hit, direction, config);
         match material {
             Material::Phong(_) if config.integrator == Integrator::Path => self.diffuse(ray, &hit, depth, inside),
-            Material::Phong(_) if let Integrator::AmbientOcclusion { distance } = config.integrator => {
+            Material::Phong(_) if config.integrator == Integrator::Ao => {
                 let direction = cosine_direction(hit.normal, [self.rng.get().random(), self.rng.get().random()]);
                 let probe = secondary(ray, &hit, direction, config);
                 self.stats.secondary_rays += 1;
                 self.stats.rays += 1;
-                let open = !self.occluded(&probe, distance);
+                let open = !self.occluded(&probe, config.ao_distance);
                 Vec3::from(hit.color) * f32::from(u8::from(open))
             }
             Material::Phong(phong) => {
@@ -495,7 +501,7 @@ impl<A: Accel> Tracer<'_, A> {
                     (_, None) => self.radiance(&reflected, depth + 1, inside),
                     // One branch, chosen with the probability of its Fresnel weight, which it
                     // then cancels.
-                    (Integrator::Path | Integrator::AmbientOcclusion { .. }, Some(refracted)) => {
+                    (Integrator::Path | Integrator::Ao, Some(refracted)) => {
                         if self.rng.get().random::<f32>() < reflectance {
                             self.radiance(&reflected, depth + 1, inside)
                         } else {

@@ -154,11 +154,12 @@ impl AccelVariant {
         }
     }
 
-    pub fn kind(&self) -> crate::args::AccelArg {
+    pub fn kind(&self) -> pointray::settings::AccelKind {
+        use pointray::settings::AccelKind;
         match self {
-            AccelVariant::Bvh(_) => crate::args::AccelArg::Bvh,
-            AccelVariant::KdTree => crate::args::AccelArg::Kdtree,
-            AccelVariant::Brute => crate::args::AccelArg::Brute,
+            AccelVariant::Bvh(_) => AccelKind::Bvh,
+            AccelVariant::KdTree => AccelKind::Kdtree,
+            AccelVariant::Brute => AccelKind::Brute,
         }
     }
 }

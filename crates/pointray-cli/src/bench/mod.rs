@@ -21,18 +21,14 @@ use std::time::Instant;
 use anyhow::Context;
 use glam::Vec3;
 use pointray::PointCloud;
-use pointray::camera::{Camera, Region};
 use pointray::film::{Film, ToneMap};
-use pointray::math::Aabb;
 use pointray::metrics::compare_rgb8;
-use pointray::render::RenderConfig;
-use pointray::shading::{Environment, Light};
+use pointray::settings::Settings;
 use pointray::splat::DiskShape;
-use pointray::splat::scheme::{SurfaceKind, SurfaceScheme};
-use pointray::splat::splats_from_cloud;
+use pointray::splat::scheme::SurfaceKind;
+use pointray::{Frame, Scene, render};
 use serde::{Deserialize, Serialize};
 
-use crate::any_accel::AnyAccel;
 use crate::args::BenchArgs;
 use experiment::{AccelVariant, Experiment, ModelSpec, Point, Source};
 use machine::{LoadSample, Machine};
@@ -265,30 +261,35 @@ fn git_describe() -> Option<String> {
 struct Model {
     name: String,
     cloud: PointCloud,
-    bounds: Aabb,
     view_dir: Vec3,
     up: Vec3,
     record: ModelRecord,
 }
 
 fn load_model(spec: &ModelSpec, e: &Experiment, folder: &Path, a: &BenchArgs, quiet: bool) -> anyhow::Result<Model> {
-    let t = Instant::now();
-    let (mut cloud, source) = match spec.source(folder)? {
-        Source::Cloud(path) => (crate::commands::load(&path, quiet)?.0.cloud, path.display().to_string()),
+    let config = a.preprocess.config();
+    config.check().map_err(|e| crate::failure::usage(crate::commands::render::flag_error(e)))?;
+    let spinner = crate::progress::spinner("read", quiet);
+    let stage = |s: &str| spinner.set_message(s.to_string());
+    let (cloud, source, points_read, preprocess, load_seconds) = match spec.source(folder)? {
+        Source::Cloud(path) => {
+            let (cloud, points_read, stats, seconds) = pointray_io::source::read_prepared(&path, &config, &stage)?;
+            (cloud, path.display().to_string(), points_read, stats, seconds)
+        }
         Source::Mesh { path, points } => {
+            let t = Instant::now();
             let normals = pointray::mesh_sampling::SampleNormals::Smooth;
-            let sampled = crate::commands::sample::sample_mesh(&path, points as usize, 1, normals, quiet)?;
-            (sampled.cloud, format!("{} ({points} points sampled)", path.display()))
+            let mut cloud = crate::commands::sample::sample_mesh(&path, points as usize, 1, normals, quiet)?.cloud;
+            let seconds = t.elapsed().as_secs_f64();
+            let source = format!("{} ({points} points sampled)", path.display());
+            let stats = pointray_io::source::prepare(&mut cloud, &config, &source, &stage)
+                .map_err(|e| anyhow::anyhow!("{source}: {e}"))?;
+            (cloud, source, points as usize, stats, seconds)
         }
     };
-    let load_seconds = t.elapsed().as_secs_f64();
-    let points_read = cloud.len();
-    let t = Instant::now();
-    crate::commands::prepare_cloud(&mut cloud, &a.preprocess, &source, quiet)?;
-    let preprocess_seconds = t.elapsed().as_secs_f64();
+    spinner.finish_and_clear();
     let radii = cloud.radii.as_deref().unwrap_or_default();
     let mean_radius = radii.iter().map(|&r| f64::from(r)).sum::<f64>() / radii.len().max(1) as f64;
-    let bounds = cloud.bounds();
     let record = ModelRecord {
         kind: "model".into(),
         model: spec.name.clone(),
@@ -296,8 +297,8 @@ fn load_model(spec: &ModelSpec, e: &Experiment, folder: &Path, a: &BenchArgs, qu
         points_read,
         points: cloud.len(),
         load_seconds,
-        preprocess_seconds,
-        bounds_diagonal: bounds.diagonal(),
+        preprocess_seconds: preprocess.seconds.total(),
+        bounds_diagonal: cloud.bounds().diagonal(),
         mean_radius,
     };
     Ok(Model {
@@ -305,39 +306,30 @@ fn load_model(spec: &ModelSpec, e: &Experiment, folder: &Path, a: &BenchArgs, qu
         view_dir: Vec3::from(spec.view_dir.unwrap_or(e.camera.view_dir)),
         up: Vec3::from(spec.up.unwrap_or(e.camera.up)),
         cloud,
-        bounds,
         record,
     })
 }
 
-/// The camera of a point, and the pixels it traces.
-fn frame(e: &Experiment, model: &Model, distance: f32) -> (Camera, Region) {
-    let camera = Camera::orbit(&model.bounds, model.view_dir, model.up, distance, e.camera.fov, e.width, e.height);
-    let region = if e.camera.crop_to_model { camera.region_of(&model.bounds) } else { Region::full(e.width, e.height) };
-    (camera, region)
-}
-
-fn config(e: &Experiment, camera: &Camera, region: Region, surface: SurfaceKind, lod_threshold: f32) -> RenderConfig {
-    RenderConfig {
-        sampler: pointray::render::Sampler::R2,
-        filter: pointray::render::Filter::Box,
-        integrator: pointray::render::Integrator::Whitted,
-        scheme: SurfaceScheme::of_kind(surface),
-        lights: vec![Light::headlight(camera, 1.0)],
-        materials: vec![pointray::material::Material::standard()],
-        shadows: e.shadows,
-        shadow_offset: 1.0,
-        environment: Environment::BACKGROUND,
-        ground: None,
-        max_depth: 0,
-        region,
-        samples: 1,
-        seed: 1,
+/// The settings of a point of the matrix, seen through `surface`: the experiment's camera and
+/// frame, Whitted shading under a headlight, one sample a pixel, the work counted.
+fn settings(e: &Experiment, model: &Model, p: &Point, surface: SurfaceKind, lod_threshold: f32) -> Settings {
+    Settings {
+        width: e.width,
+        height: e.height,
+        accel: p.accel.kind(),
+        sphere_from_level: p.accel.node_bounds(),
+        surface,
         lod_threshold,
-        diffuse_spread: 0.0,
-        cull_backfaces: false,
+        view_dir: Some(model.view_dir),
+        up: model.up,
+        distance: Some(p.distance),
+        fov: e.camera.fov,
+        crop_to_model: e.camera.crop_to_model,
+        shadows: e.shadows,
+        max_depth: 0,
+        seed: 1,
         count_work: true,
-        first_hit_aovs: false,
+        ..Settings::default()
     }
 }
 
@@ -347,9 +339,9 @@ fn region_srgb8(film: &Film) -> Vec<u8> {
     film.rgb.iter().flat_map(|c| c.map(&srgb8)).collect()
 }
 
-/// An accelerator built for one variant and disk shape, with what the build cost.
+/// A scene built for one variant and disk shape, with what the build cost.
 struct Built {
-    accel: AnyAccel,
+    scene: Scene,
     seconds: f64,
 }
 
@@ -363,22 +355,21 @@ fn measure_model(e: &Experiment, model: &Model, out: &Path, tick: &dyn Fn()) -> 
         if built.as_ref().is_none_or(|(k, _)| *k != key) {
             // One accelerator in memory at a time: the next replaces it.
             drop(built.take());
-            let splats = splats_from_cloud(&model.cloud);
-            let t = Instant::now();
-            let accel = AnyAccel::build(p.accel.kind(), splats, p.accel.node_bounds(), key.1);
-            built = Some((key, Built { accel, seconds: t.elapsed().as_secs_f64() }));
+            let scene = Scene::build(model.cloud.clone().into(), &settings(e, model, &p, p.surface, 0.0))?;
+            built = Some((key, Built { seconds: scene.build_seconds(), scene }));
         }
         let (_, built) = built.as_ref().expect("built above");
-        let (camera, region) = frame(e, model, p.distance);
         // The reference scheme's disks are oriented (`experiment::check`), which every
         // accelerator's bounds hold.
         for surface in std::iter::once(p.surface).chain(e.reference) {
-            full_detail.entry((p.distance.to_bits(), surface)).or_insert_with(|| {
-                let (film, _) = built.accel.render(&camera, &config(e, &camera, region, surface, 0.0), &|_| {});
-                region_srgb8(&film)
-            });
+            if let std::collections::btree_map::Entry::Vacant(entry) =
+                full_detail.entry((p.distance.to_bits(), surface))
+            {
+                let frame = render(&built.scene, &settings(e, model, &p, surface, 0.0))?;
+                entry.insert(region_srgb8(&frame.film));
+            }
         }
-        records.push(measure_point(e, model, &p, built, &camera, region, &full_detail, out)?);
+        records.push(measure_point(e, model, &p, built, &full_detail, out)?);
         tick();
     }
     Ok(records)
@@ -390,14 +381,13 @@ fn measure_point(
     model: &Model,
     p: &Point,
     built: &Built,
-    camera: &Camera,
-    region: Region,
     full_detail: &BTreeMap<(u32, SurfaceKind), Vec<u8>>,
     out: &Path,
 ) -> anyhow::Result<PointRecord> {
-    let config = config(e, camera, region, p.surface, p.lod_threshold);
+    let job = built.scene.job(&settings(e, model, p, p.surface, p.lod_threshold))?;
+    let region = job.config.region;
     let t = Instant::now();
-    let (film, stats) = built.accel.render(camera, &config, &|_| {});
+    let Frame { film, stats, .. } = job.render(&|_| {});
     let first_seconds = t.elapsed().as_secs_f64();
     let image = region_srgb8(&film);
     let (w, h) = (region.width(), region.height());
@@ -409,7 +399,7 @@ fn measure_point(
     });
     let frames = e.repeats.max((e.min_seconds / first_seconds.max(1e-6)).ceil().min(1000.0) as u32);
     // The counts are the first frame's; the timed frames count nothing.
-    let timed = RenderConfig { count_work: false, ..config.clone() };
+    let timed = job.uncounted();
 
     // Timed frames; again while other processes were busy, keeping the quietest attempt.
     let mut best: Option<(Vec<f64>, Option<f64>)> = None;
@@ -420,7 +410,7 @@ fn measure_point(
         let times: Vec<f64> = (0..frames)
             .map(|_| {
                 let t = Instant::now();
-                let _ = built.accel.render(camera, &timed, &|_| {});
+                let _ = timed.render(&|_| {});
                 t.elapsed().as_secs_f64()
             })
             .collect();
@@ -462,7 +452,7 @@ fn measure_point(
         splat_tests_per_ray: stats.splat_tests_per_ray(),
         lod_stops_per_ray: per_ray(stats.traversal.lod_stops),
         build_seconds: built.seconds,
-        accel_bytes: built.accel.memory_bytes(),
+        accel_bytes: built.scene.memory_bytes(),
         psnr_db: own.psnr_db,
         differing_pixels: own.differing_pixels,
         flip,

@@ -4,9 +4,12 @@ use crate::args::PrepareArgs;
 
 pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     super::check_output_path(&a.output)?;
-    let (loaded, _) = super::load(&a.input, quiet)?;
-    let mut cloud = loaded.cloud;
-    let stats = super::prepare_cloud(&mut cloud, &a.preprocess, &a.input.display().to_string(), quiet)?;
+    let config = a.preprocess.config();
+    config.check().map_err(|e| crate::failure::usage(super::render::flag_error(e)))?;
+    let spinner = crate::progress::spinner("read", quiet);
+    let stage = |s: &str| spinner.set_message(s.to_string());
+    let (cloud, _, stats, _) = pointray_io::source::read_prepared(&a.input, &config, &stage)?;
+    spinner.finish_and_clear();
     crate::progress::spinning("write", quiet, || pointray_io::write_ply(&a.output, &cloud))
         .map_err(crate::failure::output)?;
     if !quiet {

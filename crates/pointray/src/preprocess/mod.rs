@@ -39,10 +39,12 @@ pub struct PreprocessConfig {
     pub radius_scale: f32,
     /// Morton-sort the points first (faster kNN and accelerator builds; changes point order).
     pub sort: bool,
+    /// Compute normals and radii even where the cloud has them.
+    pub recompute: bool,
 }
 
 impl PreprocessConfig {
-    /// k_normals 16, k_radius 8, radius_scale 1.0, sort on.
+    /// k_normals 16, k_radius 8, radius_scale 1.0, sort on, recompute off.
     ///
     /// * k_normals = 16: on a noise-free 50k torus, ≥ 99.97 % of the normals are within 3°
     ///   for any k from 8 to 24 (mean error 0.76° at k 8, 0.66° at 16, 0.62° at 24); 16
@@ -53,7 +55,27 @@ impl PreprocessConfig {
     ///   settings reaching 99.9 % (k 6 / scale 1.0: 2.7×) leave holes in a few pixels per
     ///   million. Same rule as the Embree reference benchmark.
     pub fn standard() -> Self {
-        Self { k_normals: 16, k_radius: 8, radius_scale: 1.0, sort: true }
+        Self { k_normals: 16, k_radius: 8, radius_scale: 1.0, sort: true, recompute: false }
+    }
+
+    /// Every parameter in range, else the first that is not, named.
+    pub fn check(&self) -> Result<(), crate::settings::SettingsError> {
+        use crate::settings::SettingsError;
+        let check = |ok: bool, option, problem| if ok { Ok(()) } else { Err(SettingsError::new(option, problem)) };
+        check(self.k_normals >= 3, "k_normals", "must be at least 3 (a plane needs 3 points)")?;
+        check(self.k_radius >= 1, "k_radius", "must be at least 1")?;
+        for (option, k) in [("k_normals", self.k_normals), ("k_radius", self.k_radius)] {
+            if k > MAX_NEIGHBOURS {
+                return Err(SettingsError::new(option, format!("must be at most {MAX_NEIGHBOURS}")));
+            }
+        }
+        check(self.radius_scale > 0.0 && self.radius_scale.is_finite(), "radius_scale", "must be positive")
+    }
+}
+
+impl Default for PreprocessConfig {
+    fn default() -> Self {
+        Self::standard()
     }
 }
 
@@ -108,6 +130,49 @@ pub struct PreprocessStats {
 }
 
 impl PreprocessStats {
+    /// One warning (`tracing`) per kind of bad point dropped or repaired, naming `input`.
+    pub fn warn_repairs(&self, input: &str) {
+        let clamped = format!(
+            "over {} times the median of the neighbours' radii (stray points); clamped to that",
+            radii::MAX_OVER_NEIGHBOURS
+        );
+        // (count, what comes before it, the noun for one and for many, what comes after)
+        let repairs = [
+            (self.dropped_non_finite, "dropped ", "point", "points", "with a non-finite coordinate"),
+            (self.dropped_duplicates, "dropped ", "point", "points", "at the exact position of an earlier point"),
+            (
+                self.invalid_normals,
+                "",
+                "normal was",
+                "normals were",
+                "zero or non-finite; estimated from the neighbours",
+            ),
+            (
+                self.invalid_radii,
+                "",
+                "radius was",
+                "radii were",
+                "zero, negative or non-finite; computed from the neighbours",
+            ),
+            (self.clamped_radii, "", "radius was", "radii were", &clamped),
+            (
+                self.degenerate_normals,
+                "",
+                "normal has",
+                "normals have",
+                "no plane through their neighbours (collinear, or none); set to a fallback direction",
+            ),
+        ];
+        for (n, before, one, many, after) in repairs {
+            if n > 0 {
+                tracing::warn!("{input}: {before}{n} {} {after}", if n == 1 { one } else { many });
+            }
+        }
+        if self.turned_outward {
+            tracing::warn!("{input}: the normals pointed into the shape; turned outward");
+        }
+    }
+
     /// Adds the work of another cloud's preprocessing (a scene's clouds, summed).
     pub fn add(&mut self, o: &PreprocessStats) {
         self.dropped_non_finite += o.dropped_non_finite;
@@ -175,6 +240,9 @@ pub fn preprocess_with_progress(
         panic!("preprocess: inconsistent point cloud: {e}");
     }
     check_neighbours(cfg)?;
+    if cfg.recompute {
+        (cloud.normals, cloud.radii) = (None, None);
+    }
     stage("clean");
     let start = Instant::now();
     let mut stats = PreprocessStats {

@@ -33,6 +33,7 @@ use crate::accel::{Accel, Crossing, SplatVisitor, TraversalStats};
 use crate::math::Ray;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 #[serde(rename_all = "kebab-case")]
 pub enum SurfaceKind {
     Sj,

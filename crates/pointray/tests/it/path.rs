@@ -161,7 +161,8 @@ fn occlusion_beside_a_wall(wall: bool) -> f32 {
     let cam = Camera::look_at(Vec3::new(-1.0, 0.0, 1.0), point, Vec3::Z, 20.0, 65, 65);
     let (px, py) = cam.project(point).unwrap();
     let config = RenderConfig {
-        integrator: Integrator::AmbientOcclusion { distance: 100.0 },
+        integrator: Integrator::Ao,
+        ao_distance: 100.0,
         max_depth: 1,
         seed: 5,
         ..render_config(Region { x0: px as u32, y0: py as u32, x1: px as u32 + 1, y1: py as u32 + 1 }, 4096)
@@ -189,7 +190,8 @@ fn coverage(sampler: pointray::render::Sampler, samples: u32) -> Vec<f32> {
     let cam = Camera::look_at(Vec3::new(0.0, 0.0, 4.0), Vec3::ZERO, Vec3::Y, 30.0, 48, 48);
     let config = RenderConfig {
         sampler,
-        integrator: Integrator::AmbientOcclusion { distance: 1.0 },
+        integrator: Integrator::Ao,
+        ao_distance: 1.0,
         max_depth: 1,
         seed: 8,
         ..render_config(Region::full(48, 48), samples)

@@ -68,6 +68,7 @@ pub fn render_config(region: pointray::camera::Region, samples: u32) -> pointray
         sampler: Sampler::Random,
         filter: Filter::Box,
         integrator: Integrator::Whitted,
+        ao_distance: 1.0,
         scheme: pointray::splat::scheme::SurfaceScheme::sj(),
         lights: Vec::new(),
         materials: vec![pointray::material::Material::standard()],

@@ -42,7 +42,7 @@ pub(crate) struct NodeLod {
 }
 
 /// The bounds every node uses for its children.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum NodeBounds {
     /// Boxes everywhere: the foundation's BVH.

@@ -1,0 +1,206 @@
+//! A rendered frame ([`crate::scene::render`]'s result): the film of the rendered region, the
+//! work counted, and the images a program writes from it (the 8-bit sRGB frame, the AOVs as
+//! images or as float channels), the same for every front end.
+
+use serde::Serialize;
+
+use crate::accel::NodeBounds;
+use crate::camera::Region;
+use crate::film::{Film, FirstHitChannels, ToneMap, linear_to_srgb};
+use crate::render::Integrator;
+use crate::settings::Cull;
+use crate::stats::RenderStats;
+
+/// Arbitrary output variables: channels recorded beside the radiance.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
+pub enum Aov {
+    /// A heat map of the accelerator nodes visited per pixel.
+    Nodes,
+    /// The camera rays' shading normals, as RGB = (n + 1) / 2.
+    Normal,
+    /// The distance to the first hit, nearest white, farthest dark, misses black.
+    Depth,
+    /// The surface colour, unlit.
+    Albedo,
+}
+
+impl Aov {
+    pub fn name(self) -> &'static str {
+        match self {
+            Aov::Nodes => "nodes",
+            Aov::Normal => "normal",
+            Aov::Depth => "depth",
+            Aov::Albedo => "albedo",
+        }
+    }
+}
+
+/// One rendered frame.
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// The rendered region's pixels.
+    pub film: Film,
+    pub stats: RenderStats,
+    /// The whole frame's size, of which the film covers `film.region`.
+    pub width: u32,
+    pub height: u32,
+    /// The flat colour outside the region (linear).
+    pub background: [f32; 3],
+}
+
+impl Frame {
+    /// The whole frame as 8-bit sRGB through `tone` (what a PNG stores).
+    pub fn srgb8(&self, tone: ToneMap) -> Vec<u8> {
+        self.film.frame_srgb8(self.width, self.height, self.background, tone)
+    }
+
+    /// Most nodes visited by one pixel (the top of the node heat map's scale).
+    pub fn nodes_max(&self) -> u32 {
+        self.film.nodes_visited.iter().copied().max().unwrap_or(0)
+    }
+
+    /// An AOV as the whole frame in 8-bit RGB, black outside the region.
+    ///
+    /// # Panics
+    /// If the AOV is a first hit's and the render did not record them (`Settings::aovs`).
+    pub fn aov_rgb8(&self, aov: Aov) -> Vec<u8> {
+        let byte = |v: f32| (v.clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
+        let region: Vec<u8> = match aov {
+            Aov::Nodes => crate::metrics::heat_map_rgb8(&self.film.nodes_visited, self.nodes_max()),
+            Aov::Normal => self.first_hits().normal.iter().flat_map(|n| n.map(|c| byte(0.5 * c + 0.5))).collect(),
+            Aov::Albedo => {
+                let linear = &self.first_hits().albedo;
+                linear.iter().flat_map(|c| c.map(|v| byte(linear_to_srgb(v)))).collect()
+            }
+            Aov::Depth => {
+                let depth = &self.first_hits().depth;
+                let finite = depth.iter().copied().filter(|d| d.is_finite());
+                let (near, far) = finite.fold((f32::INFINITY, 0.0f32), |(lo, hi), d| (lo.min(d), hi.max(d)));
+                let range = (far - near).max(f32::MIN_POSITIVE);
+                let shade = |d: f32| if d.is_finite() { byte(1.0 - 0.8 * (d - near) / range) } else { 0 };
+                depth.iter().flat_map(|&d| [shade(d); 3]).collect()
+            }
+        };
+        let mut frame = vec![0u8; self.width as usize * self.height as usize * 3];
+        let r = self.film.region;
+        let row_bytes = r.width() as usize * 3;
+        for (row, y) in (r.y0..r.y1).enumerate() {
+            let dst = (y as usize * self.width as usize + r.x0 as usize) * 3;
+            frame[dst..dst + row_bytes].copy_from_slice(&region[row * row_bytes..(row + 1) * row_bytes]);
+        }
+        frame
+    }
+
+    /// The linear radiance as channels `R`, `G`, `B` (the background outside the region) and
+    /// each AOV as named float channels (`depth.Z`, `normal.X`, …), each the whole frame: the
+    /// layers of an EXR.
+    pub fn float_channels(&self, aovs: &[Aov]) -> Vec<(String, Vec<f32>)> {
+        let film = &self.film;
+        let whole = |value: &dyn Fn(usize) -> f32, fill: f32| {
+            let mut out = vec![fill; self.width as usize * self.height as usize];
+            let r = film.region;
+            for (row, y) in (r.y0..r.y1).enumerate() {
+                for (col, x) in (r.x0..r.x1).enumerate() {
+                    out[y as usize * self.width as usize + x as usize] = value(row * r.width() as usize + col);
+                }
+            }
+            out
+        };
+        let mut channels: Vec<(String, Vec<f32>)> = ["R", "G", "B"]
+            .iter()
+            .enumerate()
+            .map(|(c, name)| (name.to_string(), whole(&|i| film.rgb[i][c], self.background[c])))
+            .collect();
+        let mut add = |name: String, value: &dyn Fn(usize) -> f32, fill: f32| {
+            if !channels.iter().any(|(n, _)| *n == name) {
+                channels.push((name, whole(value, fill)));
+            }
+        };
+        for aov in aovs {
+            match aov {
+                Aov::Nodes => add("nodes.Y".into(), &|i| film.nodes_visited[i] as f32, 0.0),
+                Aov::Depth => add("depth.Z".into(), &|i| self.first_hits().depth[i], f32::INFINITY),
+                Aov::Normal => {
+                    for (c, axis) in ["X", "Y", "Z"].iter().enumerate() {
+                        add(format!("normal.{axis}"), &|i| self.first_hits().normal[i][c], 0.0);
+                    }
+                }
+                Aov::Albedo => {
+                    for (c, name) in ["R", "G", "B"].iter().enumerate() {
+                        add(format!("albedo.{name}"), &|i| self.first_hits().albedo[i][c], 0.0);
+                    }
+                }
+            }
+        }
+        channels
+    }
+
+    fn first_hits(&self) -> &FirstHitChannels {
+        self.film.first_hits.as_ref().expect("the render records the first hits whenever their AOVs are asked for")
+    }
+}
+
+/// What a frame rendered and how: the resolved settings, the scene's accelerator, the work
+/// counted (zero unless `Settings::count_work`). `pointray render --stats` writes it.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameReport {
+    pub points: usize,
+    pub width: u32,
+    pub height: u32,
+    pub region: Region,
+    pub accel: &'static str,
+    pub surface: &'static str,
+    pub integrator: Integrator,
+    /// Ambient occlusion's reach, with `integrator` "ao".
+    pub ao_distance: Option<f32>,
+    /// The materials, by index (one per cloud of a scene).
+    pub materials: Vec<&'static str>,
+    /// The analytic ground plane's material, if there is one.
+    pub ground: Option<&'static str>,
+    pub samples_per_pixel: u32,
+    pub rays: u64,
+    pub primary_rays: u64,
+    /// Reflected and refracted rays (mirrors and glass).
+    pub secondary_rays: u64,
+    pub shadow_rays: u64,
+    pub hit_fraction: f64,
+    pub nodes_visited_per_ray: f64,
+    pub splat_tests_per_ray: f64,
+    pub box_tests_per_ray: f64,
+    pub sphere_tests_per_ray: f64,
+    pub lod_stops_per_ray: f64,
+    pub culled_per_ray: f64,
+    pub blended_splats_per_hit: f64,
+    /// PSS projection steps per camera-ray hit (0 for the other schemes).
+    pub pss_steps_per_hit: f64,
+    /// Fraction of PSS hits that kept the SJ seed (the projection did not converge).
+    pub pss_fallback_fraction: f64,
+    /// Level-of-detail threshold in pixels; null at full detail.
+    pub lod_threshold: Option<f32>,
+    pub culling: CullingReport,
+    pub node_bounds: NodeBounds,
+    pub nodes: usize,
+    pub sphere_nodes: usize,
+    pub bytes_per_node: usize,
+    /// Most nodes visited by one pixel (the top of the `nodes` AOV's scale).
+    pub nodes_visited_max_per_pixel: u32,
+    pub accel_bytes: usize,
+    /// The accelerator with its splats, per splat.
+    pub bytes_per_splat: f64,
+    pub mean_radius: f64,
+    pub bounds_diagonal: f32,
+    pub camera_distance: Option<f32>,
+    /// The instruction-set path the kernels ran on (`pointray::accel::isa`).
+    pub isa: crate::accel::isa::Isa,
+    pub counters: RenderStats,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct CullingReport {
+    pub mode: Cull,
+    pub enabled: bool,
+    /// Fraction of rays from around the model whose first disk faces away (the auto check).
+    pub backfacing_fraction: Option<f64>,
+}

@@ -1,0 +1,551 @@
+//! The library's front door: a prepared [`Scene`] (splats in a multiresolution accelerator,
+//! with what lights and dresses them) and [`render`]`(&Scene, &Settings) -> Frame`. The
+//! command line and the bench are thin layers over these; the scene is built once and
+//! rendered as often as wanted, with any settings its build allows.
+//!
+//! ```
+//! use pointray::preprocess::{PreprocessConfig, preprocess};
+//! use pointray::{Scene, Settings, render};
+//!
+//! let mut cloud = pointray::demo::demo_cloud(5_000, 1);
+//! preprocess(&mut cloud, &PreprocessConfig::standard())?;
+//! let settings = Settings { width: 64, height: 48, spp: 2, ..Settings::default() };
+//! let scene = Scene::build(cloud.into(), &settings)?;
+//! let frame = render(&scene, &settings)?;
+//! let srgb = frame.srgb8(settings.tone_map()); // what `pointray render` writes to a PNG
+//! assert_eq!(srgb.len(), 64 * 48 * 3);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
+
+use std::sync::OnceLock;
+
+use glam::{DVec3, Vec3};
+
+use crate::PointCloud;
+use crate::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, backfacing_fraction};
+use crate::camera::{Camera, Region};
+use crate::film::{Film, srgb_to_linear};
+use crate::frame::{Aov, Frame, FrameReport};
+use crate::ground::{Checker, GroundPlane};
+use crate::material::Material;
+use crate::math::Aabb;
+use crate::render::{Integrator, RenderConfig};
+use crate::settings::{AccelKind, Cull, Settings, SettingsError};
+use crate::shading::{Environment, Light};
+use crate::splat::{DiskShape, splats_from_cloud};
+use crate::stats::RenderStats;
+
+/// `Cull::Auto` culls when at most this fraction of rays from around the model meets a back
+/// face first. Closed scans measure 0.1–0.4 % (stray disks at silhouettes and creases), open
+/// ones several percent and more.
+const CULL_AUTO_MAX_BACKFACING: f64 = 0.01;
+
+/// Rays of the `Cull::Auto` check (a few milliseconds on the BVH).
+const CULL_CHECK_RAYS: usize = 4096;
+
+/// What a scene file brings beside its points: then the settings' light, material, sky and
+/// ground options, which dress a lone cloud, do not apply.
+#[derive(Clone, Debug)]
+pub struct SceneContent {
+    pub lights: Vec<Light>,
+    /// By index, as [`SceneParts::point_materials`] names them.
+    pub materials: Vec<Material>,
+    pub environment: Environment,
+    pub ground: Option<GroundPlane>,
+}
+
+/// What a scene is built from.
+#[derive(Clone, Debug, Default)]
+pub struct SceneParts {
+    /// Preprocessed: every point has a normal and a radius.
+    pub cloud: PointCloud,
+    /// Each point's index into the content's materials (none: all the first).
+    pub point_materials: Option<Vec<u8>>,
+    pub content: Option<SceneContent>,
+    /// The view direction and distance (in bounding-box diagonals) when the settings name
+    /// neither an eye nor their own (default: (0.4, 0.3, 1) at 1).
+    pub view: Option<(Vec3, f32)>,
+    /// The light when the settings name none (default: a headlight).
+    pub light: Option<Light>,
+}
+
+impl From<PointCloud> for SceneParts {
+    fn from(cloud: PointCloud) -> Self {
+        Self { cloud, ..Self::default() }
+    }
+}
+
+/// Why a scene cannot be built.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    #[error("{0} points is more than pointray can index ({max})", max = crate::accel::bvh::MAX_SPLATS)]
+    TooManyPoints(usize),
+    #[error("the cloud is not prepared: every point needs a normal and a radius")]
+    NotPrepared,
+    #[error("the cloud has no points")]
+    Empty,
+}
+
+/// The accelerators a scene can be built on; the render loop is monomorphised for each.
+enum Accelerator {
+    Bvh(Bvh),
+    KdTree(KdTree),
+    Brute(BruteForce),
+}
+
+/// Calls `$body` with `$a` bound to whichever accelerator `$accel` holds.
+macro_rules! on_accel {
+    ($accel:expr, $a:ident => $body:expr) => {
+        match $accel {
+            Accelerator::Bvh($a) => $body,
+            Accelerator::KdTree($a) => $body,
+            Accelerator::Brute($a) => $body,
+        }
+    };
+}
+
+/// How a scene was built: what settings it can render with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Build {
+    accel: AccelKind,
+    node_bounds: NodeBounds,
+    shape: DiskShape,
+}
+
+impl Build {
+    fn of(settings: &Settings) -> Self {
+        // Only the BVH has bounding volumes to choose.
+        let node_bounds = if settings.accel == AccelKind::Bvh { settings.sphere_from_level } else { NodeBounds::Boxes };
+        Self { accel: settings.accel, node_bounds, shape: settings.surface.shape() }
+    }
+}
+
+/// Splats in an accelerator, with their lights, materials and surroundings: ready to render.
+pub struct Scene {
+    accel: Accelerator,
+    build: Build,
+    content: Option<SceneContent>,
+    view: (Vec3, f32),
+    light: Option<Light>,
+    /// Added to the stored positions to give the file's coordinates (see [`PointCloud`]).
+    origin: DVec3,
+    /// What the camera frames and `crop_to_model` crops to: the points' bounds.
+    bounds: Aabb,
+    points: usize,
+    mean_radius: f64,
+    /// The accelerator's build alone (the splats made before it, the bounds after).
+    build_seconds: f64,
+    /// The `Cull::Auto` probe, run at the first render that asks.
+    backfacing: OnceLock<Option<f64>>,
+}
+
+impl Scene {
+    /// Builds the accelerator the settings name (`accel`, `sphere_from_level`, and the disks
+    /// `surface` tests) over the parts' cloud, which it consumes: the splats hold all the rest
+    /// needs of the points, and the cloud is freed before the build's peak.
+    pub fn build(parts: SceneParts, settings: &Settings) -> Result<Scene, SceneError> {
+        let SceneParts { cloud, point_materials, content, view, light } = parts;
+        if cloud.is_empty() {
+            return Err(SceneError::Empty);
+        }
+        if cloud.len() > crate::accel::bvh::MAX_SPLATS {
+            return Err(SceneError::TooManyPoints(cloud.len()));
+        }
+        let prepared = |v: Option<usize>| v == Some(cloud.len());
+        if !prepared(cloud.normals.as_ref().map(Vec::len)) || !prepared(cloud.radii.as_ref().map(Vec::len)) {
+            return Err(SceneError::NotPrepared);
+        }
+        let mut splats = splats_from_cloud(&cloud);
+        if let Some(materials) = &point_materials {
+            splats.iter_mut().zip(materials).for_each(|(s, &m)| s.set_material(m));
+        }
+        let mean_radius = splats.iter().map(|s| f64::from(s.radius)).sum::<f64>() / splats.len() as f64;
+        let (origin, points, bounds) = (cloud.origin, cloud.len(), cloud.bounds());
+        drop(cloud);
+        let build = Build::of(settings);
+        let start = std::time::Instant::now();
+        let accel = match build.accel {
+            AccelKind::Bvh => {
+                let params = BvhParams { node_bounds: build.node_bounds, shape: build.shape, ..BvhParams::standard() };
+                Accelerator::Bvh(Bvh::build(splats, &params))
+            }
+            AccelKind::Kdtree => Accelerator::KdTree(KdTree::build(
+                splats,
+                &KdTreeParams { shape: build.shape, ..KdTreeParams::standard() },
+            )),
+            AccelKind::Brute => Accelerator::Brute(BruteForce::new(splats)),
+        };
+        let build_seconds = start.elapsed().as_secs_f64();
+        // The camera frames the points' bounds (the Embree bench's convention); a cloud of one
+        // point, or of coincident points, has none, and then the disks' bounds serve.
+        let bounds = if bounds.diagonal() > 0.0 { bounds } else { on_accel!(&accel, a => a.bounds()) };
+        let bounds = if bounds.diagonal() > 0.0 {
+            bounds
+        } else {
+            tracing::warn!("the model has no extent; framing a unit box around it");
+            Aabb::new(bounds.center() - 0.5, bounds.center() + 0.5)
+        };
+        Ok(Scene {
+            accel,
+            build,
+            content,
+            view: view.unwrap_or((Vec3::new(0.4, 0.3, 1.0), 1.0)),
+            light,
+            origin,
+            bounds,
+            points,
+            mean_radius,
+            build_seconds,
+            backfacing: OnceLock::new(),
+        })
+    }
+
+    /// The splats indexed.
+    pub fn points(&self) -> usize {
+        self.points
+    }
+
+    /// The accelerator's name ("bvh", "kdtree", "brute").
+    pub fn accel_name(&self) -> &'static str {
+        on_accel!(&self.accel, a => a.name())
+    }
+
+    /// The accelerator's bytes, splats included.
+    pub fn memory_bytes(&self) -> usize {
+        on_accel!(&self.accel, a => a.memory_bytes())
+    }
+
+    /// What the camera frames, in the scene's stored coordinates (the file's less `origin`).
+    pub fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    pub fn origin(&self) -> DVec3 {
+        self.origin
+    }
+
+    pub fn mean_radius(&self) -> f64 {
+        self.mean_radius
+    }
+
+    /// Seconds the accelerator's build took.
+    pub fn build_seconds(&self) -> f64 {
+        self.build_seconds
+    }
+
+    /// The settings resolved against this scene: the camera, the pixels and the render
+    /// configuration, ready to render any number of frames.
+    pub fn job(&self, settings: &Settings) -> Result<RenderJob<'_>, SettingsError> {
+        settings.check()?;
+        self.check_build(settings)?;
+        let camera = self.camera(settings);
+        let region = self.region(settings, &camera)?;
+        let scheme = settings.scheme();
+        // Level of detail lives in the BVH's and the kd-tree's nodes, normal cones in the BVH's
+        // only; brute force traces at full detail. The report says what was used.
+        let multires = matches!(self.build.accel, AccelKind::Bvh | AccelKind::Kdtree);
+        // Ray-facing disks always face the ray: nothing to cull.
+        let cones = self.build.accel == AccelKind::Bvh && scheme.kind.shape() == DiskShape::Oriented;
+        let backfacing = (cones && settings.cull == Cull::Auto).then(|| self.backfacing_fraction()).flatten();
+        let cull_backfaces = cones
+            && match settings.cull {
+                Cull::On => true,
+                Cull::Off => false,
+                Cull::Auto => backfacing.is_some_and(|f| f <= CULL_AUTO_MAX_BACKFACING),
+            };
+        tracing::info!("backface culling {cull_backfaces} (back faces first: {backfacing:?})");
+        let content = self.content.clone().unwrap_or_else(|| self.lone_cloud_content(settings, &camera));
+        let config = RenderConfig {
+            sampler: settings.sampler,
+            filter: settings.filter,
+            integrator: settings.integrator,
+            ao_distance: settings.ao_distance.unwrap_or(0.1 * self.bounds.diagonal()),
+            lod_threshold: if multires { settings.lod_threshold } else { 0.0 },
+            cull_backfaces,
+            scheme,
+            lights: content.lights,
+            materials: content.materials,
+            shadows: settings.shadows,
+            shadow_offset: settings.shadow_offset,
+            environment: content.environment,
+            ground: content.ground,
+            max_depth: settings.max_depth,
+            region,
+            samples: settings.spp,
+            seed: settings.seed,
+            diffuse_spread: settings.diffuse_spread,
+            count_work: settings.count_work || settings.aovs.contains(&Aov::Nodes),
+            first_hit_aovs: settings.aovs.iter().any(|aov| *aov != Aov::Nodes),
+        };
+        Ok(RenderJob { scene: self, settings: settings.clone(), camera, config, backfacing })
+    }
+
+    /// Refuses settings that need another build: another accelerator, other bounding volumes,
+    /// or disks of another shape in the bounds.
+    fn check_build(&self, settings: &Settings) -> Result<(), SettingsError> {
+        let (built, asked) = (self.build, Build::of(settings));
+        let problem =
+            |what: &str| format!("differs from the scene's build ({what}): prepare the scene with these settings");
+        if built.accel != asked.accel {
+            return Err(SettingsError::new("accel", problem(self.accel_name())));
+        }
+        if built.node_bounds != asked.node_bounds {
+            return Err(SettingsError::new("sphere_from_level", problem("its bounding volumes")));
+        }
+        if built.shape != asked.shape {
+            return Err(SettingsError::new("surface", problem("the disks its bounds hold")));
+        }
+        Ok(())
+    }
+
+    /// Positions the settings give are in the file's coordinates; the scene stores them
+    /// relative to its origin.
+    fn local(&self, p: DVec3) -> Vec3 {
+        (p - self.origin).as_vec3()
+    }
+
+    fn camera(&self, s: &Settings) -> Camera {
+        let camera = match (s.eye, s.look_at) {
+            (Some(eye), Some(target)) => {
+                Camera::look_at(self.local(eye), self.local(target), s.up, s.fov, s.width, s.height)
+            }
+            _ => {
+                let (view, distance) = (s.view_dir.unwrap_or(self.view.0), s.distance.unwrap_or(self.view.1));
+                Camera::orbit(&self.bounds, view, s.up, distance, s.fov, s.width, s.height)
+            }
+        };
+        let focus = s.focus_distance.unwrap_or(camera.focus_distance);
+        camera.with_lens(s.lens_radius, focus)
+    }
+
+    fn region(&self, s: &Settings, camera: &Camera) -> Result<Region, SettingsError> {
+        if s.crop_to_model {
+            let r = camera.region_of(&self.bounds);
+            if r.pixel_count() == 0 {
+                return Err(SettingsError::new("crop_to_model", "crops to nothing: the model lies outside the view"));
+            }
+            return Ok(r);
+        }
+        let Some(r) = s.region else { return Ok(Region::full(s.width, s.height)) };
+        let clamped = r.clamp_to(s.width, s.height);
+        if clamped.pixel_count() == 0 {
+            let (w, h) = (s.width, s.height);
+            let problem = format!("{},{},{},{} lies outside the {w}x{h} frame", r.x0, r.y0, r.x1, r.y1);
+            return Err(SettingsError::new("region", problem));
+        }
+        Ok(clamped)
+    }
+
+    /// A lone cloud's lights, material, sky and ground, from the settings.
+    fn lone_cloud_content(&self, s: &Settings, camera: &Camera) -> SceneContent {
+        let intensity = s.light_intensity;
+        let light = match (s.light_pos, s.light_dir) {
+            (Some(position), _) => match s.light_radius {
+                Some(radius) => Light::Sphere { center: self.local(position), radius, intensity },
+                None => Light::Point { position: self.local(position), intensity },
+            },
+            (None, Some(direction)) => Light::Directional { direction, intensity },
+            (None, None) => self.light.unwrap_or_else(|| Light::headlight(camera, intensity)),
+        };
+        let environment = if s.sky {
+            // The world's up (the camera's would tilt the horizon with the view).
+            Environment::Gradient {
+                up: s.up.normalize(),
+                zenith: [0.18, 0.32, 0.62],
+                horizon: [0.75, 0.82, 0.90],
+                ground: [0.25, 0.24, 0.22],
+            }
+        } else {
+            Environment::BACKGROUND
+        };
+        SceneContent {
+            lights: vec![light],
+            materials: vec![s.material.material(s.ior)],
+            environment,
+            ground: s.ground.then(|| floor_under(&self.bounds, s.up)),
+        }
+    }
+
+    fn backfacing_fraction(&self) -> Option<f64> {
+        *self.backfacing.get_or_init(|| match &self.accel {
+            Accelerator::Bvh(a) => backfacing_fraction(a, CULL_CHECK_RAYS, 0),
+            // Only the BVH culls.
+            Accelerator::KdTree(_) | Accelerator::Brute(_) => None,
+        })
+    }
+
+    /// Nodes, the nodes that test spheres, and bytes per node (none for brute force).
+    fn node_summary(&self) -> (usize, usize, usize) {
+        match &self.accel {
+            Accelerator::Bvh(a) => (a.node_count(), a.sphere_node_count(), Bvh::NODE_BYTES),
+            Accelerator::KdTree(a) => (a.node_count(), 0, KdTree::NODE_BYTES),
+            Accelerator::Brute(_) => (0, 0, 0),
+        }
+    }
+}
+
+/// `ground`: a checkered grey plane just under the model's bounding box (along `up`), with
+/// squares an eighth of the box's diagonal. It lies a thousandth of the diagonal below the
+/// box, so that a floor of points in the model (the demo's) shows instead of fighting it.
+fn floor_under(bounds: &Aabb, up: Vec3) -> GroundPlane {
+    let up = up.normalize();
+    let lowest = bounds.corners().iter().map(|c| c.dot(up)).fold(f32::INFINITY, f32::min);
+    let height = lowest - 1e-3 * bounds.diagonal();
+    let grey = |c: f32| [srgb_to_linear(c); 3];
+    GroundPlane {
+        up,
+        height,
+        color: grey(0.8),
+        checker: Some(Checker { color: grey(0.6), tile: bounds.diagonal() / 8.0 }),
+        material: Material::standard(),
+    }
+}
+
+/// Settings resolved against a scene: render it frame after frame.
+#[derive(Clone)]
+pub struct RenderJob<'s> {
+    scene: &'s Scene,
+    settings: Settings,
+    pub camera: Camera,
+    pub config: RenderConfig,
+    /// The `Cull::Auto` probe's fraction of back faces met first, if it ran.
+    backfacing: Option<f64>,
+}
+
+impl RenderJob<'_> {
+    /// One frame. `progress` is told how many pixels each finished band held.
+    pub fn render(&self, progress: &(dyn Fn(u64) + Sync)) -> Frame {
+        let mut film = self.film();
+        let stats = self.render_into(&mut film, progress);
+        Frame { film, stats, width: self.settings.width, height: self.settings.height, background: self.background() }
+    }
+
+    /// The same job counting no work (for timed frames whose statistics nobody reads).
+    pub fn uncounted(&self) -> Self {
+        let mut job = self.clone();
+        job.config.count_work = false;
+        job
+    }
+
+    /// A film for this job's pixels and channels, for [`Self::render_into`].
+    pub fn film(&self) -> Film {
+        crate::render::film_for(&self.camera, &self.config)
+    }
+
+    /// A frame into a film made before (frame after frame, one film serves: a fresh one per
+    /// frame, its pages faulted in anew, cost 7 % of a frame of the dragon at 1024²).
+    pub fn render_into(&self, film: &mut Film, progress: &(dyn Fn(u64) + Sync)) -> RenderStats {
+        let (camera, config) = (&self.camera, &self.config);
+        on_accel!(&self.scene.accel, a => crate::render::render_into(a, camera, config, film, progress))
+    }
+
+    /// What rays that leave the scene see, flat: the colour outside the rendered region.
+    pub fn background(&self) -> [f32; 3] {
+        self.config.environment.flat_color()
+    }
+
+    /// What was rendered and how: the settings as resolved, the scene, the work counted.
+    pub fn report(&self, frame: &Frame) -> FrameReport {
+        let (scene, config, stats) = (self.scene, &self.config, &frame.stats);
+        let (nodes, sphere_nodes, bytes_per_node) = scene.node_summary();
+        let per_ray = |n: u64| if stats.rays == 0 { 0.0 } else { n as f64 / stats.rays as f64 };
+        let per_hit = |n: u64| if stats.primary_hits == 0 { 0.0 } else { n as f64 / stats.primary_hits as f64 };
+        let s = &self.settings;
+        FrameReport {
+            points: scene.points,
+            width: s.width,
+            height: s.height,
+            region: config.region,
+            accel: scene.accel_name(),
+            surface: config.scheme.kind.name(),
+            integrator: config.integrator,
+            ao_distance: (config.integrator == Integrator::Ao).then_some(config.ao_distance),
+            materials: config.materials.iter().map(Material::name).collect(),
+            ground: config.ground.map(|g| g.material.name()),
+            samples_per_pixel: s.spp,
+            rays: stats.rays,
+            primary_rays: stats.primary_rays,
+            secondary_rays: stats.secondary_rays,
+            shadow_rays: stats.shadow_rays,
+            hit_fraction: stats.hit_fraction(),
+            nodes_visited_per_ray: stats.nodes_visited_per_ray(),
+            splat_tests_per_ray: stats.splat_tests_per_ray(),
+            box_tests_per_ray: per_ray(stats.traversal.box_tests),
+            sphere_tests_per_ray: per_ray(stats.traversal.sphere_tests),
+            lod_stops_per_ray: per_ray(stats.traversal.lod_stops),
+            culled_per_ray: per_ray(stats.traversal.culled),
+            blended_splats_per_hit: per_hit(stats.blended_splats),
+            pss_steps_per_hit: per_hit(stats.traversal.pss_steps),
+            pss_fallback_fraction: per_hit(stats.traversal.pss_fallbacks),
+            lod_threshold: (config.lod_threshold > 0.0).then_some(config.lod_threshold),
+            culling: crate::frame::CullingReport {
+                mode: s.cull,
+                enabled: config.cull_backfaces,
+                backfacing_fraction: self.backfacing,
+            },
+            node_bounds: scene.build.node_bounds,
+            nodes,
+            sphere_nodes,
+            bytes_per_node,
+            nodes_visited_max_per_pixel: frame.nodes_max(),
+            accel_bytes: scene.memory_bytes(),
+            bytes_per_splat: scene.memory_bytes() as f64 / scene.points as f64,
+            mean_radius: scene.mean_radius,
+            bounds_diagonal: scene.bounds.diagonal(),
+            camera_distance: s.eye.is_none().then(|| s.distance.unwrap_or(scene.view.1) * scene.bounds.diagonal()),
+            isa: crate::accel::isa::active(),
+            counters: *stats,
+        }
+    }
+}
+
+/// Renders `scene` with `settings`: the one call a program needs.
+pub fn render(scene: &Scene, settings: &Settings) -> Result<Frame, SettingsError> {
+    Ok(scene.job(settings)?.render(&|_| {}))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sphere_scene(settings: &Settings) -> Scene {
+        let mut cloud = crate::demo::demo_cloud(3000, 1);
+        crate::preprocess::preprocess(&mut cloud, &crate::preprocess::PreprocessConfig::standard()).unwrap();
+        Scene::build(cloud.into(), settings).unwrap()
+    }
+
+    #[test]
+    fn a_scene_renders_with_settings_its_build_allows_and_refuses_others() {
+        let small = Settings { width: 32, height: 24, ..Settings::default() };
+        let scene = sphere_scene(&small);
+        let frame = render(&scene, &small).unwrap();
+        assert_eq!(frame.film.rgb.len(), 32 * 24);
+        let first_hit = Settings { surface: crate::splat::scheme::SurfaceKind::FirstHit, ..small.clone() };
+        assert!(render(&scene, &first_hit).is_ok(), "oriented disks both");
+        let rfd = Settings { surface: crate::splat::scheme::SurfaceKind::Rfd, ..small.clone() };
+        assert_eq!(render(&scene, &rfd).unwrap_err().option, "surface");
+        let kd = Settings { accel: AccelKind::Kdtree, ..small };
+        assert_eq!(render(&scene, &kd).unwrap_err().option, "accel");
+    }
+
+    #[test]
+    fn an_unprepared_or_empty_cloud_is_refused() {
+        let raw = crate::demo::demo_cloud(100, 1);
+        assert!(matches!(Scene::build(raw.into(), &Settings::default()), Err(SceneError::NotPrepared)));
+        let empty = PointCloud::default();
+        assert!(matches!(Scene::build(empty.into(), &Settings::default()), Err(SceneError::Empty)));
+    }
+
+    #[test]
+    fn a_region_outside_the_frame_is_named() {
+        let s = Settings {
+            width: 16,
+            height: 16,
+            region: Some(Region { x0: 20, y0: 0, x1: 30, y1: 8 }),
+            ..Settings::default()
+        };
+        let scene = sphere_scene(&s);
+        let e = render(&scene, &s).unwrap_err();
+        assert_eq!(e.to_string(), "region 20,0,30,8 lies outside the 16x16 frame");
+    }
+}
