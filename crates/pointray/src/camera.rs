@@ -126,9 +126,14 @@ impl Camera {
 
     /// The ray through film position (`x`, `y`) in pixels (pixel centres at +0.5).
     pub fn ray(&self, x: f32, y: f32) -> Ray {
+        Ray::new(self.eye, self.direction(x, y), self.pinhole_cone())
+    }
+
+    /// The direction, not normalised, of [`Self::ray`] through film position (`x`, `y`):
+    /// `Ray::new` normalises it to the ray's very bits (normalising twice may not).
+    pub fn direction(&self, x: f32, y: f32) -> Vec3 {
         let [u, v] = self.film_to_view(x, y);
-        let dir = self.forward + u * self.right + v * self.up;
-        Ray::new(self.eye, dir, self.pinhole_cone())
+        self.forward + u * self.right + v * self.up
     }
 
     /// [`Self::ray`] through `N` film positions at once (`N` a multiple of four), with the same

@@ -56,6 +56,18 @@ impl Frame {
         self.film.frame_srgb8(self.width, self.height, self.background, tone)
     }
 
+    /// The whole frame's linear radiance, row-major, top row first (the background outside
+    /// the region): what [`Self::srgb8`] encodes.
+    pub fn linear_rgb(&self) -> Vec<[f32; 3]> {
+        let mut out = vec![self.background; self.width as usize * self.height as usize];
+        let r = self.film.region;
+        for (y, row) in (r.y0..r.y1).zip(self.film.rgb.chunks_exact(r.width().max(1) as usize)) {
+            let start = y as usize * self.width as usize + r.x0 as usize;
+            out[start..start + row.len()].copy_from_slice(row);
+        }
+        out
+    }
+
     /// Most nodes visited by one pixel (the top of the node heat map's scale).
     pub fn nodes_max(&self) -> u32 {
         self.film.nodes_visited.iter().copied().max().unwrap_or(0)

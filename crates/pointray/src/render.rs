@@ -5,6 +5,8 @@
 //! Determinism: every pixel's value depends only on its coordinates, the scene and the seed
 //! (a per-pixel RNG), never on which thread rendered it or when; statistics are integer sums.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+
 use glam::Vec3;
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -163,6 +165,21 @@ pub fn render_into<A: Accel>(
     film: &mut Film,
     progress: &(dyn Fn(u64) + Sync),
 ) -> RenderStats {
+    let never = AtomicBool::new(false);
+    render_into_until(accel, camera, config, film, progress, &never)
+}
+
+/// [`render_into`], stopping early once `cancel` is set: bands not yet begun are left as they
+/// were (a band checks before it starts, so a frame stops within a band's time). The caller
+/// knows a frame is whole when `cancel` is still clear afterwards.
+pub fn render_into_until<A: Accel>(
+    accel: &A,
+    camera: &Camera,
+    config: &RenderConfig,
+    film: &mut Film,
+    progress: &(dyn Fn(u64) + Sync),
+    cancel: &AtomicBool,
+) -> RenderStats {
     let region = config.region.clamp_to(camera.width, camera.height);
     assert_eq!(film.region, region, "a film for another region");
     let width = region.width() as usize;
@@ -177,6 +194,9 @@ pub fn render_into<A: Accel>(
     let primary = PrimaryRays::new(accel, camera, config);
     let render_band = |b: usize, rgb: &mut [[f32; 3]], nodes: &mut [u32], mut first_hits: Option<BandFirstHits>| {
         let mut stats = RenderStats::default();
+        if cancel.load(Ordering::Relaxed) {
+            return stats;
+        }
         if !config.count_work {
             stats.traversal = TraversalStats::uncounted();
         }

@@ -18,8 +18,10 @@
 //! ```
 
 use std::sync::OnceLock;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use glam::{DVec3, Vec3};
+use rayon::prelude::*;
 
 use crate::PointCloud;
 use crate::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, backfacing_fraction};
@@ -135,8 +137,21 @@ pub struct Scene {
     mean_radius: f64,
     /// The accelerator's build alone (the splats made before it, the bounds after).
     build_seconds: f64,
+    /// The input splat of each accelerator index where they differ (the BVH's blocks).
+    ids: Option<Vec<u32>>,
     /// The `Cull::Auto` probe, run at the first render that asks.
     backfacing: OnceLock<Option<f64>>,
+}
+
+/// What a ray query met: the surface point `t` along the ray (its direction normalised), in
+/// the file's coordinates, its shading normal (facing the ray) and the nearest splat's index
+/// in the cloud the scene was built from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RayHit {
+    pub t: f32,
+    pub position: DVec3,
+    pub normal: Vec3,
+    pub splat: u32,
 }
 
 impl Scene {
@@ -164,10 +179,14 @@ impl Scene {
         drop(cloud);
         let build = Build::of(settings);
         let start = std::time::Instant::now();
+        // The kd-tree and brute force keep the splats' order; the BVH says where each went.
+        let mut ids = None;
         let accel = match build.accel {
             AccelKind::Bvh => {
                 let params = BvhParams { node_bounds: build.node_bounds, shape: build.shape, ..BvhParams::standard() };
-                Accelerator::Bvh(Bvh::build(splats, &params))
+                let (bvh, slot_ids) = Bvh::build_with_ids(splats, &params);
+                ids = Some(slot_ids);
+                Accelerator::Bvh(bvh)
             }
             AccelKind::Kdtree => Accelerator::KdTree(KdTree::build(
                 splats,
@@ -196,6 +215,7 @@ impl Scene {
             points,
             mean_radius,
             build_seconds,
+            ids,
             backfacing: OnceLock::new(),
         })
     }
@@ -231,6 +251,23 @@ impl Scene {
     /// Seconds the accelerator's build took.
     pub fn build_seconds(&self) -> f64 {
         self.build_seconds
+    }
+
+    /// The first surface point along each ray (`origin` in the file's coordinates, `direction`
+    /// of any length), at full detail, through the settings' surface scheme; rays in parallel.
+    pub fn intersect(&self, rays: &[(DVec3, Vec3)], settings: &Settings) -> Result<Vec<Option<RayHit>>, SettingsError> {
+        settings.check()?;
+        self.check_build(settings)?;
+        let scheme = settings.scheme();
+        let cone = crate::math::RayCone { width0: 0.0, spread: 0.0 };
+        let query = |&(origin, direction): &(DVec3, Vec3)| {
+            let ray = crate::math::Ray::new(self.local(origin), direction, cone);
+            let mut stats = crate::accel::TraversalStats::uncounted();
+            let hit = on_accel!(&self.accel, a => crate::splat::scheme::intersect(a, &ray, &scheme, &mut stats))?;
+            let splat = self.ids.as_ref().map_or(hit.splat, |ids| ids[hit.splat as usize]);
+            Some(RayHit { t: hit.t, position: self.origin + hit.position.as_dvec3(), normal: hit.normal, splat })
+        };
+        Ok(rays.par_iter().map(query).collect())
     }
 
     /// The settings resolved against this scene: the camera, the pixels and the render
@@ -415,9 +452,16 @@ pub struct RenderJob<'s> {
 impl RenderJob<'_> {
     /// One frame. `progress` is told how many pixels each finished band held.
     pub fn render(&self, progress: &(dyn Fn(u64) + Sync)) -> Frame {
+        self.render_until(progress, &AtomicBool::new(false)).expect("a render nobody cancels is whole")
+    }
+
+    /// [`Self::render`], given up (`None`) once `cancel` is set: a band checks before it starts.
+    pub fn render_until(&self, progress: &(dyn Fn(u64) + Sync), cancel: &AtomicBool) -> Option<Frame> {
         let mut film = self.film();
-        let stats = self.render_into(&mut film, progress);
-        Frame { film, stats, width: self.settings.width, height: self.settings.height, background: self.background() }
+        let (camera, config) = (&self.camera, &self.config);
+        let stats = on_accel!(&self.scene.accel, a => crate::render::render_into_until(a, camera, config, &mut film, progress, cancel));
+        let (width, height) = (self.settings.width, self.settings.height);
+        (!cancel.load(Ordering::Relaxed)).then(|| Frame { film, stats, width, height, background: self.background() })
     }
 
     /// The same job counting no work (for timed frames whose statistics nobody reads).
@@ -435,8 +479,16 @@ impl RenderJob<'_> {
     /// A frame into a film made before (frame after frame, one film serves: a fresh one per
     /// frame, its pages faulted in anew, cost 7 % of a frame of the dragon at 1024²).
     pub fn render_into(&self, film: &mut Film, progress: &(dyn Fn(u64) + Sync)) -> RenderStats {
-        let (camera, config) = (&self.camera, &self.config);
-        on_accel!(&self.scene.accel, a => crate::render::render_into(a, camera, config, film, progress))
+        let (camera, config, never) = (&self.camera, &self.config, AtomicBool::new(false));
+        on_accel!(&self.scene.accel, a => crate::render::render_into_until(a, camera, config, film, progress, &never))
+    }
+
+    /// The pinhole camera's ray through the centre of pixel (`x`, `y`): its origin in the
+    /// file's coordinates and its direction, not normalised (what [`Scene::intersect`] takes,
+    /// which then meets what the render's ray met).
+    pub fn camera_ray(&self, x: u32, y: u32) -> (DVec3, Vec3) {
+        let direction = self.camera.direction(x as f32 + 0.5, y as f32 + 0.5);
+        (self.scene.origin + self.camera.eye.as_dvec3(), direction)
     }
 
     /// What rays that leave the scene see, flat: the colour outside the rendered region.
@@ -534,6 +586,54 @@ mod tests {
         assert!(matches!(Scene::build(raw.into(), &Settings::default()), Err(SceneError::NotPrepared)));
         let empty = PointCloud::default();
         assert!(matches!(Scene::build(empty.into(), &Settings::default()), Err(SceneError::Empty)));
+    }
+
+    /// Random rays from around the model towards it.
+    fn rays_at(scene: &Scene, n: usize) -> Vec<(DVec3, Vec3)> {
+        let (c, r) = (scene.bounds().center(), scene.bounds().diagonal());
+        let mut rng = 12345u64;
+        let mut unit = || {
+            rng = rng.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            (rng >> 40) as f32 / (1u64 << 24) as f32 - 0.5
+        };
+        (0..n)
+            .map(|_| {
+                let from = c + Vec3::new(unit(), unit(), unit()).normalize_or(Vec3::X) * r;
+                let to = c + Vec3::new(unit(), unit(), unit()) * 0.5 * r;
+                (scene.origin() + from.as_dvec3(), to - from)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn ray_queries_name_the_same_splats_on_every_accelerator() {
+        for surface in [crate::splat::scheme::SurfaceKind::FirstHit, crate::splat::scheme::SurfaceKind::Sj] {
+            let hits = |accel| {
+                let s = Settings { accel, surface, ..Settings::default() };
+                let scene = sphere_scene(&s);
+                scene.intersect(&rays_at(&scene, 2000), &s).unwrap()
+            };
+            let oracle = hits(AccelKind::Brute);
+            assert!(oracle.iter().flatten().count() > 500, "most rays meet the model");
+            assert_eq!(hits(AccelKind::Bvh), oracle, "{surface:?}");
+            assert_eq!(hits(AccelKind::Kdtree), oracle, "{surface:?}");
+        }
+    }
+
+    #[test]
+    fn ray_queries_meet_the_camera_rays_first_hits() {
+        let s = Settings { width: 40, height: 30, lod_threshold: 0.0, aovs: vec![Aov::Depth], ..Settings::default() };
+        let scene = sphere_scene(&s);
+        let job = scene.job(&s).unwrap();
+        let frame = job.render(&|_| {});
+        let rays: Vec<_> =
+            (0..30).flat_map(|y| (0..40).map(move |x| (x, y))).map(|(x, y)| job.camera_ray(x, y)).collect();
+        let hits = scene.intersect(&rays, &s).unwrap();
+        let depth = &frame.film.first_hits.as_ref().unwrap().depth;
+        assert!(hits.iter().flatten().count() > 150, "{}", hits.iter().flatten().count());
+        for (hit, &d) in hits.iter().zip(depth) {
+            assert_eq!(hit.map_or(f32::INFINITY, |h| h.t), d);
+        }
     }
 
     #[test]

@@ -1,0 +1,72 @@
+"""Type stubs of pointray's native module (render options are ``pointray render``'s)."""
+
+import os
+from typing import Any, Optional, Tuple, Union
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+Source = Union[str, "os.PathLike[str]", "Cloud", "Scene"]
+
+class Cloud:
+    """A point cloud: positions (N x 3, float64, the file's coordinates) and, where known,
+    normals (N x 3), colours (N x 3, linear, 0 to 1) and radii (N), float32."""
+
+    def __init__(
+        self,
+        positions: npt.ArrayLike,
+        normals: Optional[npt.ArrayLike] = None,
+        colors: Optional[npt.ArrayLike] = None,
+        radii: Optional[npt.ArrayLike] = None,
+    ) -> None: ...
+    def __len__(self) -> int: ...
+    @property
+    def positions(self) -> npt.NDArray[np.float64]: ...
+    @property
+    def normals(self) -> Optional[npt.NDArray[np.float32]]: ...
+    @property
+    def colors(self) -> Optional[npt.NDArray[np.float32]]: ...
+    @property
+    def radii(self) -> Optional[npt.NDArray[np.float32]]: ...
+
+class Scene:
+    """Splats in a multiresolution accelerator, built once by ``prepare``."""
+
+    def __len__(self) -> int: ...
+    def intersect(
+        self, origins: npt.ArrayLike, directions: npt.ArrayLike, **options: Any
+    ) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.int64], npt.NDArray[np.float32]]:
+        """(t, splat_id, normal) of the first surface point along each ray, at full detail;
+        inf, -1 and NaN for a miss."""
+    def camera_rays(self, **options: Any) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float32]]:
+        """Origins and directions (H x W x 3) of the camera's rays through the pixel centres."""
+
+class Frame:
+    """A rendered frame: image, AOVs and statistics."""
+
+    @property
+    def image(self) -> npt.NDArray[np.float32]: ...
+    def aov(self, name: str) -> npt.NDArray[Any]: ...
+    @property
+    def stats(self) -> dict[str, Any]: ...
+
+def read_cloud(path: Union[str, "os.PathLike[str]"]) -> Cloud:
+    """Reads PLY, LAS/LAZ, PCD, XYZ/PTS or a Stanford scan set (by content)."""
+
+def prepare(source: Source, **options: Any) -> Scene:
+    """Normals, orientation and radii where missing (k_normals, k_radius, radius_scale,
+    recompute), then the accelerator (accel, sphere_from_level, surface)."""
+
+def render(source: Source, **options: Any) -> npt.NDArray[np.float32]:
+    """The linear RGB image, H x W x 3 float32."""
+
+def render_region(source: Source, region: Tuple[int, int, int, int], **options: Any) -> npt.NDArray[np.float32]:
+    """The pixels (x0, y0, x1, y1) of the frame (x1, y1 exclusive), as a tile."""
+
+def render_frame(source: Source, **options: Any) -> Frame:
+    """``render`` with the AOVs (aovs=[...]) and the statistics."""
+
+def to_srgb8(image: npt.ArrayLike, *, tonemap: str = "clamp", exposure: float = 0.0) -> npt.NDArray[np.uint8]:
+    """The 8-bit sRGB bytes of ``pointray render``'s PNG for the same options."""

@@ -1,0 +1,440 @@
+//! The Python package's native module, `pointray._pointray`: a thin layer over the library.
+//! Clouds and images are numpy arrays; options are the command line's render options by the
+//! same names (`pointray::Settings`' fields), checked there; errors are `OSError` (the system
+//! refused a file) or `ValueError` (bad input or options), with the command line's messages.
+//! Long work runs with the GIL released; a render stops at Ctrl-C.
+
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::Duration;
+
+use glam::{DVec3, Vec3};
+use numpy::ndarray::{Array1, Array2, Array3};
+use numpy::{AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayLike1, PyArrayLike2, PyArrayLike3};
+use pointray::PointCloud;
+use pointray::film::ToneMap;
+use pointray::frame::Aov;
+use pointray::preprocess::PreprocessConfig;
+use pointray::scene::SceneParts;
+use pointray::settings::Settings;
+use pointray_io::IoError;
+use pyo3::exceptions::{PyFileNotFoundError, PyKeyboardInterrupt, PyOSError, PyRuntimeError, PyValueError};
+use pyo3::prelude::*;
+use pyo3::types::PyDict;
+
+/// A point cloud: positions (N×3, float64, in the file's coordinates), and where known the
+/// normals (N×3), colours (N×3, linear, 0 to 1) and splat radii (N), float32.
+#[pyclass(module = "pointray", name = "Cloud", frozen)]
+struct Cloud {
+    inner: PointCloud,
+}
+
+#[pymethods]
+impl Cloud {
+    #[new]
+    #[pyo3(signature = (positions, normals=None, colors=None, radii=None))]
+    fn new(
+        positions: PyArrayLike2<'_, f64, AllowTypeChange>,
+        normals: Option<PyArrayLike2<'_, f32, AllowTypeChange>>,
+        colors: Option<PyArrayLike2<'_, f32, AllowTypeChange>>,
+        radii: Option<PyArrayLike1<'_, f32, AllowTypeChange>>,
+    ) -> PyResult<Self> {
+        let world: Vec<DVec3> = rows::<f64>("positions", &positions, None)?.into_iter().map(DVec3::from).collect();
+        let n = world.len();
+        let mut inner = PointCloud::from_world_positions(&world);
+        inner.normals =
+            normals.map(|a| rows("normals", &a, Some(n))).transpose()?.map(|v| v.into_iter().map(Vec3::from).collect());
+        inner.colors = colors.map(|a| rows("colors", &a, Some(n))).transpose()?;
+        if let Some(radii) = radii {
+            let radii = radii.as_array();
+            if radii.len() != n {
+                return Err(PyValueError::new_err(format!("radii: {} values for {n} points", radii.len())));
+            }
+            inner.radii = Some(radii.iter().copied().collect());
+        }
+        if inner.colors.as_ref().is_some_and(|c| c.iter().flatten().any(|v| !(0.0..=1.0).contains(v))) {
+            return Err(PyValueError::new_err("colors: every channel must be between 0 and 1"));
+        }
+        Ok(Self { inner })
+    }
+
+    fn __len__(&self) -> usize {
+        self.inner.len()
+    }
+
+    fn __repr__(&self) -> String {
+        let c = &self.inner;
+        let has = |yes: bool, what: &str| if yes { format!(", {what}") } else { String::new() };
+        format!(
+            "Cloud({} points{}{}{})",
+            c.len(),
+            has(c.normals.is_some(), "normals"),
+            has(c.colors.is_some(), "colors"),
+            has(c.radii.is_some(), "radii")
+        )
+    }
+
+    #[getter]
+    fn positions<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
+        let c = &self.inner;
+        table(c.positions.iter().map(|p| (c.origin + p.as_dvec3()).to_array())).into_pyarray(py)
+    }
+
+    #[getter]
+    fn normals<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray2<f32>>> {
+        self.inner.normals.as_ref().map(|n| table(n.iter().map(|v| v.to_array())).into_pyarray(py))
+    }
+
+    #[getter]
+    fn colors<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray2<f32>>> {
+        self.inner.colors.as_ref().map(|c| table(c.iter().copied()).into_pyarray(py))
+    }
+
+    #[getter]
+    fn radii<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f32>>> {
+        self.inner.radii.as_ref().map(|r| Array1::from(r.clone()).into_pyarray(py))
+    }
+}
+
+/// An N×3 array's rows, checked for the shape (and `expect`ed count).
+fn rows<T: numpy::Element + Copy>(
+    name: &str,
+    a: &PyArrayLike2<'_, T, AllowTypeChange>,
+    expect: Option<usize>,
+) -> PyResult<Vec<[T; 3]>> {
+    let a = a.as_array();
+    let (n, k) = a.dim();
+    if k != 3 || expect.is_some_and(|e| e != n) {
+        let want = expect.map_or("N".to_string(), |e| e.to_string());
+        return Err(PyValueError::new_err(format!("{name}: expected a {want}x3 array, got {n}x{k}")));
+    }
+    Ok(a.outer_iter().map(|r| [r[0], r[1], r[2]]).collect())
+}
+
+/// Rows of three as an N×3 array.
+fn table<T: Copy>(rows: impl Iterator<Item = [T; 3]>) -> Array2<T> {
+    let flat: Vec<T> = rows.flatten().collect();
+    let n = flat.len() / 3;
+    Array2::from_shape_vec((n, 3), flat).expect("rows of three")
+}
+
+/// `Scene.intersect`'s distances, splat ids and normals.
+type Hits<'py> = (Bound<'py, PyArray1<f32>>, Bound<'py, PyArray1<i64>>, Bound<'py, PyArray2<f32>>);
+
+/// `Scene.camera_rays`' origins and directions.
+type Rays<'py> = (Bound<'py, PyArray3<f64>>, Bound<'py, PyArray3<f32>>);
+
+/// A prepared scene: splats in a multiresolution accelerator, built once, rendered and
+/// queried as often as wanted. `pointray.prepare` makes one.
+#[pyclass(module = "pointray", name = "Scene", frozen)]
+struct Scene {
+    inner: pointray::Scene,
+    /// The settings it was built with (and a scene file's own): the base of every render.
+    settings: Settings,
+}
+
+#[pymethods]
+impl Scene {
+    fn __len__(&self) -> usize {
+        self.inner.points()
+    }
+
+    fn __repr__(&self) -> String {
+        format!("Scene({} splats, {})", self.inner.points(), self.inner.accel_name())
+    }
+
+    /// The first surface point along each ray, at full detail: `origins` (N×3, in the file's
+    /// coordinates) and `directions` (N×3, any length). Returns `(t, splat_id, normal)`: the
+    /// distance along the normalised direction (inf for a miss), the nearest splat's index in
+    /// the prepared cloud (-1 for a miss) and the shading normal facing the ray (NaN for a miss).
+    #[pyo3(signature = (origins, directions, **options))]
+    fn intersect<'py>(
+        &self,
+        py: Python<'py>,
+        origins: PyArrayLike2<'py, f64, AllowTypeChange>,
+        directions: PyArrayLike2<'py, f32, AllowTypeChange>,
+        options: Option<&Bound<'py, PyDict>>,
+    ) -> PyResult<Hits<'py>> {
+        let settings = with_options(&self.settings, options)?;
+        let origins = rows::<f64>("origins", &origins, None)?;
+        let directions = rows::<f32>("directions", &directions, Some(origins.len()))?;
+        let rays: Vec<(DVec3, Vec3)> =
+            origins.into_iter().zip(directions).map(|(o, d)| (DVec3::from(o), Vec3::from(d))).collect();
+        let hits = py.detach(|| self.inner.intersect(&rays, &settings)).map_err(value_error)?;
+        let t = hits.iter().map(|h| h.map_or(f32::INFINITY, |h| h.t)).collect::<Vec<_>>();
+        let ids = hits.iter().map(|h| h.map_or(-1, |h| i64::from(h.splat))).collect::<Vec<_>>();
+        let normals = table(hits.iter().map(|h| h.map_or([f32::NAN; 3], |h| h.normal.to_array())));
+        Ok((Array1::from(t).into_pyarray(py), Array1::from(ids).into_pyarray(py), normals.into_pyarray(py)))
+    }
+
+    /// The camera's rays through every pixel's centre, for `intersect`: origins (H×W×3,
+    /// float64) and directions (H×W×3, float32, not normalised). Options as for `render`.
+    #[pyo3(signature = (**options))]
+    fn camera_rays<'py>(&self, py: Python<'py>, options: Option<&Bound<'py, PyDict>>) -> PyResult<Rays<'py>> {
+        let settings = with_options(&self.settings, options)?;
+        let job = self.inner.job(&settings).map_err(value_error)?;
+        let (w, h) = (settings.width as usize, settings.height as usize);
+        let (mut origins, mut directions) = (Vec::with_capacity(w * h * 3), Vec::with_capacity(w * h * 3));
+        for y in 0..settings.height {
+            for x in 0..settings.width {
+                let (o, d) = job.camera_ray(x, y);
+                origins.extend(o.to_array());
+                directions.extend(d.to_array());
+            }
+        }
+        let shape = (h, w, 3);
+        let origins = Array3::from_shape_vec(shape, origins).expect("a ray a pixel");
+        let directions = Array3::from_shape_vec(shape, directions).expect("a ray a pixel");
+        Ok((origins.into_pyarray(py), directions.into_pyarray(py)))
+    }
+}
+
+/// A rendered frame: the image, the AOVs asked for (`aovs=["depth", ...]`) and the statistics.
+#[pyclass(module = "pointray", name = "Frame", frozen)]
+struct Frame {
+    frame: pointray::Frame,
+    aovs: Vec<Aov>,
+    stats: serde_json::Value,
+}
+
+#[pymethods]
+impl Frame {
+    /// The whole frame's linear RGB (H×W×3, float32), the background outside the region.
+    #[getter]
+    fn image<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray3<f32>> {
+        image_array(&self.frame).into_pyarray(py)
+    }
+
+    /// An AOV as a whole-frame array: "depth" (H×W, inf where nothing was hit), "nodes"
+    /// (H×W), "normal" or "albedo" (H×W×3).
+    fn aov<'py>(&self, py: Python<'py>, name: &str) -> PyResult<Bound<'py, PyAny>> {
+        let aov: Aov = serde_json::from_value(serde_json::Value::String(name.to_string()))
+            .map_err(|_| PyValueError::new_err(format!("{name:?}: not an AOV (depth, normal, albedo, nodes)")))?;
+        if !self.aovs.contains(&aov) {
+            return Err(PyValueError::new_err(format!("{name:?} was not recorded: render with aovs=[{name:?}]")));
+        }
+        let channels = self.frame.float_channels(&[aov]);
+        let (h, w) = (self.frame.height as usize, self.frame.width as usize);
+        let planes: Vec<&Vec<f32>> = channels.iter().skip(3).map(|(_, v)| v).collect();
+        Ok(if planes.len() == 1 {
+            Array2::from_shape_vec((h, w), planes[0].clone()).expect("a value a pixel").into_pyarray(py).into_any()
+        } else {
+            let interleaved: Vec<f32> = (0..w * h).flat_map(|i| planes.iter().map(move |p| p[i])).collect();
+            Array3::from_shape_vec((h, w, planes.len()), interleaved)
+                .expect("values a pixel")
+                .into_pyarray(py)
+                .into_any()
+        })
+    }
+
+    /// What was rendered and how, as `pointray render --stats` reports it (a dict).
+    #[getter]
+    fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
+        pythonize::pythonize(py, &self.stats).map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
+}
+
+fn image_array(frame: &pointray::Frame) -> Array3<f32> {
+    let flat: Vec<f32> = frame.linear_rgb().into_iter().flatten().collect();
+    Array3::from_shape_vec((frame.height as usize, frame.width as usize, 3), flat).expect("a pixel each")
+}
+
+/// Reads a point-cloud file (PLY, LAS/LAZ, PCD, XYZ/PTS, a Stanford scan set), recognised by
+/// its content.
+#[pyfunction]
+fn read_cloud(py: Python<'_>, path: PathBuf) -> PyResult<Cloud> {
+    let loaded = py.detach(|| pointray_io::read_cloud(&path)).map_err(io_error)?;
+    Ok(Cloud { inner: loaded.cloud })
+}
+
+/// Prepares a scene from a cloud file, a scene file (.toml) or a `Cloud`: what it lacks
+/// computed (normals, orientation, radii; `k_normals`, `k_radius`, `radius_scale`,
+/// `recompute`), and the accelerator built (`accel`, `sphere_from_level`, and the disks
+/// `surface` tests). The other options become the scene's defaults for `render`.
+#[pyfunction]
+#[pyo3(signature = (source, **options))]
+fn prepare(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Bound<'_, PyDict>>) -> PyResult<Scene> {
+    let (preprocess, options) = split_preprocess(options)?;
+    let (parts, base) = if let Ok(cloud) = source.cast::<Cloud>() {
+        let mut cloud = cloud.get().inner.clone();
+        py.detach(|| pointray_io::source::prepare(&mut cloud, &preprocess, "cloud", &|_| {}))
+            .map_err(|e| PyValueError::new_err(format!("cloud: {e}")))?;
+        (SceneParts::from(cloud), Settings::default())
+    } else {
+        let path: PathBuf = source
+            .extract()
+            .map_err(|_| pyo3::exceptions::PyTypeError::new_err("source: expected a path, a Cloud or a Scene"))?;
+        let loaded = py.detach(|| pointray_io::source::load(&path, &preprocess, &|_| {})).map_err(io_error)?;
+        (loaded.parts, loaded.settings.unwrap_or_default())
+    };
+    let settings = with_options(&base, options.as_ref())?;
+    let inner = py.detach(|| pointray::Scene::build(parts, &settings)).map_err(value_error)?;
+    Ok(Scene { inner, settings })
+}
+
+/// Renders `source` (a path, a `Cloud` or a `Scene`) with the command line's render options
+/// by the same names: the linear RGB image, H×W×3 float32 (`to_srgb8` gives the PNG's bytes).
+#[pyfunction]
+#[pyo3(signature = (source, **options))]
+fn render<'py>(
+    py: Python<'py>,
+    source: &Bound<'py, PyAny>,
+    options: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    let frame = render_frame(py, source, options)?;
+    Ok(image_array(&frame.frame).into_pyarray(py))
+}
+
+/// Renders the pixels `region` = (x0, y0, x1, y1) of the frame (x1, y1 exclusive): the tile's
+/// linear RGB, (y1 − y0)×(x1 − x0)×3 float32, equal to that part of `render`'s image.
+#[pyfunction]
+#[pyo3(signature = (source, region, **options))]
+fn render_region<'py>(
+    py: Python<'py>,
+    source: &Bound<'py, PyAny>,
+    region: (u32, u32, u32, u32),
+    options: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyArray3<f32>>> {
+    let options = match options {
+        Some(o) => o.copy()?,
+        None => PyDict::new(py),
+    };
+    options.set_item("region", region)?;
+    let frame = render_frame(py, source, Some(&options))?;
+    let film = &frame.frame.film;
+    let (w, h) = (film.region.width() as usize, film.region.height() as usize);
+    let flat: Vec<f32> = film.rgb.iter().flatten().copied().collect();
+    Ok(Array3::from_shape_vec((h, w, 3), flat).expect("a pixel each").into_pyarray(py))
+}
+
+/// `render`, returning a `Frame`: the image, the AOVs of `aovs=[...]` and the statistics
+/// (`count_work=True` counts the traversal's work too).
+#[pyfunction]
+#[pyo3(signature = (source, **options))]
+fn render_frame(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Bound<'_, PyDict>>) -> PyResult<Frame> {
+    let prepared;
+    let (scene, settings) = match source.cast::<Scene>() {
+        Ok(scene) => {
+            let scene = scene.get();
+            (scene, with_options(&scene.settings, options)?)
+        }
+        Err(_) => {
+            let built = prepare(py, source, options)?;
+            prepared = built;
+            (&prepared, prepared.settings.clone())
+        }
+    };
+    let job = scene.inner.job(&settings).map_err(value_error)?;
+    let frame = cancellable(py, |cancel| job.render_until(&|_| {}, cancel))?;
+    let stats = serde_json::to_value(job.report(&frame)).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    Ok(Frame { frame, aovs: settings.aovs.clone(), stats })
+}
+
+/// Linear RGB (H×W×3) as the 8-bit sRGB a PNG of `pointray render` holds, through the tone
+/// map (`tonemap` "clamp" or "filmic", `exposure` in stops).
+#[pyfunction]
+#[pyo3(signature = (image, *, tonemap="clamp", exposure=0.0))]
+fn to_srgb8<'py>(
+    py: Python<'py>,
+    image: PyArrayLike3<'py, f32, AllowTypeChange>,
+    tonemap: &str,
+    exposure: f32,
+) -> PyResult<Bound<'py, PyArray3<u8>>> {
+    let curve = serde_json::from_value(serde_json::Value::String(tonemap.to_string()))
+        .map_err(|_| PyValueError::new_err(format!("tonemap {tonemap:?}: expected \"clamp\" or \"filmic\"")))?;
+    let tone = ToneMap { exposure, curve };
+    let probe = Settings { exposure, ..Settings::default() };
+    probe.check().map_err(value_error)?;
+    let encode = tone.encoder();
+    let image = image.as_array();
+    if image.dim().2 != 3 {
+        return Err(PyValueError::new_err("image: expected an HxWx3 array"));
+    }
+    Ok(image.mapv(encode).into_pyarray(py))
+}
+
+/// Runs `work` on another thread with the GIL released, checking for Ctrl-C meanwhile: a
+/// signal sets `cancel` (the render stops within a band) and raises `KeyboardInterrupt`.
+fn cancellable<T: Send>(py: Python<'_>, work: impl FnOnce(&AtomicBool) -> Option<T> + Send) -> PyResult<T> {
+    let cancel = AtomicBool::new(false);
+    py.detach(|| {
+        std::thread::scope(|s| {
+            let handle = s.spawn(|| work(&cancel));
+            while !handle.is_finished() {
+                std::thread::sleep(Duration::from_millis(20));
+                if let Err(e) = Python::attach(|py| py.check_signals()) {
+                    cancel.store(true, Ordering::Relaxed);
+                    let _ = handle.join();
+                    return Err(e);
+                }
+            }
+            let done = handle.join().map_err(|_| PyRuntimeError::new_err("the render panicked"))?;
+            done.ok_or_else(|| PyKeyboardInterrupt::new_err("render cancelled"))
+        })
+    })
+}
+
+/// The preprocessing options taken out of `options`, and the rest.
+fn split_preprocess<'py>(
+    options: Option<&Bound<'py, PyDict>>,
+) -> PyResult<(PreprocessConfig, Option<Bound<'py, PyDict>>)> {
+    let mut config = PreprocessConfig::standard();
+    let Some(options) = options else { return Ok((config, None)) };
+    let rest = options.copy()?;
+    macro_rules! take {
+        ($($key:ident),*) => {
+            $(if let Some(v) = rest.get_item(stringify!($key))? {
+                config.$key = v.extract()?;
+                rest.del_item(stringify!($key))?;
+            })*
+        };
+    }
+    take!(k_normals, k_radius, radius_scale, recompute);
+    config.check().map_err(value_error)?;
+    Ok((config, Some(rest)))
+}
+
+/// `base` with `options` (keyword arguments by `Settings`' names) put in, checked.
+fn with_options(base: &Settings, options: Option<&Bound<'_, PyDict>>) -> PyResult<Settings> {
+    let Some(options) = options.filter(|o| !o.is_empty()) else { return Ok(base.clone()) };
+    let given: serde_json::Value =
+        pythonize::depythonize(options.as_any()).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    let mut merged = serde_json::to_value(base).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    if let (Some(m), serde_json::Value::Object(g)) = (merged.as_object_mut(), given) {
+        m.extend(g);
+    }
+    let settings: Settings = serde_json::from_value(merged).map_err(|e| PyValueError::new_err(e.to_string()))?;
+    settings.check().map_err(value_error)?;
+    Ok(settings)
+}
+
+fn value_error(e: impl std::fmt::Display) -> PyErr {
+    PyValueError::new_err(e.to_string())
+}
+
+/// The system's refusals as `OSError` (`FileNotFoundError` for a missing file), the rest as
+/// `ValueError`; the message names the file as the command line's does.
+fn io_error(e: IoError) -> PyErr {
+    match &e {
+        IoError::Io { io, .. } if io.kind() == std::io::ErrorKind::NotFound => {
+            PyFileNotFoundError::new_err(e.to_string())
+        }
+        IoError::Io { .. } => PyOSError::new_err(e.to_string()),
+        _ => PyValueError::new_err(e.to_string()),
+    }
+}
+
+#[pymodule]
+fn _pointray(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Cloud>()?;
+    m.add_class::<Scene>()?;
+    m.add_class::<Frame>()?;
+    m.add_function(wrap_pyfunction!(read_cloud, m)?)?;
+    m.add_function(wrap_pyfunction!(prepare, m)?)?;
+    m.add_function(wrap_pyfunction!(render, m)?)?;
+    m.add_function(wrap_pyfunction!(render_region, m)?)?;
+    m.add_function(wrap_pyfunction!(render_frame, m)?)?;
+    m.add_function(wrap_pyfunction!(to_srgb8, m)?)?;
+    m.add("__version__", env!("CARGO_PKG_VERSION"))?;
+    Ok(())
+}

@@ -1,0 +1,159 @@
+"""The Python package against the command line and the library's oracle. The CLI binary is
+$POINTRAY_BIN (CI sets it to the one the Rust tests built); tests that need it skip without."""
+
+import os
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import pointray
+
+BIN = os.environ.get("POINTRAY_BIN")
+
+
+def sphere_points(n=3000, seed=7):
+    """Points on a unit sphere about (10, 20, 30), away from the origin on purpose."""
+    rng = np.random.default_rng(seed)
+    v = rng.normal(size=(n, 3))
+    v /= np.linalg.norm(v, axis=1, keepdims=True)
+    return v + np.array([10.0, 20.0, 30.0])
+
+
+@pytest.fixture
+def sphere_file(tmp_path):
+    path = tmp_path / "sphere.xyz"
+    np.savetxt(path, sphere_points(), fmt="%.9f")
+    return path
+
+
+def cli_png(tmp_path, args):
+    from PIL import Image
+
+    out = tmp_path / "cli.png"
+    subprocess.run([BIN, "-q", "render", *map(str, args), "-o", str(out)], check=True)
+    return np.asarray(Image.open(out).convert("RGB"))
+
+
+@pytest.mark.skipif(not BIN, reason="POINTRAY_BIN not set")
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},
+        {"surface": "first-hit", "spp": 2, "lod_threshold": 1.0},
+        {"tonemap": "filmic", "exposure": 1.0, "sky": True, "ground": True},
+    ],
+)
+def test_the_python_image_is_the_cli_png(tmp_path, sphere_file, options):
+    flags = []
+    for key, value in options.items():
+        flag = "--" + key.replace("_", "-")
+        flags += [flag] if value is True else [flag, value]
+    expected = cli_png(tmp_path, [sphere_file, "--width", 96, "--height", 80, *flags])
+    image = pointray.render(str(sphere_file), width=96, height=80, **options)
+    assert image.shape == (80, 96, 3) and image.dtype == np.float32
+    tone = {k: options[k] for k in ("tonemap", "exposure") if k in options}
+    assert np.array_equal(pointray.to_srgb8(image, **tone), expected)
+
+
+def test_a_cloud_from_numpy_renders_like_its_file(sphere_file):
+    read = pointray.read_cloud(sphere_file)
+    assert len(read) == 3000 and read.normals is None
+    np.testing.assert_allclose(read.positions, sphere_points(), atol=1e-6)
+    rebuilt = pointray.Cloud(read.positions)
+    a = pointray.render(str(sphere_file), width=48, height=40)
+    b = pointray.render(rebuilt, width=48, height=40)
+    assert np.array_equal(a, b)
+    assert (a.max(axis=2) > 0.05).mean() > 0.1, "the sphere shows"
+
+
+def test_a_region_is_that_part_of_the_frame(sphere_file):
+    scene = pointray.prepare(str(sphere_file))
+    whole = pointray.render(scene, width=64, height=48, spp=2)
+    tile = pointray.render_region(scene, (10, 5, 40, 30), width=64, height=48, spp=2)
+    assert np.array_equal(tile, whole[5:30, 10:40])
+
+
+def test_intersect_meets_the_depth_of_the_camera_rays(sphere_file):
+    scene = pointray.prepare(str(sphere_file))
+    options = dict(width=40, height=32, lod_threshold=0.0)
+    frame = pointray.render_frame(scene, aovs=["depth"], **options)
+    origins, directions = scene.camera_rays(**options)
+    t, splat, normal = scene.intersect(origins.reshape(-1, 3), directions.reshape(-1, 3))
+    depth = frame.aov("depth").reshape(-1)
+    assert np.isfinite(depth).sum() > 200
+    assert np.array_equal(t, depth)
+    assert ((splat >= 0) == np.isfinite(t)).all() and splat.max() < len(scene)
+    hit = np.isfinite(t)
+    np.testing.assert_allclose(np.linalg.norm(normal[hit], axis=1), 1.0, atol=1e-5)
+
+
+def test_intersect_agrees_with_the_brute_force_oracle(sphere_file):
+    cloud = pointray.read_cloud(sphere_file)
+    rng = np.random.default_rng(3)
+    origins = np.array([10.0, 20.0, 30.0]) + 3.0 * rng.normal(size=(2000, 3))
+    directions = np.array([10.0, 20.0, 30.0]) + 0.5 * rng.normal(size=(2000, 3)) - origins
+    results = [
+        pointray.prepare(cloud, accel=accel).intersect(origins, directions) for accel in ("bvh", "kdtree", "brute")
+    ]
+    assert np.isfinite(results[0][0]).sum() > 500
+    for other in results[1:]:
+        for a, b in zip(results[0], other):
+            assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
+
+
+def test_statistics_are_a_dict(sphere_file):
+    frame = pointray.render_frame(str(sphere_file), width=32, height=32, count_work=True)
+    stats = frame.stats
+    assert stats["width"] == 32 and stats["accel"] == "bvh" and stats["rays"] > 0
+    assert stats["nodes_visited_per_ray"] > 0
+
+
+def test_bad_input_raises_with_the_cli_message(tmp_path):
+    with pytest.raises(OSError, match="missing.ply"):
+        pointray.render(str(tmp_path / "missing.ply"))
+    garbage = tmp_path / "garbage.ply"
+    garbage.write_text("ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nend_header\n1\nx\n")
+    with pytest.raises(ValueError, match="garbage.ply"):
+        pointray.read_cloud(garbage)
+    with pytest.raises(ValueError, match="spp must be at least 1"):
+        pointray.render(pointray.Cloud(sphere_points()), spp=0)
+    with pytest.raises(ValueError, match="unknown field `sp`"):
+        pointray.render(pointray.Cloud(sphere_points()), sp=4)
+    with pytest.raises(ValueError, match="expected a Nx3"):
+        pointray.Cloud(np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="surface"):
+        scene = pointray.prepare(pointray.Cloud(sphere_points()))
+        pointray.render(scene, surface="rfd")
+
+
+def test_a_scene_renders_again_with_other_settings(sphere_file):
+    scene = pointray.prepare(str(sphere_file), surface="sj")
+    a = pointray.render(scene, width=32, height=24)
+    b = pointray.render(scene, width=32, height=24, surface="first-hit")
+    assert a.shape == b.shape and not np.array_equal(a, b)
+    assert np.array_equal(a, pointray.render(scene, width=32, height=24)), "deterministic"
+
+
+def test_ctrl_c_interrupts_a_render(tmp_path, sphere_file):
+    import signal
+    import sys
+    import time
+
+    script = (
+        "import pointray, sys\n"
+        "scene = pointray.prepare(sys.argv[1])\n"
+        "print('rendering', flush=True)\n"
+        "pointray.render(scene, width=4096, height=4096, spp=256)\n"
+    )
+    child = subprocess.Popen(
+        [sys.executable, "-c", script, str(sphere_file)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+    )
+    assert child.stdout.readline().strip() == "rendering"
+    time.sleep(0.5)
+    child.send_signal(signal.SIGINT)
+    start = time.monotonic()
+    _, stderr = child.communicate(timeout=60)
+    assert "KeyboardInterrupt" in stderr, stderr
+    assert time.monotonic() - start < 10, "the render stopped soon after the signal"
