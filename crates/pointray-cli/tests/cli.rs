@@ -1462,7 +1462,7 @@ fn exr_output_holds_linear_radiance_and_the_aovs() {
     // The PNG is the EXR's radiance, encoded to 8-bit sRGB.
     let png = read_png(&dir.path().join("out.png"));
     let (r, g, b) = (channel("R"), channel("G"), channel("B"));
-    let encode = |v: f32| (pointray::film::linear_to_srgb(v) * 255.0 + 0.5) as u8;
+    let encode = |v: f32| (pointray::color::linear_to_srgb(v) * 255.0 + 0.5) as u8;
     for (i, (x, y, p)) in png.pixels().enumerate() {
         assert_eq!(p, [encode(r[i]), encode(g[i]), encode(b[i])], "pixel ({x}, {y})");
     }

@@ -10,7 +10,7 @@ use std::time::Instant;
 
 use glam::{DMat3, DVec3, Vec3};
 use pointray::PointCloud;
-use pointray::film::srgb_to_linear;
+use pointray::color::srgb_to_linear;
 use pointray::ground::{Checker, GroundPlane};
 use pointray::material::{Material, Phong};
 use pointray::preprocess::{PreprocessConfig, PreprocessStats, preprocess_with_progress};

@@ -157,3 +157,12 @@ def test_ctrl_c_interrupts_a_render(tmp_path, sphere_file):
     _, stderr = child.communicate(timeout=60)
     assert "KeyboardInterrupt" in stderr, stderr
     assert time.monotonic() - start < 10, "the render stopped soon after the signal"
+
+
+BUNNY = Path(__file__).resolve().parents[4] / "shared/data/stanford/bunny/reconstruction/bun_zipper.ply"
+
+
+@pytest.mark.skipif(not BIN or not BUNNY.exists(), reason="needs POINTRAY_BIN and ../shared/data")
+def test_the_bunny_is_the_cli_png(tmp_path):
+    expected = cli_png(tmp_path, [BUNNY, "--width", 192, "--height", 160])
+    assert np.array_equal(pointray.to_srgb8(pointray.render(str(BUNNY), width=192, height=160)), expected)

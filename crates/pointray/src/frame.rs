@@ -6,7 +6,8 @@ use serde::Serialize;
 
 use crate::accel::NodeBounds;
 use crate::camera::Region;
-use crate::film::{Film, FirstHitChannels, ToneMap, linear_to_srgb};
+use crate::color::linear_to_srgb;
+use crate::film::{Film, FirstHitChannels, ToneMap};
 use crate::render::Integrator;
 use crate::settings::Cull;
 use crate::stats::RenderStats;

@@ -13,6 +13,8 @@
 pub mod accel;
 pub mod camera;
 pub mod cloud;
+pub mod color;
+pub mod culling;
 pub mod demo;
 pub mod film;
 pub mod frame;

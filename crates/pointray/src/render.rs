@@ -107,7 +107,7 @@ pub struct RenderConfig {
     /// et al. 2003); 0 keeps the incoming ray's spread.
     pub diffuse_spread: f32,
     /// Cull back-facing subtrees for camera rays (only right for closed, consistently
-    /// oriented surfaces; see `accel::backfacing_fraction`).
+    /// oriented surfaces; see `culling::backfacing_fraction`).
     pub cull_backfaces: bool,
     /// Count the traversal's work: [`RenderStats::traversal`] and the film's `nodes_visited`.
     /// Off, they stay zero and the BVH traverses without counting (see

@@ -24,9 +24,11 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::PointCloud;
-use crate::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds, backfacing_fraction};
+use crate::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds};
 use crate::camera::{Camera, Region};
-use crate::film::{Film, srgb_to_linear};
+use crate::color::srgb_to_linear;
+use crate::culling::backfacing_fraction;
+use crate::film::Film;
 use crate::frame::{Aov, Frame, FrameReport};
 use crate::ground::{Checker, GroundPlane};
 use crate::material::Material;

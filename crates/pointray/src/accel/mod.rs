@@ -16,7 +16,6 @@
 mod block;
 mod brute;
 pub mod bvh;
-mod culling;
 pub mod isa;
 pub mod kdtree;
 mod packet;
@@ -24,7 +23,6 @@ mod representative;
 
 pub use brute::BruteForce;
 pub use bvh::{Bvh, BvhParams, NodeBounds};
-pub use culling::backfacing_fraction;
 pub use kdtree::{KdTree, KdTreeParams};
 
 use crate::math::{Aabb, Ray, RayCone};

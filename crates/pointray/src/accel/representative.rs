@@ -5,8 +5,8 @@
 use glam::DVec3;
 
 use crate::accel::block::{BLOCK, SplatBlock, snap_normal};
-use crate::film::linear_to_srgb;
-use crate::splat::{Splat, color_linear_in, material_of, pack_color, srgb8_to_linear_table};
+use crate::color::{linear_to_srgb, srgb8_to_linear_table};
+use crate::splat::{Splat, color_linear_in, material_of, pack_color};
 
 /// A representative and whether the normals below agree enough to have a mean.
 pub(crate) struct Representative {

@@ -122,7 +122,7 @@ impl Splat {
     /// Inlined: as a call it made the SJ blend spill ten registers per disk.
     #[inline]
     pub fn color_linear(&self) -> [f32; 3] {
-        color_linear_in(self.color, srgb8_to_linear_table())
+        color_linear_in(self.color, crate::color::srgb8_to_linear_table())
     }
 }
 
@@ -131,12 +131,6 @@ impl Splat {
 #[inline(always)]
 pub(crate) fn color_linear_in(c: u32, table: &[f32; 256]) -> [f32; 3] {
     [table[(c & 0xff) as usize], table[(c >> 8 & 0xff) as usize], table[(c >> 16 & 0xff) as usize]]
-}
-
-#[inline]
-pub(crate) fn srgb8_to_linear_table() -> &'static [f32; 256] {
-    static TABLE: std::sync::OnceLock<[f32; 256]> = std::sync::OnceLock::new();
-    TABLE.get_or_init(|| std::array::from_fn(|i| crate::film::srgb_to_linear(i as f32 / 255.0)))
 }
 
 /// The material index in a packed colour (its top byte, see [`Splat::material`]).

@@ -10,8 +10,9 @@ use arrayvec::ArrayVec;
 use glam::{Vec3, Vec3A, Vec4};
 
 use super::scheme::{SurfaceHit, facing, tie_key};
-use super::{DiskShape, DiskTest, color_linear_in, srgb8_to_linear_table};
+use super::{DiskShape, DiskTest, color_linear_in};
 use crate::accel::{Accel, Crossing, SplatVisitor};
+use crate::color::srgb8_to_linear_table;
 use crate::math::Ray;
 
 /// Most disks a window holds; on a smooth surface a ray crosses a handful (about the mean

@@ -93,7 +93,7 @@ fn analytic_image(cam: &Camera, config: &RenderConfig) -> Vec<[f32; 3]> {
                         position: p,
                         normal: p.normalize(),
                         // What the splats carry: sRGB 0.8 quantised to 8 bits, as linear.
-                        color: [pointray::film::srgb_to_linear(204.0 / 255.0); 3],
+                        color: [pointray::color::srgb_to_linear(204.0 / 255.0); 3],
                         radius: 0.0,
                         splat: 0,
                         blended: 1,

@@ -4,9 +4,9 @@
 use glam::Vec3;
 use pointray::accel::{
     Accel, Bvh, BvhParams, Crossing, KdTree, KdTreeParams, NodeBounds, SplatVisitor, TraversalStats,
-    backfacing_fraction,
 };
 use pointray::camera::Camera;
+use pointray::culling::backfacing_fraction;
 use pointray::math::Ray;
 use pointray::splat::Splat;
 use pointray::splat::scheme::{self, SurfaceScheme};

@@ -45,7 +45,7 @@ fn furnace(mut splats: Vec<Splat>, srgb: f32, expected: f32, max_depth: u32) -> 
 fn a_grey_convex_sphere_in_a_white_furnace_shows_its_albedo() {
     // sRGB 188 is linear 0.5029: one cosine-distributed bounce off a convex surface always
     // escapes, so every path carries exactly the albedo.
-    let albedo = pointray::film::srgb_to_linear(188.0 / 255.0);
+    let albedo = pointray::color::srgb_to_linear(188.0 / 255.0);
     let (mean, worst) = furnace(sphere_splats(60_000, 1.0, 51), 188.0 / 255.0, albedo, 8);
     eprintln!("grey sphere: mean {mean:.5} (expected {albedo:.5}), worst pixel off by {worst:.5}");
     // Measured: every covered pixel exactly the albedo (the secondary rays never come back).
@@ -91,7 +91,7 @@ fn plane_mean_with(
     let depth = &film.first_hits.as_ref().expect("first hits recorded").depth;
     assert!(depth.iter().all(|d| d.is_finite()), "the plane fills the frame");
     let mean = film.rgb.iter().map(|c| c[1]).sum::<f32>() / film.rgb.len() as f32;
-    (mean, pointray::film::srgb_to_linear(188.0 / 255.0))
+    (mean, pointray::color::srgb_to_linear(188.0 / 255.0))
 }
 
 #[test]

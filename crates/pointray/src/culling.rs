@@ -1,4 +1,5 @@
-//! Whether normal-cone culling is right for a cloud.
+//! Whether normal-cone culling is right for a cloud: a probe of the accelerator through the
+//! first-hit surface, above both (the accelerators know disks, not surfaces).
 //!
 //! Culling drops subtrees whose disks all face away from the ray's origin. That changes no
 //! image exactly when a ray from outside always meets a front face first: a closed surface
@@ -10,7 +11,7 @@
 use glam::Vec3;
 use rand::{RngExt, SeedableRng};
 
-use super::Accel;
+use crate::accel::{Accel, TraversalStats};
 use crate::math::{Ray, RayCone};
 use crate::splat::scheme::{self, SurfaceScheme};
 
@@ -32,7 +33,7 @@ pub fn backfacing_fraction<A: Accel + ?Sized>(accel: &A, rays: usize, seed: u64)
         }
     };
     let (mut hits, mut back) = (0usize, 0usize);
-    let mut stats = super::TraversalStats::default();
+    let mut stats = TraversalStats::default();
     for _ in 0..rays {
         let origin = center + unit(&mut rng) * reach;
         let target = bounds.min + bounds.extent() * Vec3::new(rng.random(), rng.random(), rng.random());
