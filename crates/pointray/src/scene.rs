@@ -1,7 +1,8 @@
 //! The library's front door: a prepared [`Scene`] (splats in a multiresolution accelerator,
 //! with what lights and dresses them) and [`render`]`(&Scene, &Settings) -> Frame`. The
-//! command line and the bench are thin layers over these; the scene is built once and
-//! rendered as often as wanted, with any settings its build allows.
+//! command line, the bench and the Python package are thin layers over these; the scene is
+//! built once and rendered (or queried, [`Scene::intersect`]) as often as wanted, with any
+//! settings its build allows.
 //!
 //! ```
 //! use pointray::preprocess::{PreprocessConfig, preprocess};
@@ -88,6 +89,8 @@ pub enum SceneError {
     NotPrepared,
     #[error("the cloud has no points")]
     Empty,
+    #[error("the points' material indices are not one a point")]
+    MaterialCount,
 }
 
 /// The accelerators a scene can be built on; the render loop is monomorphised for each.
@@ -171,6 +174,9 @@ impl Scene {
         let prepared = |v: Option<usize>| v == Some(cloud.len());
         if !prepared(cloud.normals.as_ref().map(Vec::len)) || !prepared(cloud.radii.as_ref().map(Vec::len)) {
             return Err(SceneError::NotPrepared);
+        }
+        if point_materials.as_ref().is_some_and(|m| m.len() != cloud.len()) {
+            return Err(SceneError::MaterialCount);
         }
         let mut splats = splats_from_cloud(&cloud);
         if let Some(materials) = &point_materials {
@@ -266,6 +272,7 @@ impl Scene {
             let ray = crate::math::Ray::new(self.local(origin), direction, cone);
             let mut stats = crate::accel::TraversalStats::uncounted();
             let hit = on_accel!(&self.accel, a => crate::splat::scheme::intersect(a, &ray, &scheme, &mut stats))?;
+            // Full detail: every hit is an input splat's, which the BVH's ids name.
             let splat = self.ids.as_ref().map_or(hit.splat, |ids| ids[hit.splat as usize]);
             Some(RayHit { t: hit.t, position: self.origin + hit.position.as_dvec3(), normal: hit.normal, splat })
         };
