@@ -67,10 +67,12 @@ pub enum Command {
     #[command(after_help = "Examples:
   pointray bench experiments/thesis.toml --out results/thesis
   pointray bench experiments/thesis.toml --models bunny --dry-run")]
+    #[cfg(feature = "bench")]
     Bench(BenchArgs),
     /// Write the Markdown report of a bench run, with its figures (SVG and PNG) and image pairs.
     #[command(after_help = "Example:
   pointray report results/thesis -o docs/RESULTS.md")]
+    #[cfg(feature = "bench")]
     Report(ReportArgs),
 }
 
@@ -390,6 +392,7 @@ pub struct InfoArgs {
     pub input: PathBuf,
 }
 
+#[cfg(feature = "bench")]
 #[derive(Args, Debug)]
 pub struct BenchArgs {
     /// The experiment (TOML; experiments/README.md documents it).
@@ -416,6 +419,7 @@ pub struct BenchArgs {
     pub preprocess: PreprocessArgs,
 }
 
+#[cfg(feature = "bench")]
 #[derive(Args, Debug)]
 pub struct ReportArgs {
     /// A bench run's folder (its results.jsonl and images).

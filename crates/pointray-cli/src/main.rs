@@ -2,6 +2,7 @@
 //! in the `pointray` and `pointray-io` libraries.
 
 mod args;
+#[cfg(feature = "bench")]
 mod bench;
 mod commands;
 mod failure;
@@ -34,7 +35,9 @@ fn main() -> ExitCode {
         Command::Sample(a) => commands::sample::run(a, cli.quiet),
         Command::Info(a) => commands::info::run(a, cli.quiet),
         Command::Compare(a) => commands::compare::run(a),
+        #[cfg(feature = "bench")]
         Command::Bench(a) => bench::run(a, cli.quiet),
+        #[cfg(feature = "bench")]
         Command::Report(a) => bench::run_report(a),
     };
     match result {

@@ -5,6 +5,7 @@
 #[path = "cli/support.rs"]
 mod support;
 
+#[cfg(feature = "bench")]
 #[path = "cli/bench.rs"]
 mod bench;
 
