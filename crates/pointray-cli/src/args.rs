@@ -144,9 +144,10 @@ pub struct RenderArgs {
     /// The point the camera looks at, in the file's coordinates.
     #[arg(long, allow_hyphen_values = true, value_parser = parse_dvec3, requires = "eye")]
     pub look_at: Option<glam::DVec3>,
-    /// Camera up vector.
-    #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, default_value = "0,1,0")]
-    pub up: glam::Vec3,
+    /// Camera up vector, which the sky and the ground take too [default: the data's: +z for
+    /// LAS and LAZ, else +y].
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3)]
+    pub up: Option<glam::Vec3>,
     /// Vertical field of view, degrees.
     #[arg(long, default_value_t = D.fov)]
     pub fov: f32,

@@ -46,27 +46,41 @@ pub fn load(path: &Path, preprocess: &PreprocessConfig, stage: &dyn Fn(&str)) ->
     if is_scene(path) {
         return load_scene(path, preprocess, stage);
     }
-    let (cloud, points_read, stats, load_seconds) = read_prepared(path, preprocess, stage)?;
-    Ok(Source { parts: cloud.into(), settings: None, points_read, preprocess: stats, load_seconds })
+    let p = read_prepared(path, preprocess, stage)?;
+    let parts = SceneParts { up: p.up, ..SceneParts::from(p.cloud) };
+    Ok(Source {
+        parts,
+        settings: None,
+        points_read: p.points_read,
+        preprocess: p.preprocess,
+        load_seconds: p.read_seconds,
+    })
 }
 
-/// Reads a cloud file and preprocesses it: the cloud, the points read, the preprocessing's
-/// statistics, and the seconds the reading took.
-pub fn read_prepared(
-    path: &Path,
-    config: &PreprocessConfig,
-    stage: &dyn Fn(&str),
-) -> Result<(PointCloud, usize, PreprocessStats, f64), IoError> {
+/// A cloud file, read and preprocessed.
+pub struct PreparedCloud {
+    pub cloud: PointCloud,
+    /// The up axis the file's format gives, if any (`FileInfo::up`).
+    pub up: Option<Vec3>,
+    /// Points the reader returned, before preprocessing dropped any.
+    pub points_read: usize,
+    pub preprocess: PreprocessStats,
+    pub read_seconds: f64,
+}
+
+/// Reads a cloud file and preprocesses it.
+pub fn read_prepared(path: &Path, config: &PreprocessConfig, stage: &dyn Fn(&str)) -> Result<PreparedCloud, IoError> {
     config.check().map_err(|e| IoError::invalid(path, e.to_string()))?;
     let start = Instant::now();
     stage("read");
-    let mut cloud = crate::read_cloud(path)?.cloud;
-    let seconds = start.elapsed().as_secs_f64();
-    tracing::info!("read {} points from {} in {seconds:.3} s", cloud.len(), path.display());
+    let loaded = crate::read_cloud(path)?;
+    let read_seconds = start.elapsed().as_secs_f64();
+    let (mut cloud, up) = (loaded.cloud, loaded.info.up.map(Vec3::from));
+    tracing::info!("read {} points from {} in {read_seconds:.3} s", cloud.len(), path.display());
     let points_read = cloud.len();
-    let stats = prepare(&mut cloud, config, &path.display().to_string(), stage)
+    let preprocess = prepare(&mut cloud, config, &path.display().to_string(), stage)
         .map_err(|message| IoError::invalid(path, message))?;
-    Ok((cloud, points_read, stats, seconds))
+    Ok(PreparedCloud { cloud, up, points_read, preprocess, read_seconds })
 }
 
 /// Preprocesses a cloud read from `input`, logging what was repaired; the message of a
@@ -121,7 +135,7 @@ fn load_scene(path: &Path, preprocess: &PreprocessConfig, stage: &dyn Fn(&str)) 
     let environment = match spec.environment {
         EnvironmentSpec::Uniform { color } => Environment::Uniform { color },
         EnvironmentSpec::Sky { zenith, horizon, ground } => {
-            Environment::Gradient { up: settings.up.normalize(), zenith, horizon, ground }
+            Environment::Gradient { up: Vec3::from(spec.camera.up).normalize(), zenith, horizon, ground }
         }
     };
     let content = SceneContent {
@@ -146,7 +160,7 @@ fn scene_settings(spec: &SceneFile) -> Settings {
     Settings {
         eye: Some(DVec3::from(c.eye)),
         look_at: Some(DVec3::from(c.look_at)),
-        up: Vec3::from(c.up),
+        up: Some(Vec3::from(c.up)),
         fov: c.fov,
         lens_radius: c.lens_radius,
         focus_distance: c.focus_distance,

@@ -205,6 +205,8 @@ pub struct FrameReport {
     pub mean_radius: f64,
     pub bounds_diagonal: f32,
     pub camera_distance: Option<f32>,
+    /// The camera's up: the settings', else the data's (+z for LAS and LAZ), else +y.
+    pub up: [f32; 3],
     /// The instruction-set path the kernels ran on (`pointray::accel::isa`).
     pub isa: crate::accel::isa::Isa,
     pub counters: RenderStats,

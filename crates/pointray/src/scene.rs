@@ -72,6 +72,8 @@ pub struct SceneParts {
     pub view: Option<(Vec3, f32)>,
     /// The light when the settings name none (default: a headlight).
     pub light: Option<Light>,
+    /// The data's up axis, where its format gives one (default: +y).
+    pub up: Option<Vec3>,
 }
 
 impl From<PointCloud> for SceneParts {
@@ -132,7 +134,9 @@ pub struct Scene {
     accel: Accelerator,
     build: Build,
     content: Option<SceneContent>,
-    view: (Vec3, f32),
+    view: Option<(Vec3, f32)>,
+    /// The data's up (unit).
+    up: Vec3,
     light: Option<Light>,
     /// Added to the stored positions to give the file's coordinates (see [`PointCloud`]).
     origin: DVec3,
@@ -164,7 +168,7 @@ impl Scene {
     /// `surface` tests) over the parts' cloud, which it consumes: the splats hold all the rest
     /// needs of the points, and the cloud is freed before the build's peak.
     pub fn build(parts: SceneParts, settings: &Settings) -> Result<Scene, SceneError> {
-        let SceneParts { cloud, point_materials, content, view, light } = parts;
+        let SceneParts { cloud, point_materials, content, view, light, up } = parts;
         if cloud.is_empty() {
             return Err(SceneError::Empty);
         }
@@ -216,7 +220,8 @@ impl Scene {
             accel,
             build,
             content,
-            view: view.unwrap_or((Vec3::new(0.4, 0.3, 1.0), 1.0)),
+            view,
+            up: up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y),
             light,
             origin,
             bounds,
@@ -350,14 +355,30 @@ impl Scene {
         (p - self.origin).as_vec3()
     }
 
+    /// The settings' up, else the data's.
+    fn up(&self, s: &Settings) -> Vec3 {
+        s.up.unwrap_or(self.up)
+    }
+
+    /// The view direction and distance without an eye: the scene's own view, else (0.4, 0.3, 1)
+    /// at one diagonal, turned with the up axis (+y to +z: from the south, raised, for a survey).
+    fn default_view(&self, s: &Settings) -> (Vec3, f32) {
+        self.view.unwrap_or_else(|| {
+            let turn = glam::Quat::from_rotation_arc(Vec3::Y, self.up(s).normalize());
+            (turn * Vec3::new(0.4, 0.3, 1.0), 1.0)
+        })
+    }
+
     fn camera(&self, s: &Settings) -> Camera {
+        let up = self.up(s);
         let camera = match (s.eye, s.look_at) {
             (Some(eye), Some(target)) => {
-                Camera::look_at(self.local(eye), self.local(target), s.up, s.fov, s.width, s.height)
+                Camera::look_at(self.local(eye), self.local(target), up, s.fov, s.width, s.height)
             }
             _ => {
-                let (view, distance) = (s.view_dir.unwrap_or(self.view.0), s.distance.unwrap_or(self.view.1));
-                Camera::orbit(&self.bounds, view, s.up, distance, s.fov, s.width, s.height)
+                let (view, distance) = self.default_view(s);
+                let (view, distance) = (s.view_dir.unwrap_or(view), s.distance.unwrap_or(distance));
+                Camera::orbit(&self.bounds, view, up, distance, s.fov, s.width, s.height)
             }
         };
         let focus = s.focus_distance.unwrap_or(camera.focus_distance);
@@ -396,7 +417,7 @@ impl Scene {
         let environment = if s.sky {
             // The world's up (the camera's would tilt the horizon with the view).
             Environment::Gradient {
-                up: s.up.normalize(),
+                up: self.up(s).normalize(),
                 zenith: [0.18, 0.32, 0.62],
                 horizon: [0.75, 0.82, 0.90],
                 ground: [0.25, 0.24, 0.22],
@@ -408,7 +429,7 @@ impl Scene {
             lights: vec![light],
             materials: vec![s.material.material(s.ior)],
             environment,
-            ground: s.ground.then(|| floor_under(&self.bounds, s.up)),
+            ground: s.ground.then(|| floor_under(&self.bounds, self.up(s))),
         }
     }
 
@@ -553,7 +574,11 @@ impl RenderJob<'_> {
             bytes_per_splat: scene.memory_bytes() as f64 / scene.points as f64,
             mean_radius: scene.mean_radius,
             bounds_diagonal: scene.bounds.diagonal(),
-            camera_distance: s.eye.is_none().then(|| s.distance.unwrap_or(scene.view.1) * scene.bounds.diagonal()),
+            camera_distance: s
+                .eye
+                .is_none()
+                .then(|| s.distance.unwrap_or(scene.default_view(s).1) * scene.bounds.diagonal()),
+            up: scene.up(s).to_array(),
             isa: crate::accel::isa::active(),
             counters: *stats,
         }
@@ -643,6 +668,22 @@ mod tests {
         for (hit, &d) in hits.iter().zip(depth) {
             assert_eq!(hit.map_or(f32::INFINITY, |h| h.t), d);
         }
+    }
+
+    #[test]
+    fn the_data_s_up_axis_turns_the_default_view_and_the_settings_win() {
+        let mut cloud = crate::demo::demo_cloud(3000, 1);
+        crate::preprocess::preprocess(&mut cloud, &crate::preprocess::PreprocessConfig::standard()).unwrap();
+        let s = Settings { width: 16, height: 16, ..Settings::default() };
+        let scene = Scene::build(SceneParts { up: Some(Vec3::Z), ..cloud.into() }, &s).unwrap();
+        let job = scene.job(&s).unwrap();
+        let centre = scene.bounds().center();
+        // (0.4, 0.3, 1) turned from +y to +z: (0.4, −1, 0.3), raised along z, from −y.
+        let from = (job.camera.eye - centre).normalize();
+        assert!((from - Vec3::new(0.4, -1.0, 0.3).normalize()).length() < 1e-5, "{from}");
+        assert_eq!(job.report(&job.render(&|_| {})).up, [0.0, 0.0, 1.0]);
+        let told = Settings { up: Some(Vec3::Y), ..s };
+        assert_eq!(scene.job(&told).unwrap().report(&job.render(&|_| {})).up, [0.0, 1.0, 0.0]);
     }
 
     #[test]

@@ -99,7 +99,9 @@ pub struct Settings {
 
     pub eye: Option<DVec3>,
     pub look_at: Option<DVec3>,
-    pub up: Vec3,
+    /// The camera's up, which the sky and the ground take too (default: the data's up, as its
+    /// format gives it: +z for LAS and LAZ; else +y).
+    pub up: Option<Vec3>,
     /// Vertical field of view, degrees.
     pub fov: f32,
     pub lens_radius: f32,
@@ -161,7 +163,7 @@ impl Default for Settings {
             exposure: 0.0,
             eye: None,
             look_at: None,
-            up: Vec3::Y,
+            up: None,
             fov: 60.0,
             lens_radius: 0.0,
             focus_distance: None,
@@ -249,7 +251,7 @@ impl Settings {
             return Err(SettingsError::new("exposure", format!("must be between -{most} and {most} stops")));
         }
         let direction = |v: Option<Vec3>| v.is_none_or(|v| v.is_finite() && v.length_squared() > 0.0);
-        check(direction(Some(self.up)), "up", "must not be the zero vector")?;
+        check(direction(self.up), "up", "must not be the zero vector")?;
         check(direction(self.view_dir), "view_dir", "must not be the zero vector")?;
         check(direction(self.light_dir), "light_dir", "must not be the zero vector")?;
         check(self.light_dir.is_none() || self.light_pos.is_none(), "light_dir", "and light_pos exclude each other")?;
@@ -298,7 +300,7 @@ mod tests {
         let bad = |s: Settings| s.check().unwrap_err().option;
         assert_eq!(bad(Settings { spp: 0, ..Settings::default() }), "spp");
         assert_eq!(bad(Settings { lens_radius: -1.0, ..Settings::default() }), "lens_radius");
-        assert_eq!(bad(Settings { up: Vec3::ZERO, ..Settings::default() }), "up");
+        assert_eq!(bad(Settings { up: Some(Vec3::ZERO), ..Settings::default() }), "up");
         assert_eq!(bad(Settings { exposure: f32::NAN, ..Settings::default() }), "exposure");
         assert_eq!(bad(Settings { eye: Some(DVec3::ONE), ..Settings::default() }), "eye");
         let huge = Settings { width: u32::MAX, height: u32::MAX, ..Settings::default() };

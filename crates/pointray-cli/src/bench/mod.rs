@@ -273,8 +273,8 @@ fn load_model(spec: &ModelSpec, e: &Experiment, folder: &Path, a: &BenchArgs, qu
     let stage = |s: &str| spinner.set_message(s.to_string());
     let (cloud, source, points_read, preprocess, load_seconds) = match spec.source(folder)? {
         Source::Cloud(path) => {
-            let (cloud, points_read, stats, seconds) = pointray_io::source::read_prepared(&path, &config, &stage)?;
-            (cloud, path.display().to_string(), points_read, stats, seconds)
+            let p = pointray_io::source::read_prepared(&path, &config, &stage)?;
+            (p.cloud, path.display().to_string(), p.points_read, p.preprocess, p.read_seconds)
         }
         Source::Mesh { path, points } => {
             let t = Instant::now();
@@ -321,7 +321,7 @@ fn settings(e: &Experiment, model: &Model, p: &Point, surface: SurfaceKind, lod_
         surface,
         lod_threshold,
         view_dir: Some(model.view_dir),
-        up: model.up,
+        up: Some(model.up),
         distance: Some(p.distance),
         fov: e.camera.fov,
         crop_to_model: e.camera.crop_to_model,

@@ -8,7 +8,8 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     config.check().map_err(|e| crate::failure::usage(super::render::flag_error(e)))?;
     let spinner = crate::progress::spinner("read", quiet);
     let stage = |s: &str| spinner.set_message(s.to_string());
-    let (cloud, _, stats, _) = pointray_io::source::read_prepared(&a.input, &config, &stage)?;
+    let prepared = pointray_io::source::read_prepared(&a.input, &config, &stage)?;
+    let (cloud, stats) = (prepared.cloud, prepared.preprocess);
     spinner.finish_and_clear();
     crate::progress::spinning("write", quiet, || pointray_io::write_ply(&a.output, &cloud))
         .map_err(crate::failure::output)?;
