@@ -94,7 +94,7 @@ pub struct PreprocessArgs {
 
 #[derive(Args, Clone, Debug)]
 pub struct RenderArgs {
-    /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, or a Stanford scan set .conf; recognised by
+    /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf; recognised by
     /// content), or a scene file (.toml: several clouds, materials, lights; see
     /// scenes/README.md); none renders the built-in demo scene.
     pub input: Option<PathBuf>,
@@ -353,7 +353,7 @@ impl PreprocessArgs {
 
 #[derive(Args, Debug)]
 pub struct PrepareArgs {
-    /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, or a Stanford scan set .conf).
+    /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf).
     pub input: PathBuf,
     /// Output PLY (binary, with normals, radii and any colours; written atomically).
     #[arg(short, long)]
@@ -364,7 +364,7 @@ pub struct PrepareArgs {
 
 #[derive(Args, Debug)]
 pub struct SampleArgs {
-    /// Triangle mesh (PLY with a 'face' element).
+    /// Triangle mesh: PLY with a 'face' element, OFF or OBJ (recognised by content).
     pub input: PathBuf,
     /// Points to place on the surface.
     #[arg(short = 'n', long)]
@@ -389,7 +389,7 @@ pub enum NormalsArg {
 
 #[derive(Args, Debug)]
 pub struct InfoArgs {
-    /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, or a Stanford scan set .conf).
+    /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf).
     pub input: PathBuf,
 }
 

@@ -688,6 +688,37 @@ fn info_reads_xyz_text() {
     assert!(run.stderr.is_empty(), "info writes nothing to stderr on success: {run}");
 }
 
+/// The octahedron written as OFF and as OBJ (with quads split alike, and corners of every
+/// form) samples to the very points of its PLY, and renders as its vertices.
+#[test]
+fn off_and_obj_meshes_sample_like_the_ply() {
+    let dir = temp_dir();
+    write_file(dir.path(), "octa.ply", octahedron_ply());
+    let vertices = "1 0 0\n-1 0 0\n0 1 0\n0 -1 0\n0 0 1\n0 0 -1\n";
+    let faces = [[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]];
+    let mut off = format!("OFF\n# the octahedron\n6 8 12\n{vertices}");
+    let mut obj = format!(
+        "# the octahedron\no octa\n{}vn 0 0 1\n",
+        vertices.lines().map(|v| format!("v {v}\n")).collect::<String>()
+    );
+    for [a, b, c] in faces {
+        off += &format!("3 {a} {b} {c}\n");
+        obj += &format!("f {}//1 {}/1/1 {}\n", a + 1, b + 1, c as i64 - 6);
+    }
+    write_file(dir.path(), "octa.off", off);
+    write_file(dir.path(), "octa.obj", obj);
+    for name in ["octa.ply", "octa.off", "octa.obj"] {
+        let run = run_in(dir.path(), &["sample", name, "-n", "5000", "-o", &format!("{name}.dense.ply")]);
+        run.assert_success().assert_stderr_contains(&format!("{name}: 8 triangles, area 6.928203; 5000 points"));
+    }
+    let bytes = |name: &str| std::fs::read(dir.path().join(name)).unwrap();
+    assert_eq!(bytes("octa.off.dense.ply"), bytes("octa.ply.dense.ply"));
+    assert_eq!(bytes("octa.obj.dense.ply"), bytes("octa.ply.dense.ply"));
+    for name in ["octa.off", "octa.obj"] {
+        run_in(dir.path(), &["info", name]).assert_success().assert_stdout_contains("points:      6");
+    }
+}
+
 /// A closed mesh: the octahedron |x| + |y| + |z| = 1, wound outwards.
 #[test]
 fn sample_makes_a_dense_cloud_on_a_mesh() {

@@ -51,6 +51,10 @@ impl CloudBuilder {
         }
     }
 
+    pub(crate) fn has_colors(&self) -> bool {
+        self.colors.is_some()
+    }
+
     pub(crate) fn len(&self) -> usize {
         self.world.len()
     }
@@ -64,6 +68,17 @@ impl CloudBuilder {
         cloud.radii = self.radii;
         cloud.colors = self.colors;
         cloud
+    }
+}
+
+/// Text formats' colours, read raw: `0..=255` if any channel exceeds 1, else `0..=1`; scaled
+/// to `[0, 1]` and clamped (NaN to 0).
+pub(crate) fn scale_colors_to_unit(cloud: &mut PointCloud) {
+    let Some(colors) = &mut cloud.colors else { return };
+    let max = colors.iter().flatten().fold(0.0f32, |m, &c| m.max(c));
+    let divisor = if max > 1.0 { 255.0 } else { 1.0 };
+    for color in colors.iter_mut() {
+        *color = color.map(|c| if c.is_nan() { 0.0 } else { (c / divisor).clamp(0.0, 1.0) });
     }
 }
 

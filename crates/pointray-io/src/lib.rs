@@ -8,6 +8,8 @@
 pub mod error;
 pub mod image;
 mod las;
+mod obj;
+mod off;
 mod pcd;
 pub mod ply;
 mod scanset;
@@ -25,7 +27,7 @@ use std::path::{Path, PathBuf};
 pub use error::IoError;
 use file::{FileBytes, read_file};
 pub use image::{decode_png, read_png, write_exr, write_png};
-pub use ply::{Mesh, parse_mesh, read_mesh, read_ply, write_ply};
+pub use ply::{Mesh, read_ply, write_ply};
 pub use xyz::read_xyz;
 
 /// A cloud and what its file said about itself.
@@ -96,6 +98,12 @@ fn parse_any(path: &Path, bytes: FileBytes, scan_sets: bool) -> Result<LoadedClo
         }
         return scanset::parse(path, &bytes);
     }
+    if off::looks_like_off(&bytes) {
+        return off::parse(path, &bytes);
+    }
+    if obj::looks_like_obj(&bytes) {
+        return obj::parse(path, &bytes);
+    }
     let extension = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
     if extension.as_deref() == Some("ply") {
         return Err(IoError::invalid(path, "not a PLY file: it does not start with the line 'ply'"));
@@ -103,7 +111,27 @@ fn parse_any(path: &Path, bytes: FileBytes, scan_sets: bool) -> Result<LoadedClo
     if extension.as_deref().is_some_and(|e| XYZ_EXTENSIONS.contains(&e)) || xyz::looks_like_xyz(&bytes) {
         return xyz::parse(path, &bytes);
     }
-    Err(IoError::invalid(path, "unrecognised format: not PLY, LAS/LAZ, PCD, a scan set or XYZ text"))
+    Err(IoError::invalid(path, "unrecognised format: not PLY, LAS/LAZ, PCD, OFF, OBJ, a scan set or XYZ text"))
+}
+
+/// Reads a triangle mesh: PLY (with a `face` element), OFF or OBJ, recognised by content.
+/// Errors name the file, and the face and its line or byte offset for a vertex index that is
+/// not an index of a vertex in the file.
+pub fn read_mesh(path: &Path) -> Result<Mesh, IoError> {
+    parse_mesh(path, &read_file(path, false)?)
+}
+
+/// [`read_mesh`] for a file already in memory (`path` names it in errors).
+pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
+    if bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n") {
+        ply::parse_mesh(path, bytes)
+    } else if off::looks_like_off(bytes) {
+        off::parse_mesh(path, bytes)
+    } else if obj::looks_like_obj(bytes) {
+        obj::parse_mesh(path, bytes)
+    } else {
+        Err(IoError::invalid(path, "not a mesh: PLY with faces, OFF or OBJ"))
+    }
 }
 
 /// Writes `path` all or nothing: the closure writes (buffered) into a temporary file in the

@@ -119,7 +119,6 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     let mut columns: Option<Columns> = None;
     let mut builder = CloudBuilder::new(0, Attributes::default());
     let mut comments = Vec::new();
-    let mut max_color = 0.0f32;
     let mut seen_data = false;
 
     for (number, line) in Lines::new(bytes, 1) {
@@ -149,19 +148,12 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         if values.len() != layout.count() {
             return Err(error(format!("expected {} values, found {}", layout.count(), values.len())));
         }
-        let record = parse_point(&values, layout).map_err(error)?;
-        max_color = record.color.iter().fold(max_color, |m, &c| m.max(c));
-        builder.push(&record);
+        builder.push(&parse_point(&values, layout).map_err(error)?);
     }
 
     let layout = columns.unwrap_or(Columns::Position);
     let mut cloud = builder.finish();
-    if let Some(colors) = &mut cloud.colors {
-        let divisor = if max_color > 1.0 { 255.0 } else { 1.0 };
-        for color in colors.iter_mut() {
-            *color = color.map(|c| if c.is_nan() { 0.0 } else { (c / divisor).clamp(0.0, 1.0) });
-        }
-    }
+    crate::builder::scale_colors_to_unit(&mut cloud);
     let info = FileInfo {
         format: "XYZ text".into(),
         elements: vec![("point".into(), cloud.len())],

@@ -1218,7 +1218,12 @@ fn mesh_errors_name_the_face_and_where_it_is() {
     let message = pointray_io::read_mesh(&cloud).unwrap_err().to_string();
     assert!(message.ends_with("cloud.ply: no 'face' element: not a mesh"), "{message}");
     let text = write_file(dir.path(), "c.xyz", b"0 0 0\n");
-    assert!(pointray_io::read_mesh(&text).unwrap_err().to_string().contains("not a PLY file"));
+    assert!(
+        pointray_io::read_mesh(&text)
+            .unwrap_err()
+            .to_string()
+            .ends_with("c.xyz: not a mesh: PLY with faces, OFF or OBJ")
+    );
     let mut truncated = encode_ply(Enc::Le, &mesh_elements(vec![vec![0.0, 1.0, 2.0]]));
     truncated.truncate(truncated.len() - 3);
     let path = write_file(dir.path(), "t.ply", &truncated);

@@ -20,13 +20,7 @@ pub struct Mesh {
     pub skipped_faces: usize,
 }
 
-/// Reads a PLY mesh. Errors name the file, and the face and its line or byte offset for a
-/// vertex index that is not an index of a vertex in the file.
-pub fn read_mesh(path: &Path) -> Result<Mesh, IoError> {
-    parse_mesh(path, &crate::file::read_file(path, false)?)
-}
-
-/// [`read_mesh`] for a file already in memory (`path` names it in errors).
+/// A PLY mesh in memory (`path` names it in errors); [`crate::read_mesh`] takes any mesh format.
 pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
     if !(bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n")) {
         return Err(IoError::invalid(path, "not a PLY file: it does not start with the line 'ply'"));
@@ -43,6 +37,7 @@ pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
     // A capacity hint only: the header's count is not trusted beyond what the file's size allows.
     let mut triangles = Vec::with_capacity(header.elements[face_index].count.min(bytes.len() / 12));
     let mut skipped_faces = 0;
+    let mut corners = Vec::new();
     let visit = |_: usize, items: &[f64]| {
         if items.len() < 3 {
             skipped_faces += 1;
@@ -55,13 +50,11 @@ pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
                 Err(format!("vertex index {value} is not one of the {vertices} vertices"))
             }
         };
-        let first = index(items[0])?;
-        let mut previous = index(items[1])?;
-        for &item in &items[2..] {
-            let next = index(item)?;
-            triangles.push([first, previous, next]);
-            previous = next;
+        corners.clear();
+        for &item in items {
+            corners.push(index(item)?);
         }
+        triangles.extend(fan(&corners));
         Ok(())
     };
     let elements = &header.elements;
@@ -71,6 +64,11 @@ pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
         Rest::Binary(body, end) => body.for_each_list(end, elements, which, visit)?,
     }
     Ok(Mesh { vertices: builder.finish(), triangles, skipped_faces })
+}
+
+/// A polygon's triangles: a fan around its first corner (none for fewer than three corners).
+pub(crate) fn fan(corners: &[u32]) -> impl Iterator<Item = [u32; 3]> + '_ {
+    corners.windows(2).skip(1).map(|w| [corners[0], w[0], w[1]])
 }
 
 /// The face element after the vertices and its list of vertex indices.

@@ -13,7 +13,8 @@ mod header;
 mod mesh;
 mod vertex;
 
-pub use mesh::{Mesh, parse_mesh, read_mesh};
+pub(crate) use mesh::fan;
+pub use mesh::{Mesh, parse_mesh};
 
 use std::path::Path;
 
