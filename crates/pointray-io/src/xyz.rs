@@ -10,7 +10,9 @@
 //!   9 = position + normal + colour, 6 = position + colour if each of its last three values
 //!   is an integer literal in `0..=255` and the triple is not unit length, else
 //!   position + normal; 4 = position + intensity, 7 = position + intensity + colour (PTS; the
-//!   intensity is read and not kept);
+//!   intensity is read and not kept), except that 7 columns whose last four are byte
+//!   integers ending in an opaque 255, in a file that is not PTS (no `.pts` extension, no
+//!   point count), are position + colour + alpha (CloudCompare's `x y z R G B A` export);
 //! - colours are `0..=255` if any colour value in the file exceeds 1, else `0..=1`;
 //!   clamped to `[0, 1]` either way;
 //! - non-finite coordinates (`nan`, `inf`) are kept, as for PLY.
@@ -37,6 +39,7 @@ enum Columns {
     PositionNormalColor,
     PositionIntensity,
     PositionIntensityColor,
+    PositionColorAlpha,
 }
 
 impl Columns {
@@ -45,7 +48,7 @@ impl Columns {
             Self::Position => 3,
             Self::PositionIntensity => 4,
             Self::PositionNormal | Self::PositionColor => 6,
-            Self::PositionIntensityColor => 7,
+            Self::PositionIntensityColor | Self::PositionColorAlpha => 7,
             Self::PositionNormalColor => 9,
         }
     }
@@ -54,7 +57,7 @@ impl Columns {
         Attributes {
             normals: matches!(self, Self::PositionNormal | Self::PositionNormalColor),
             radii: false,
-            colors: matches!(self, Self::PositionColor | Self::PositionNormalColor | Self::PositionIntensityColor),
+            colors: !matches!(self, Self::Position | Self::PositionNormal | Self::PositionIntensity),
         }
     }
 
@@ -70,14 +73,21 @@ impl Columns {
         if attributes.colors {
             names.extend(["red", "green", "blue"]);
         }
+        if self == Self::PositionColorAlpha {
+            names.push("alpha");
+        }
         names.into_iter().map(String::from).collect()
     }
 
-    /// Decides from the first data line; see the module doc.
-    fn from_first_line(tokens: &[&str]) -> Result<Self, String> {
+    /// Decides from the first data line (`pts`: the file is PTS by its extension or count);
+    /// see the module doc.
+    fn from_first_line(tokens: &[&str], pts: bool) -> Result<Self, String> {
         match tokens.len() {
             3 => Ok(Self::Position),
             4 => Ok(Self::PositionIntensity),
+            7 if !pts && tokens[3..].iter().all(|t| t.parse::<u8>().is_ok()) && tokens[6] == "255" => {
+                Ok(Self::PositionColorAlpha)
+            }
             7 => Ok(Self::PositionIntensityColor),
             6 if looks_like_rgb(&tokens[3..]) => Ok(Self::PositionColor),
             6 => Ok(Self::PositionNormal),
@@ -120,6 +130,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     let mut builder = CloudBuilder::new(0, Attributes::default());
     let mut comments = Vec::new();
     let mut seen_data = false;
+    let mut pts = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("pts"));
 
     for (number, line) in Lines::new(bytes, 1) {
         let error = |message: String| IoError::at_line(path, number, message);
@@ -135,12 +146,13 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         let first_data_line = !seen_data;
         seen_data = true;
         if first_data_line && values.len() == 1 && values[0].parse::<u64>().is_ok() {
+            pts = true;
             continue; // `.pts` point count
         }
         let layout = match columns {
             Some(layout) => layout,
             None => {
-                let layout = Columns::from_first_line(&values).map_err(error)?;
+                let layout = Columns::from_first_line(&values, pts).map_err(error)?;
                 builder = CloudBuilder::new(bytes.len() / (layout.count() * 6), layout.attributes());
                 *columns.insert(layout)
             }
@@ -180,7 +192,7 @@ fn parse_point(values: &[&str], layout: Columns) -> Result<PointRecord, String> 
         Columns::Position | Columns::PositionIntensity => {}
         Columns::PositionIntensityColor => record.color = as_vec3(triple(4)).to_array(),
         Columns::PositionNormal => record.normal = as_vec3(triple(3)),
-        Columns::PositionColor => record.color = as_vec3(triple(3)).to_array(),
+        Columns::PositionColor | Columns::PositionColorAlpha => record.color = as_vec3(triple(3)).to_array(),
         Columns::PositionNormalColor => {
             record.normal = as_vec3(triple(3));
             record.color = as_vec3(triple(6)).to_array();
@@ -195,12 +207,23 @@ mod tests {
 
     #[test]
     fn six_columns_are_colour_only_for_byte_triples_that_are_not_unit_vectors() {
-        assert_eq!(Columns::from_first_line(&["0", "0", "0", "255", "128", "0"]), Ok(Columns::PositionColor));
-        assert_eq!(Columns::from_first_line(&["0", "0", "0", "0", "0", "1"]), Ok(Columns::PositionNormal));
-        assert_eq!(Columns::from_first_line(&["0", "0", "0", "0.5", "0.5", "0.7"]), Ok(Columns::PositionNormal));
-        assert_eq!(Columns::from_first_line(&["0", "0", "0", "256", "0", "0"]), Ok(Columns::PositionNormal));
-        assert_eq!(Columns::from_first_line(&["0", "0", "0", "1"]), Ok(Columns::PositionIntensity));
-        assert!(Columns::from_first_line(&["0", "0", "0", "1", "2"]).is_err());
+        assert_eq!(Columns::from_first_line(&["0", "0", "0", "255", "128", "0"], false), Ok(Columns::PositionColor));
+        assert_eq!(Columns::from_first_line(&["0", "0", "0", "0", "0", "1"], false), Ok(Columns::PositionNormal));
+        assert_eq!(Columns::from_first_line(&["0", "0", "0", "0.5", "0.5", "0.7"], false), Ok(Columns::PositionNormal));
+        assert_eq!(Columns::from_first_line(&["0", "0", "0", "256", "0", "0"], false), Ok(Columns::PositionNormal));
+        assert_eq!(Columns::from_first_line(&["0", "0", "0", "1"], false), Ok(Columns::PositionIntensity));
+        assert!(Columns::from_first_line(&["0", "0", "0", "1", "2"], false).is_err());
+    }
+
+    #[test]
+    fn seven_columns_ending_in_an_opaque_byte_are_rgba_unless_the_file_is_pts() {
+        let rgba = ["1", "2", "3", "10", "20", "30", "255"];
+        assert_eq!(Columns::from_first_line(&rgba, false), Ok(Columns::PositionColorAlpha));
+        assert_eq!(Columns::from_first_line(&rgba, true), Ok(Columns::PositionIntensityColor));
+        let pts = ["1", "2", "3", "-1024", "255", "0", "51"];
+        assert_eq!(Columns::from_first_line(&pts, false), Ok(Columns::PositionIntensityColor));
+        let translucent = ["1", "2", "3", "10", "20", "30", "128"];
+        assert_eq!(Columns::from_first_line(&translucent, false), Ok(Columns::PositionIntensityColor));
     }
 
     #[test]

@@ -629,6 +629,11 @@ fn xyz_and_pts_columns() {
     assert_eq!(loaded.info.vertex_properties, ["x", "y", "z", "intensity", "red", "green", "blue"]);
     assert_eq!(loaded.cloud.colors.as_deref(), Some(&[[1.0, 0.0, 0.2], [0.0, 1.0, 0.0]][..]));
     assert_close(world_positions(&loaded.cloud)[1], DVec3::new(4.0, 5.0, 6.0), 1e-6);
+    // CloudCompare's `x y z R G B A`: the colour is the first three bytes.
+    let path = write_file(dir.path(), "cc.txt", b"1 2 3 255 128 0 255\n4 5 6 0 0 255 255\n");
+    let loaded = read_cloud(&path).unwrap();
+    assert_eq!(loaded.info.vertex_properties, ["x", "y", "z", "red", "green", "blue", "alpha"]);
+    assert_eq!(loaded.cloud.colors.as_deref(), Some(&[[1.0, 128.0 / 255.0, 0.0], [0.0, 0.0, 1.0]][..]));
     let path = write_file(dir.path(), "grey.pts", b"1 2 3 0.5\n4 5 6 0.25\n");
     let cloud = read_cloud(&path).unwrap().cloud;
     assert!(cloud.len() == 2 && cloud.colors.is_none() && cloud.normals.is_none());
