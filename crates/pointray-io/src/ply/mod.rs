@@ -18,7 +18,6 @@ pub use mesh::{Mesh, parse_mesh};
 
 use std::path::Path;
 
-use glam::DVec3;
 use pointray::PointCloud;
 
 use crate::builder::CloudBuilder;
@@ -103,14 +102,16 @@ fn file_info(header: &Header, vertex_index: usize, file_bytes: usize) -> FileInf
 /// Writes a binary little-endian PLY with `x y z`, then `nx ny nz`, `radius` and
 /// `red green blue` (uchar) when the cloud has them.
 ///
-/// Coordinates are world coordinates (`origin + position`): `double` when the origin is not
-/// zero, so a far-away scan loses nothing, else `float`. The file appears only when complete
-/// (see [`atomic_write`]).
+/// Coordinates are world coordinates (`origin + position`): `double` when the origin lies
+/// farther from zero than the cloud is wide (a survey's: a `float` would keep fewer bits of a
+/// coordinate than the cloud's own f32 offsets), else `float`, which then keeps about as many
+/// (a mesh sampled near the origin: 24 bytes a point, not 36). The file appears only when
+/// complete (see [`atomic_write`]).
 pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<(), IoError> {
     cloud
         .check_lengths()
         .map_err(|message| IoError::invalid(path, format!("cannot write an inconsistent cloud: {message}")))?;
-    let world_doubles = cloud.origin != DVec3::ZERO;
+    let world_doubles = cloud.origin.abs().max_element() > f64::from(cloud.bounds().diagonal());
     let header = write_header(cloud, world_doubles);
     atomic_write(path, |out| {
         out.write_all(header.as_bytes())?;
@@ -148,13 +149,13 @@ fn encode_vertex(cloud: &PointCloud, index: usize, world_doubles: bool, record: 
     let Some(position) = cloud.positions.get(index) else {
         return;
     };
+    let world = cloud.origin + position.as_dvec3();
     if world_doubles {
-        let world = cloud.origin + position.as_dvec3();
         for value in world.to_array() {
             record.extend_from_slice(&value.to_le_bytes());
         }
     } else {
-        for value in position.to_array() {
+        for value in world.as_vec3().to_array() {
             record.extend_from_slice(&value.to_le_bytes());
         }
     }
