@@ -717,6 +717,16 @@ fn off_and_obj_meshes_sample_like_the_ply() {
     for name in ["octa.off", "octa.obj"] {
         run_in(dir.path(), &["info", name]).assert_success().assert_stdout_contains("points:      6");
     }
+    // Vertex colours go with the points.
+    write_file(
+        dir.path(),
+        "sq.off",
+        "COFF\n4 2 0\n0 0 0 255 0 0\n1 0 0 0 255 0\n1 1 0 0 0 255\n0 1 0 255 255 255\n3 0 1 2\n3 0 2 3\n",
+    );
+    run_in(dir.path(), &["-q", "sample", "sq.off", "-n", "100", "-o", "sq.ply"]).assert_success();
+    run_in(dir.path(), &["info", "sq.ply"])
+        .assert_success()
+        .assert_stdout_contains("uchar red, uchar green, uchar blue");
 }
 
 /// A closed mesh: the octahedron |x| + |y| + |z| = 1, wound outwards.

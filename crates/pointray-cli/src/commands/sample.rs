@@ -4,7 +4,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use pointray::PointCloud;
-use pointray::mesh_sampling::{SampleNormals, sample_surface};
+use pointray::mesh_sampling::{SampleNormals, Sampling, SurfaceMesh, sample_surface};
 
 use crate::args::{NormalsArg, SampleArgs};
 use crate::failure;
@@ -69,8 +69,13 @@ pub fn sample_mesh(
         let faces = if n == 1 { "face" } else { "faces" };
         tracing::warn!("{}: {n} {faces} with fewer than 3 vertices left out", path.display());
     }
-    let samples =
-        spinning("sample", quiet, || sample_surface(&mesh.vertices.positions, &mesh.triangles, points, seed, normals));
+    let surface = SurfaceMesh {
+        vertices: &mesh.vertices.positions,
+        triangles: &mesh.triangles,
+        colors: mesh.vertices.colors.as_deref(),
+    };
+    let sampling = Sampling { count: points, seed, normals };
+    let samples = spinning("sample", quiet, || sample_surface(&surface, &sampling));
     let samples = samples.with_context(|| format!("{}: sampling", path.display()))?;
     if samples.empty_triangles > 0 {
         let n = samples.empty_triangles;
@@ -80,6 +85,7 @@ pub fn sample_mesh(
     let cloud = PointCloud {
         positions: samples.positions,
         normals: Some(samples.normals),
+        colors: samples.colors,
         origin: mesh.vertices.origin,
         ..PointCloud::default()
     };
