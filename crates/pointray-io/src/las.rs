@@ -113,6 +113,9 @@ fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
     check_first_evlr(path, &bytes)?;
     check_laz_chunk_table(path, &bytes)?;
     let file_bytes = bytes.len() as u64;
+    // The version as the file gives it (bytes 24 and 25): the reader reports the version its
+    // header would be written as (a LAS 1.1 file with point format 3 read as 1.2).
+    let version = (bytes.get(24).copied().unwrap_or(0), bytes.get(25).copied().unwrap_or(0));
     let mut reader = las::Reader::new(Cursor::new(bytes))
         .map_err(|e| IoError::invalid(path, format!("not a readable LAS file: {e}")))?;
     let header = reader.header().clone();
@@ -151,13 +154,12 @@ fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
         let scale = if max_channel <= 255 { 255.0 } else { 65535.0 };
         colors.iter_mut().for_each(|c| *c = c.map(|v| v / scale));
     }
-    let version = header.version();
     let info = FileInfo {
         format: format!(
             "{} {}.{}, point format {}",
             if format.is_compressed { "LAZ" } else { "LAS" },
-            version.major,
-            version.minor,
+            version.0,
+            version.1,
             format.to_u8().map_or_else(|_| "?".to_string(), |n| n.to_string())
         ),
         elements: vec![("point".into(), cloud.len())],

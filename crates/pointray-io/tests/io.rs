@@ -940,6 +940,10 @@ fn las_and_laz_read_to_the_same_survey_cloud_with_its_colours() {
     let (a, b) = (read_cloud(&las).unwrap(), read_cloud(&laz).unwrap());
     assert_eq!(a.info.format, "LAS 1.2, point format 3");
     assert_eq!(b.info.format, "LAZ 1.2, point format 3");
+    // A LAS 1.1 file is named 1.1 (the reader calls it 1.2: point format 3 is 1.2's).
+    let mut old = las_bytes(&points[..10], false);
+    old[25] = 1;
+    assert_eq!(read_cloud(&write_file(dir.path(), "c.las", &old)).unwrap().info.format, "LAS 1.1, point format 3");
     // Surveys stand on z: the camera's default up for them.
     assert_eq!((a.info.up, b.info.up), (Some([0.0, 0.0, 1.0]), Some([0.0, 0.0, 1.0])));
     assert!(std::fs::metadata(&laz).unwrap().len() < std::fs::metadata(&las).unwrap().len() / 2, "LAZ compresses");
