@@ -1211,6 +1211,12 @@ fn meshes_read_alike_in_every_encoding_with_polygons_as_fans() {
         assert_eq!((mesh.vertices.len(), mesh.skipped_faces), (5, 1), "{name}");
         let world = world_positions(&mesh.vertices);
         assert_close(world[4], DVec3::new(2.0, 0.0, 0.0), 1e-12);
+        // The faces may come first (the format allows any order): the same mesh.
+        let mut reordered = mesh_elements(faces.clone());
+        reordered.reverse();
+        let path = write_file(dir.path(), &format!("first-{name}"), &encode_ply(encoding, &reordered));
+        let first = pointray_io::read_mesh(&path).unwrap();
+        assert_eq!((first.triangles, first.vertices.positions), (mesh.triangles, mesh.vertices.positions), "{name}");
     }
 }
 

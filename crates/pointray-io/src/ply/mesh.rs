@@ -6,7 +6,7 @@ use std::path::Path;
 use pointray::PointCloud;
 
 use super::header::{Header, PropertyKind, parse_header};
-use super::{Rest, ascii, read_vertex_element, vertex_element};
+use super::{Rest, ascii, body_start, read_vertex_element, vertex_element};
 use crate::IoError;
 
 /// A mesh as read: its vertices (with whatever attributes the file has, recentred like any
@@ -27,7 +27,7 @@ pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
     }
     let header = parse_header(path, bytes)?;
     let vertex_index = vertex_element(path, &header)?;
-    let (face_index, list) = face_list(path, &header, vertex_index)?;
+    let (face_index, list) = face_list(path, &header)?;
     let (builder, rest) = read_vertex_element(path, bytes, &header, vertex_index)?;
     let vertices = builder.len();
     if u32::try_from(vertices).is_err() {
@@ -58,7 +58,11 @@ pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
         Ok(())
     };
     let elements = &header.elements;
-    let which = (vertex_index + 1, face_index, list);
+    // Faces after the vertices are read on from there; faces before them (the format allows
+    // it), from the body's start again.
+    let (rest, from) =
+        if face_index > vertex_index { (rest, vertex_index + 1) } else { (body_start(path, bytes, &header), 0) };
+    let which = (from, face_index, list);
     match rest {
         Rest::Ascii(mut lines) => ascii::for_each_list(path, &mut lines, elements, which, visit)?,
         Rest::Binary(body, end) => body.for_each_list(end, elements, which, visit)?,
@@ -71,16 +75,13 @@ pub(crate) fn fan(corners: &[u32]) -> impl Iterator<Item = [u32; 3]> + '_ {
     corners.windows(2).skip(1).map(|w| [corners[0], w[0], w[1]])
 }
 
-/// The face element after the vertices and its list of vertex indices.
-fn face_list(path: &Path, header: &Header, vertex_index: usize) -> Result<(usize, usize), IoError> {
+/// The face element and its list of vertex indices.
+fn face_list(path: &Path, header: &Header) -> Result<(usize, usize), IoError> {
     let face_index = header
         .elements
         .iter()
         .position(|e| e.name == "face")
         .ok_or_else(|| IoError::invalid(path, "no 'face' element: not a mesh"))?;
-    if face_index < vertex_index {
-        return Err(IoError::invalid(path, "the 'face' element comes before the 'vertex' element (not supported)"));
-    }
     let list = header.elements[face_index]
         .properties
         .iter()

@@ -51,12 +51,26 @@ fn vertex_element(path: &Path, header: &Header) -> Result<usize, IoError> {
         .ok_or_else(|| IoError::invalid(path, "no 'vertex' element in the header"))
 }
 
-/// The body after the vertex element, for readers of the elements that follow it.
+/// Where a reader of the body stands: its lines (ascii), or the body and a byte offset.
 enum Rest<'a> {
     Ascii(Lines<'a>),
     Binary(Body<'a>, usize),
 }
 
+/// The body from its first record.
+fn body_start<'a>(path: &'a Path, bytes: &'a [u8], header: &Header) -> Rest<'a> {
+    match header.encoding {
+        Encoding::Ascii => {
+            Rest::Ascii(Lines::new(bytes.get(header.body_start..).unwrap_or_default(), header.body_first_line))
+        }
+        Encoding::BinaryLittleEndian | Encoding::BinaryBigEndian => {
+            let order = if header.encoding == Encoding::BinaryBigEndian { ByteOrder::Big } else { ByteOrder::Little };
+            Rest::Binary(Body { path, bytes, order }, header.body_start)
+        }
+    }
+}
+
+/// The vertex element's points, and the body after it.
 fn read_vertex_element<'a>(
     path: &'a Path,
     bytes: &'a [u8],
@@ -64,20 +78,13 @@ fn read_vertex_element<'a>(
     vertex_index: usize,
 ) -> Result<(CloudBuilder, Rest<'a>), IoError> {
     let layout = VertexLayout::new(path, &header.elements[vertex_index])?;
-    match header.encoding {
-        Encoding::Ascii => {
-            let body = bytes.get(header.body_start..).unwrap_or_default();
-            let mut lines = Lines::new(body, header.body_first_line);
+    match body_start(path, bytes, header) {
+        Rest::Ascii(mut lines) => {
             let builder = ascii::read_vertices(path, &mut lines, &header.elements, vertex_index, &layout)?;
             Ok((builder, Rest::Ascii(lines)))
         }
-        Encoding::BinaryLittleEndian | Encoding::BinaryBigEndian => {
-            let order = match header.encoding {
-                Encoding::BinaryBigEndian => ByteOrder::Big,
-                _ => ByteOrder::Little,
-            };
-            let body = Body { path, bytes, order };
-            let (builder, end) = body.read_vertices(header.body_start, &header.elements, vertex_index, &layout)?;
+        Rest::Binary(body, start) => {
+            let (builder, end) = body.read_vertices(start, &header.elements, vertex_index, &layout)?;
             Ok((builder, Rest::Binary(body, end)))
         }
     }
