@@ -9,8 +9,8 @@ use std::path::Path;
 use glam::DVec3;
 
 use crate::builder::{Attributes, CloudBuilder, PointRecord};
-use crate::ply::Mesh;
-use crate::text::{Lines, as_text, data_part, split_values};
+use crate::ply::{Mesh, MeshFile};
+use crate::text::{Lines, as_text, data_lines, data_part, split_values};
 use crate::{FileInfo, IoError, LoadedCloud};
 
 /// The keywords an OBJ file's first data line may start with.
@@ -33,25 +33,15 @@ pub(crate) fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
     Ok(read(path, bytes, true)?.mesh)
 }
 
-struct Obj {
-    mesh: Mesh,
-    info: FileInfo,
-}
-
-fn read(path: &Path, bytes: &[u8], faces: bool) -> Result<Obj, IoError> {
+fn read(path: &Path, bytes: &[u8], faces: bool) -> Result<MeshFile, IoError> {
     // Vertices with colours or without, decided by the first; the builder is made then.
     let mut builder: Option<CloudBuilder> = None;
     let (mut triangles, mut skipped_faces, mut face_count) = (Vec::new(), 0, 0);
     let mut corners = Vec::new();
     let mut comments = Vec::new();
-    for (number, line) in Lines::new(bytes, 1) {
+    for data_line in data_lines(path, bytes, &mut comments) {
+        let (number, data) = data_line?;
         let error = |message: String| IoError::at_line(path, number, message);
-        let text = as_text(line).ok_or_else(|| error("line is not text".into()))?;
-        if let Some(comment) = text.trim_start().strip_prefix('#') {
-            comments.push(comment.trim().to_string());
-            continue;
-        }
-        let Some(data) = data_part(text) else { continue };
         let mut tokens = data.split_whitespace();
         match tokens.next() {
             Some("v") => {
@@ -108,7 +98,7 @@ fn read(path: &Path, bytes: &[u8], faces: bool) -> Result<Obj, IoError> {
         file_bytes: bytes.len() as u64,
         up: None,
     };
-    Ok(Obj { mesh: Mesh { vertices, triangles, skipped_faces }, info })
+    Ok(MeshFile { mesh: Mesh { vertices, triangles, skipped_faces }, info })
 }
 
 fn numbers(tokens: &[&str]) -> Result<Vec<f64>, String> {

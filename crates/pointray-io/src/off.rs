@@ -15,8 +15,8 @@ use std::path::Path;
 use glam::{DVec3, Vec3};
 
 use crate::builder::{Attributes, CloudBuilder, PointRecord};
-use crate::ply::Mesh;
-use crate::text::{Lines, as_text, data_part, split_values};
+use crate::ply::{Mesh, MeshFile};
+use crate::text::{Lines, as_text, data_lines, data_part, split_values};
 use crate::{FileInfo, IoError, LoadedCloud};
 
 /// Whether the first data line is an OFF keyword.
@@ -48,23 +48,17 @@ pub(crate) fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
     Ok(read(path, bytes, true)?.mesh)
 }
 
-struct Off {
-    mesh: Mesh,
-    info: FileInfo,
-}
-
-fn read(path: &Path, bytes: &[u8], faces: bool) -> Result<Off, IoError> {
-    let mut lines = Lines::new(bytes, 1);
-    let mut data = || -> Option<(usize, &str)> {
-        lines.by_ref().find_map(|(n, line)| as_text(line).and_then(data_part).map(|d| (n, d)))
-    };
-    let (line, first) = data().ok_or_else(|| IoError::invalid(path, "empty file"))?;
+fn read(path: &Path, bytes: &[u8], faces: bool) -> Result<MeshFile, IoError> {
+    let mut comments = Vec::new();
+    let mut lines = data_lines(path, bytes, &mut comments);
+    let mut data = || lines.next().transpose();
+    let (line, first) = data()?.ok_or_else(|| IoError::invalid(path, "empty file"))?;
     let mut tokens = split_values(first);
     let (normals, colors) = keyword(tokens.remove(0)).ok_or_else(|| {
         IoError::at_line(path, line, "not an OFF file: the first line must be OFF, COFF, NOFF or CNOFF")
     })?;
     let (line, counts) = if tokens.is_empty() {
-        data().ok_or_else(|| IoError::invalid(path, "the file ends before the vertex and face counts"))?
+        data()?.ok_or_else(|| IoError::invalid(path, "the file ends before the vertex and face counts"))?
     } else {
         (line, first.split_once(char::is_whitespace).map_or("", |(_, rest)| rest))
     };
@@ -83,7 +77,7 @@ fn read(path: &Path, bytes: &[u8], faces: bool) -> Result<Off, IoError> {
     let columns = 3 + 3 * usize::from(normals) + 3 * usize::from(colors);
     for _ in 0..vertices {
         let (line, text) =
-            data().ok_or_else(|| IoError::invalid(path, format!("the file ends before its {vertices} vertices")))?;
+            data()?.ok_or_else(|| IoError::invalid(path, format!("the file ends before its {vertices} vertices")))?;
         let v = numbers(path, line, text)?;
         if v.len() < columns {
             return Err(IoError::at_line(
@@ -104,7 +98,7 @@ fn read(path: &Path, bytes: &[u8], faces: bool) -> Result<Off, IoError> {
     let mut skipped_faces = 0;
     for _ in 0..if faces { face_count } else { 0 } {
         let (line, text) =
-            data().ok_or_else(|| IoError::invalid(path, format!("the file ends before its {face_count} faces")))?;
+            data()?.ok_or_else(|| IoError::invalid(path, format!("the file ends before its {face_count} faces")))?;
         let v = numbers(path, line, text)?;
         let n = v.first().copied().unwrap_or(-1.0);
         if !(n >= 0.0 && n.fract() == 0.0 && (n as usize) < v.len()) {
@@ -129,7 +123,9 @@ fn read(path: &Path, bytes: &[u8], faces: bool) -> Result<Off, IoError> {
         file_bytes: bytes.len() as u64,
         ..FileInfo::default()
     };
-    Ok(Off { mesh: Mesh { vertices: vertices_cloud, triangles, skipped_faces }, info })
+    drop(lines);
+    let info = FileInfo { comments, ..info };
+    Ok(MeshFile { mesh: Mesh { vertices: vertices_cloud, triangles, skipped_faces }, info })
 }
 
 fn numbers(path: &Path, line: usize, text: &str) -> Result<Vec<f64>, IoError> {

@@ -66,6 +66,26 @@ pub(crate) fn split_values(text: &str) -> Vec<&str> {
     text.split(|c: char| c == ',' || c.is_ascii_whitespace()).filter(|t| !t.is_empty()).collect()
 }
 
+/// The data lines of a text format, as (line number, the data before any `#`): blank and
+/// comment lines skipped, whole-line comments collected into `comments`, a line that is not
+/// UTF-8 an error naming it.
+pub(crate) fn data_lines<'a>(
+    path: &'a std::path::Path,
+    bytes: &'a [u8],
+    comments: &'a mut Vec<String>,
+) -> impl Iterator<Item = Result<(usize, &'a str), crate::IoError>> + 'a {
+    Lines::new(bytes, 1).filter_map(move |(number, line)| {
+        let Some(text) = as_text(line) else {
+            return Some(Err(crate::IoError::at_line(path, number, "line is not text")));
+        };
+        if let Some(comment) = text.trim_start().strip_prefix('#') {
+            comments.push(comment.trim().to_string());
+            return None;
+        }
+        data_part(text).map(|data| Ok((number, data)))
+    })
+}
+
 /// The data part of a line (before any `#`), or `None` for blank and comment-only lines.
 pub(crate) fn data_part(text: &str) -> Option<&str> {
     let data = text.split('#').next().unwrap_or("").trim();

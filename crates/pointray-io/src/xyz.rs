@@ -22,7 +22,7 @@ use std::path::Path;
 use glam::{DVec3, Vec3};
 
 use crate::builder::{Attributes, CloudBuilder, PointRecord};
-use crate::text::{Lines, as_text, data_part, split_values};
+use crate::text::{Lines, as_text, data_lines, data_part, split_values};
 use crate::{FileInfo, IoError, LoadedCloud};
 
 /// Reads an XYZ file whatever its extension.
@@ -132,16 +132,9 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     let mut seen_data = false;
     let mut pts = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("pts"));
 
-    for (number, line) in Lines::new(bytes, 1) {
+    for data_line in data_lines(path, bytes, &mut comments) {
+        let (number, data) = data_line?;
         let error = |message: String| IoError::at_line(path, number, message);
-        let text = as_text(line).ok_or_else(|| error("line is not text".into()))?;
-        if let Some(comment) = text.trim_start().strip_prefix('#') {
-            comments.push(comment.trim().to_string());
-            continue;
-        }
-        let Some(data) = data_part(text) else {
-            continue;
-        };
         let values = split_values(data);
         let first_data_line = !seen_data;
         seen_data = true;

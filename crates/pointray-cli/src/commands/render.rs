@@ -5,6 +5,7 @@
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
+use anyhow::Context;
 use pointray::frame::{Frame, FrameReport};
 use pointray::scene::{RenderJob, Scene, SceneParts};
 use pointray::settings::{Settings, SettingsError};
@@ -87,7 +88,7 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         _ => a.settings(),
     };
     let (points_read, preprocess, load_seconds) = (source.points_read, source.preprocess.clone(), source.load_seconds);
-    let (scene, builds) = build(source.parts, &settings, a.bench_builds, quiet)?;
+    let (scene, builds) = build(source.parts, &settings, a.bench_builds, quiet).context(input_name.clone())?;
     tracing::info!("built {} over {} splats in {:.3} s", scene.accel_name(), scene.points(), builds[0]);
     let in_input = |e: SettingsError| failure::usage(flag_error(e).context(input_name.clone()));
     let job = scene.job(&settings).map_err(in_input)?;

@@ -20,6 +20,12 @@ pub struct Mesh {
     pub skipped_faces: usize,
 }
 
+/// A mesh and what its file said about itself (the text mesh formats' readers' result).
+pub(crate) struct MeshFile {
+    pub mesh: Mesh,
+    pub info: crate::FileInfo,
+}
+
 /// A PLY mesh in memory (`path` names it in errors); [`crate::read_mesh`] takes any mesh format.
 pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
     if !(bytes.starts_with(b"ply\n") || bytes.starts_with(b"ply\r\n")) {

@@ -13,8 +13,8 @@ mod header;
 mod mesh;
 mod vertex;
 
-pub(crate) use mesh::fan;
 pub use mesh::{Mesh, parse_mesh};
+pub(crate) use mesh::{MeshFile, fan};
 
 use std::path::Path;
 
