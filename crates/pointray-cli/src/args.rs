@@ -94,7 +94,7 @@ pub struct PreprocessArgs {
 
 #[derive(Args, Clone, Debug)]
 pub struct RenderArgs {
-    /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf; recognised by
+    /// Point cloud (PLY, LAS/LAZ, E57, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf; recognised by
     /// content), or a scene file (.toml: several clouds, materials, lights; see
     /// scenes/README.md); none renders the built-in demo scene.
     pub input: Option<PathBuf>,
@@ -353,7 +353,7 @@ impl PreprocessArgs {
 
 #[derive(Args, Debug)]
 pub struct PrepareArgs {
-    /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf).
+    /// Point cloud (PLY, LAS/LAZ, E57, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf).
     pub input: PathBuf,
     /// Output PLY (binary, with normals, radii and any colours; written atomically).
     #[arg(short, long)]
@@ -389,7 +389,7 @@ pub enum NormalsArg {
 
 #[derive(Args, Debug)]
 pub struct InfoArgs {
-    /// Point cloud (PLY, LAS/LAZ, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf).
+    /// Point cloud (PLY, LAS/LAZ, E57, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf).
     pub input: PathBuf,
 }
 

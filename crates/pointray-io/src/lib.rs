@@ -18,6 +18,7 @@ pub mod source;
 pub mod xyz;
 
 mod builder;
+mod e57;
 mod file;
 mod text;
 
@@ -98,6 +99,9 @@ fn parse_any(path: &Path, bytes: FileBytes, scan_sets: bool) -> Result<LoadedClo
         }
         return scanset::parse(path, &bytes);
     }
+    if e57::looks_like_e57(&bytes) {
+        return e57::parse(path, &bytes);
+    }
     if off::looks_like_off(&bytes) {
         return off::parse(path, &bytes);
     }
@@ -111,7 +115,7 @@ fn parse_any(path: &Path, bytes: FileBytes, scan_sets: bool) -> Result<LoadedClo
     if extension.as_deref().is_some_and(|e| XYZ_EXTENSIONS.contains(&e)) || xyz::looks_like_xyz(&bytes) {
         return xyz::parse(path, &bytes);
     }
-    Err(IoError::invalid(path, "unrecognised format: not PLY, LAS/LAZ, PCD, OFF, OBJ, a scan set or XYZ text"))
+    Err(IoError::invalid(path, "unrecognised format: not PLY, LAS/LAZ, E57, PCD, OFF, OBJ, a scan set or XYZ text"))
 }
 
 /// Reads a triangle mesh: PLY (with a `face` element), OFF or OBJ, recognised by content.

@@ -1248,3 +1248,89 @@ fn mesh_errors_name_the_face_and_where_it_is() {
     let message = pointray_io::read_mesh(&path).unwrap_err().to_string();
     assert!(message.contains("t.ply: byte") && message.contains("face 0"), "{message}");
 }
+
+// ---------------------------------------------------------------- E57
+
+/// Two scans in one E57 file: one Cartesian with colours and a pose (moved 10 along x, turned
+/// a quarter about z), one spherical with invalid points and no pose.
+fn e57_two_scans() -> Vec<u8> {
+    use e57::{E57Writer, Quaternion, Record, RecordValue, Transform, Translation};
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    let mut writer = E57Writer::new(&mut bytes, "file").unwrap();
+    let prototype = vec![
+        Record::CARTESIAN_X_F64,
+        Record::CARTESIAN_Y_F64,
+        Record::CARTESIAN_Z_F64,
+        Record::COLOR_RED_U8,
+        Record::COLOR_GREEN_U8,
+        Record::COLOR_BLUE_U8,
+    ];
+    let mut scan = writer.add_pointcloud("scan-a", prototype).unwrap();
+    let half = std::f64::consts::FRAC_1_SQRT_2;
+    scan.set_transform(Some(Transform {
+        rotation: Quaternion { w: half, x: 0.0, y: 0.0, z: half },
+        translation: Translation { x: 10.0, y: 0.0, z: 0.0 },
+    }));
+    for (x, red) in [(1.0, 255), (2.0, 0)] {
+        let d = RecordValue::Double;
+        scan.add_point(vec![
+            d(x),
+            d(0.0),
+            d(0.0),
+            RecordValue::Integer(red),
+            RecordValue::Integer(0),
+            RecordValue::Integer(0),
+        ])
+        .unwrap();
+    }
+    scan.finalize().unwrap();
+    let prototype = vec![
+        Record::SPHERICAL_RANGE_F64,
+        Record::SPHERICAL_AZIMUTH_F64,
+        Record::SPHERICAL_ELEVATION_F64,
+        Record::SPHERICAL_INVALID_STATE,
+    ];
+    let mut scan = writer.add_pointcloud("scan-b", prototype).unwrap();
+    // Eight points, five of them directions without a range (with only the first three, the
+    // `e57` crate's reader failed: "Cannot read next point because of logic error").
+    let mut points = vec![(2.0, 0.0, 0), (3.0, std::f64::consts::FRAC_PI_2, 0), (5.0, 0.0, 2)];
+    points.extend((0..5).map(|i| (4.0, f64::from(i), 1)));
+    for (range, azimuth, invalid) in points {
+        let d = RecordValue::Double;
+        scan.add_point(vec![d(range), d(azimuth), d(0.0), RecordValue::Integer(invalid)]).unwrap();
+    }
+    scan.finalize().unwrap();
+    writer.finalize().unwrap();
+    drop(writer);
+    bytes.into_inner()
+}
+
+#[test]
+fn e57_scans_are_read_with_their_poses_and_invalid_points_left_out() {
+    let dir = temp_dir();
+    let path = write_file(dir.path(), "two.e57", &e57_two_scans());
+    let loaded = read_cloud(&path).unwrap();
+    assert_eq!((loaded.info.format.as_str(), loaded.info.up), ("E57, 2 scans", Some([0.0, 0.0, 1.0])));
+    let world = world_positions(&loaded.cloud);
+    assert_eq!(world.len(), 4, "the invalid and the direction-only points are left out");
+    // (1, 0, 0) turned a quarter about z is (0, 1, 0), then moved to (10, 1, 0).
+    assert_close(world[0], DVec3::new(10.0, 1.0, 0.0), 1e-9);
+    assert_close(world[1], DVec3::new(10.0, 2.0, 0.0), 1e-9);
+    // Range 2 straight ahead, range 3 a quarter turn to the left.
+    assert_close(world[2], DVec3::new(2.0, 0.0, 0.0), 1e-9);
+    assert_close(world[3], DVec3::new(0.0, 3.0, 0.0), 1e-9);
+    let colors = loaded.cloud.colors.unwrap();
+    assert_eq!((colors[0], colors[1]), ([1.0, 0.0, 0.0], [0.0, 0.0, 0.0]));
+    // Two scanner positions: the spanning tree orients the normals, not a viewpoint.
+    assert_eq!(loaded.cloud.viewpoint, None);
+}
+
+#[test]
+fn a_corrupt_e57_page_is_refused_by_its_checksum() {
+    let dir = temp_dir();
+    let mut bytes = e57_two_scans();
+    // The first page's data (its checksum is its last four of 1,024 bytes).
+    bytes[100] ^= 0x40;
+    let message = expect_error(&write_file(dir.path(), "bad.e57", &bytes), "checksum");
+    assert!(message.starts_with(&format!("{}", dir.path().join("bad.e57").display())), "{message}");
+}

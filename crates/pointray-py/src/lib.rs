@@ -239,7 +239,7 @@ fn image_array(frame: &pointray::Frame) -> Array3<f32> {
     Array3::from_shape_vec((frame.height as usize, frame.width as usize, 3), flat).expect("a pixel each")
 }
 
-/// Reads a point-cloud file (PLY, LAS/LAZ, PCD, XYZ/PTS, an OFF or OBJ mesh's vertices, a scan set), recognised by
+/// Reads a point-cloud file (PLY, LAS/LAZ, E57, PCD, XYZ/PTS, an OFF or OBJ mesh's vertices, a scan set), recognised by
 /// its content.
 #[pyfunction]
 fn read_cloud(py: Python<'_>, path: PathBuf) -> PyResult<Cloud> {
@@ -319,8 +319,7 @@ fn render_frame(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Boun
             (scene, with_options(&scene.settings, options)?)
         }
         Err(_) => {
-            let built = prepare(py, source, options)?;
-            prepared = built;
+            prepared = prepare(py, source, options)?;
             (&prepared, prepared.settings.clone())
         }
     };

@@ -53,7 +53,7 @@ class Frame:
     def stats(self) -> dict[str, Any]: ...
 
 def read_cloud(path: Union[str, "os.PathLike[str]"]) -> Cloud:
-    """Reads PLY, LAS/LAZ, PCD, XYZ/PTS, OFF or OBJ vertices, or a Stanford scan set (by content)."""
+    """Reads PLY, LAS/LAZ, E57, PCD, XYZ/PTS, OFF or OBJ vertices, or a Stanford scan set (by content)."""
 
 def prepare(source: Source, **options: Any) -> Scene:
     """Normals, orientation and radii where missing (k_normals, k_radius, radius_scale,
