@@ -6,7 +6,7 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use pointray::film::ToneCurve;
 use pointray::frame::Aov;
 use pointray::render::{Filter, Integrator, Sampler};
-use pointray::settings::{AccelKind, Cull, MaterialPreset, Settings};
+use pointray::settings::{AccelKind, Cull, MaterialPreset, Projection, Settings};
 use pointray::splat::scheme::SurfaceKind;
 
 /// The settings' defaults, which the flags' defaults are.
@@ -138,6 +138,10 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = D.seed)]
     pub seed: u64,
 
+    /// perspective, or orthographic: parallel rays (plans, elevations, façades), at the scale
+    /// the perspective view has at the point it looks at (--fov and --distance still frame it).
+    #[arg(long, value_enum, default_value_t = D.projection)]
+    pub projection: Projection,
     /// Camera position, in the file's coordinates (then --look-at is needed).
     #[arg(long, allow_hyphen_values = true, value_parser = parse_dvec3, requires = "look_at")]
     pub eye: Option<glam::DVec3>,
@@ -307,6 +311,7 @@ impl RenderArgs {
             filter: self.filter,
             tonemap: self.tonemap,
             exposure: self.exposure,
+            projection: self.projection,
             eye: self.eye,
             look_at: self.look_at,
             up: self.up,

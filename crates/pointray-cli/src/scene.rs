@@ -116,6 +116,7 @@ mod tests {
             "output",
             "threads",
             "accel",
+            "projection",
             "sj_window",
             "sj_min_coverage",
             "sj_min_coverage_facing_away",

@@ -53,6 +53,10 @@ pub struct Camera {
     pub lens_radius: f32,
     /// and the distance along the view at which it focuses.
     pub focus_distance: f32,
+    /// An orthographic camera: parallel rays along the view from the film's plane through the
+    /// eye, framing what the perspective camera frames at this distance (its field of view
+    /// there); `None` for a perspective one.
+    pub orthographic: Option<f32>,
 }
 
 impl Camera {
@@ -61,8 +65,9 @@ impl Camera {
         let forward = (target - eye).normalize();
         let mut up_hint = up.normalize();
         if forward.dot(up_hint).abs() > 0.999 {
-            // Looking along `up`: any up not parallel to the view will do.
-            up_hint = if forward.z.abs() < 0.9 { Vec3::Z } else { Vec3::X };
+            // Looking along `up`: +y up the image where it is not the view (north, in a plan
+            // of a z-up survey), else +z.
+            up_hint = if forward.y.abs() < 0.9 { Vec3::Y } else { Vec3::Z };
         }
         let right = forward.cross(up_hint).normalize();
         let up = right.cross(forward);
@@ -77,7 +82,16 @@ impl Camera {
             height,
             lens_radius: 0.0,
             focus_distance: (target - eye).length(),
+            orthographic: None,
         }
+    }
+
+    /// The same view, orthographic: what the perspective camera shows at the distance it
+    /// looks at (a plan, an elevation or a façade at that scale), without perspective.
+    #[must_use]
+    pub fn into_orthographic(mut self) -> Self {
+        self.orthographic = Some(self.focus_distance);
+        self
     }
 
     /// The camera with a thin lens of `radius` focused `focus_distance` away (depth of field).
@@ -126,12 +140,27 @@ impl Camera {
 
     /// The ray through film position (`x`, `y`) in pixels (pixel centres at +0.5).
     pub fn ray(&self, x: f32, y: f32) -> Ray {
-        Ray::new(self.eye, self.direction(x, y), self.pinhole_cone())
+        Ray::new(self.origin(x, y), self.direction(x, y), self.pinhole_cone())
+    }
+
+    /// Where [`Self::ray`] through film position (`x`, `y`) starts: the eye, or for an
+    /// orthographic camera the film position on the plane through the eye.
+    pub fn origin(&self, x: f32, y: f32) -> Vec3 {
+        match self.orthographic {
+            None => self.eye,
+            Some(scale) => {
+                let [u, v] = self.film_to_view(x, y);
+                self.eye + (u * self.right + v * self.up) * scale
+            }
+        }
     }
 
     /// The direction, not normalised, of [`Self::ray`] through film position (`x`, `y`):
     /// `Ray::new` normalises it to the ray's very bits (normalising twice may not).
     pub fn direction(&self, x: f32, y: f32) -> Vec3 {
+        if self.orthographic.is_some() {
+            return self.forward;
+        }
         let [u, v] = self.film_to_view(x, y);
         self.forward + u * self.right + v * self.up
     }
@@ -167,8 +196,12 @@ impl Camera {
         [u, v]
     }
 
+    /// A primary ray's footprint: a pixel's angle, or an orthographic pixel's width.
     fn pinhole_cone(&self) -> RayCone {
-        RayCone { width0: 0.0, spread: self.pixel_spread() }
+        match self.orthographic {
+            None => RayCone { width0: 0.0, spread: self.pixel_spread() },
+            Some(scale) => RayCone { width0: self.pixel_spread() * scale, spread: 0.0 },
+        }
     }
 
     /// Film position of `p`, or `None` if `p` is not in front of the camera.
@@ -178,6 +211,8 @@ impl Camera {
         if z <= 0.0 {
             return None;
         }
+        // The perspective divides by the depth; an orthographic camera by its fixed scale.
+        let z = self.orthographic.unwrap_or(z);
         let u = d.dot(self.right) / (z * self.tan_half_fov * self.aspect);
         let v = d.dot(self.up) / (z * self.tan_half_fov);
         Some((0.5 * (u + 1.0) * self.width as f32, 0.5 * (1.0 - v) * self.height as f32))

@@ -307,7 +307,7 @@ impl PrimaryRays {
         let footprint_scale = (config.samples.max(1) as f32).sqrt().recip();
         // Every camera ray's footprint, as `render_pixel` makes it.
         let mut cone = camera.ray(0.5, 0.5).cone;
-        cone.spread *= footprint_scale;
+        cone = cone.scaled(footprint_scale);
         // Thin-lens rays leave from across the lens: the bound is for one origin.
         let tau = if camera.lens_radius > 0.0
             || accel.may_stop_at_representatives_from(camera.eye, cone, config.lod_threshold)
@@ -317,7 +317,8 @@ impl PrimaryRays {
             0.0
         };
         let cull_backfaces = config.cull_backfaces && config.scheme.kind.shape() == DiskShape::Oriented;
-        let pinhole = camera.lens_radius <= 0.0;
+        // Rays made in lanes share the eye: a pinhole's, not a lens's or an orthographic film's.
+        let pinhole = camera.lens_radius <= 0.0 && camera.orthographic.is_none();
         let centre_rays = pinhole && config.samples <= 1;
         let sample_batches = pinhole && config.samples > 1 && config.sampler == Sampler::R2;
         Self { tau, footprint_scale, cull_backfaces, centre_rays, sample_batches }
@@ -327,7 +328,7 @@ impl PrimaryRays {
     #[inline(always)]
     fn finish(&self, ray: Ray, stats: &mut RenderStats) -> Ray {
         let mut ray = ray.with_lod_threshold(self.tau).with_backface_culling(self.cull_backfaces);
-        ray.cone.spread *= self.footprint_scale;
+        ray.cone = ray.cone.scaled(self.footprint_scale);
         stats.primary_rays += 1;
         ray
     }

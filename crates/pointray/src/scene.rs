@@ -35,7 +35,7 @@ use crate::ground::{Checker, GroundPlane};
 use crate::material::Material;
 use crate::math::Aabb;
 use crate::render::{Integrator, RenderConfig};
-use crate::settings::{AccelKind, Cull, Settings, SettingsError};
+use crate::settings::{AccelKind, Cull, Projection, Settings, SettingsError};
 use crate::shading::{Environment, Light};
 use crate::splat::{DiskShape, splats_from_cloud};
 use crate::stats::RenderStats;
@@ -381,6 +381,10 @@ impl Scene {
                 Camera::orbit(&self.bounds, view, up, distance, s.fov, s.width, s.height)
             }
         };
+        let camera = match s.projection {
+            Projection::Perspective => camera,
+            Projection::Orthographic => camera.into_orthographic(),
+        };
         let focus = s.focus_distance.unwrap_or(camera.focus_distance);
         camera.with_lens(s.lens_radius, focus)
     }
@@ -513,12 +517,12 @@ impl RenderJob<'_> {
         on_accel!(&self.scene.accel, a => crate::render::render_into_until(a, camera, config, film, progress, &never))
     }
 
-    /// The pinhole camera's ray through the centre of pixel (`x`, `y`): its origin in the
-    /// file's coordinates and its direction, not normalised (what [`Scene::intersect`] takes,
+    /// The camera's ray (without its lens) through the centre of pixel (`x`, `y`): its origin in
+    /// the file's coordinates and its direction, not normalised (what [`Scene::intersect`] takes,
     /// which then meets what the render's ray met).
     pub fn camera_ray(&self, x: u32, y: u32) -> (DVec3, Vec3) {
-        let direction = self.camera.direction(x as f32 + 0.5, y as f32 + 0.5);
-        (self.scene.origin + self.camera.eye.as_dvec3(), direction)
+        let (fx, fy) = (x as f32 + 0.5, y as f32 + 0.5);
+        (self.scene.origin + self.camera.origin(fx, fy).as_dvec3(), self.camera.direction(fx, fy))
     }
 
     /// What rays that leave the scene see, flat: the colour outside the rendered region.
@@ -684,6 +688,51 @@ mod tests {
         assert_eq!(job.report(&job.render(&|_| {})).up, [0.0, 0.0, 1.0]);
         let told = Settings { up: Some(Vec3::Y), ..s };
         assert_eq!(scene.job(&told).unwrap().report(&job.render(&|_| {})).up, [0.0, 1.0, 0.0]);
+    }
+
+    #[test]
+    fn an_orthographic_camera_shows_a_sphere_at_its_true_size_and_its_rays_meet_the_depths() {
+        // 20,000 points on the unit sphere (a Fibonacci spiral), normals outward.
+        let n = 20_000;
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        let world: Vec<DVec3> = (0..n)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (i as f64 + 0.5) / n as f64;
+                let (s, phi) = ((1.0 - z * z).sqrt(), golden * i as f64);
+                DVec3::new(s * phi.cos(), s * phi.sin(), z)
+            })
+            .collect();
+        let mut cloud = PointCloud::from_world_positions(&world);
+        cloud.normals = Some(world.iter().map(|p| p.as_vec3()).collect());
+        crate::preprocess::preprocess(&mut cloud, &crate::preprocess::PreprocessConfig::standard()).unwrap();
+        let s = Settings {
+            width: 64,
+            height: 64,
+            projection: Projection::Orthographic,
+            view_dir: Some(Vec3::Z),
+            lod_threshold: 0.0,
+            aovs: vec![Aov::Depth],
+            ..Settings::default()
+        };
+        let scene = Scene::build(cloud.into(), &s).unwrap();
+        let job = scene.job(&s).unwrap();
+        let frame = job.render(&|_| {});
+        // The frame is 2·tan 30° · 2√3 = 4 units high: the unit disk covers π/16 of it.
+        let depth = &frame.film.first_hits.as_ref().unwrap().depth;
+        let covered = depth.iter().filter(|d| d.is_finite()).count() as f64 / depth.len() as f64;
+        assert!((covered - std::f64::consts::PI / 16.0).abs() < 0.01, "{covered}");
+        // Parallel rays: the nearest point of the sphere is as far as the eye from the plane z = 1.
+        let nearest = depth.iter().copied().fold(f32::INFINITY, f32::min);
+        let eye_height = job.camera.eye.z - scene.bounds().center().z;
+        assert!((nearest - (eye_height - 1.0)).abs() < 0.02, "{nearest} {eye_height}");
+        let rays: Vec<_> =
+            (0..64).flat_map(|y| (0..64).map(move |x| (x, y))).map(|(x, y)| job.camera_ray(x, y)).collect();
+        let hits = scene.intersect(&rays, &s).unwrap();
+        for (hit, &d) in hits.iter().zip(depth) {
+            assert_eq!(hit.map_or(f32::INFINITY, |h| h.t), d);
+        }
+        let lens = Settings { lens_radius: 0.1, ..s };
+        assert_eq!(scene.job(&lens).err().map(|e| e.option), Some("lens_radius"));
     }
 
     #[test]

@@ -43,6 +43,18 @@ pub enum Cull {
     Off,
 }
 
+/// How the camera projects the scene onto the film.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
+pub enum Projection {
+    #[default]
+    Perspective,
+    /// Parallel rays along the view: plans, elevations and façades, at the scale the
+    /// perspective view has at the point it looks at.
+    Orthographic,
+}
+
 /// What the points of a lone cloud are made of (a scene file names its own materials).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
@@ -97,6 +109,7 @@ pub struct Settings {
     /// Stops: radiance × 2^exposure before the tone map.
     pub exposure: f32,
 
+    pub projection: Projection,
     pub eye: Option<DVec3>,
     pub look_at: Option<DVec3>,
     /// The camera's up, which the sky and the ground take too (default: the data's up, as its
@@ -161,6 +174,7 @@ impl Default for Settings {
             filter: Filter::Box,
             tonemap: ToneCurve::Clamp,
             exposure: 0.0,
+            projection: Projection::Perspective,
             eye: None,
             look_at: None,
             up: None,
@@ -238,6 +252,8 @@ impl Settings {
         check(tau >= 0.0 && finite(tau), "lod_threshold", "must be a non-negative number (0: full detail)")?;
         check(self.ior > 0.0 && finite(self.ior), "ior", "must be a positive number")?;
         check(self.lens_radius >= 0.0 && finite(self.lens_radius), "lens_radius", "must be non-negative")?;
+        let lens = self.lens_radius == 0.0 || self.projection == Projection::Perspective;
+        check(lens, "lens_radius", "needs a perspective camera (an orthographic one has no lens)")?;
         check(positive(self.ao_distance), "ao_distance", "must be positive")?;
         check(positive(self.focus_distance), "focus_distance", "must be positive")?;
         check(self.diffuse_spread >= 0.0 && finite(self.diffuse_spread), "diffuse_spread", "must be non-negative")?;

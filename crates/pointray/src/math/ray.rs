@@ -15,6 +15,13 @@ impl RayCone {
     pub fn width_at(&self, t: f32) -> f32 {
         self.width0 + self.spread * t
     }
+
+    /// The footprint `factor` times as wide everywhere (a sample's share of a pixel).
+    #[inline(always)]
+    #[must_use]
+    pub fn scaled(self, factor: f32) -> Self {
+        Self { width0: self.width0 * factor, spread: self.spread * factor }
+    }
 }
 
 /// A ray `origin + t * dir` for `t` in `[t_min, ∞)`, with its footprint and what a
