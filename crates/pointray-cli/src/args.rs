@@ -262,6 +262,10 @@ pub struct RenderArgs {
     /// down; "never" for boxes only, "auto" to choose per node by surface area.
     #[arg(long, value_parser = parse_sphere_level, default_value = "never")]
     pub sphere_from_level: pointray::accel::NodeBounds,
+    /// A PNG with alpha: the background transparent (the coverage as alpha, the colour with a
+    /// flat background's share taken out), to composite over anything; an EXR gets an A layer.
+    #[arg(long)]
+    pub transparent: bool,
     /// Extra images beside the output, OUTPUT.KIND.png (comma-separated or repeated).
     #[arg(long, value_enum, value_delimiter = ',')]
     pub aov: Vec<Aov>,
@@ -338,7 +342,8 @@ impl RenderArgs {
             shadow_offset: self.shadow_offset,
             lod_threshold: if self.lod == Switch::On { self.lod_threshold } else { 0.0 },
             cull: self.cull,
-            aovs: self.aov.clone(),
+            // The alpha of --transparent is the coverage AOV.
+            aovs: self.aov.iter().copied().chain(self.transparent.then_some(Aov::Alpha)).collect(),
             count_work: self.stats.is_some(),
         }
     }

@@ -126,6 +126,7 @@ mod tests {
             "cull",
             "sphere_from_level",
             "aov",
+            "transparent",
             "stats",
             "bench_frames",
             "bench_builds",

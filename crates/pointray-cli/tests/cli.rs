@@ -1547,3 +1547,41 @@ fn compare_region_counts_only_its_pixels() {
         .assert_failure(2)
         .assert_stderr_contains("outside");
 }
+
+/// `--transparent`: an RGBA PNG whose alpha is the coverage; covered pixels keep the opaque
+/// image's colours, uncovered ones are clear, and a partly covered edge is the model's colour
+/// (the background's share taken out), not darkened by it.
+#[test]
+fn transparent_pngs_carry_the_coverage_as_alpha() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    render_in(dir.path(), &["sphere.ply", "-o", "opaque.png", "--spp", "4"]).assert_success();
+    render_in(dir.path(), &["sphere.ply", "-o", "clear.png", "--spp", "4", "--transparent"]).assert_success();
+    assert_dir_contains_exactly(dir.path(), &["sphere.ply", "opaque.png", "clear.png"]);
+    let opaque = read_png(&dir.path().join("opaque.png"));
+    let bytes = std::fs::read(dir.path().join("clear.png")).unwrap();
+    let mut reader = png::Decoder::new(std::io::Cursor::new(bytes)).read_info().unwrap();
+    let mut rgba = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut rgba).unwrap();
+    assert_eq!((info.color_type, info.width, info.height), (png::ColorType::Rgba, opaque.width, opaque.height));
+    let (mut covered, mut clear, mut edge) = (0, 0, 0);
+    for (i, px) in rgba.chunks_exact(4).enumerate() {
+        let plain = &opaque.rgb[i * 3..i * 3 + 3];
+        match px[3] {
+            255 => {
+                assert_eq!(&px[..3], plain, "a covered pixel keeps its colour");
+                covered += 1;
+            }
+            0 => {
+                assert_eq!(&px[..3], [0, 0, 0]);
+                clear += 1;
+            }
+            _ => {
+                // The opaque edge mixes in the dark background: the clear one is brighter.
+                assert!(px[..3].iter().zip(plain).all(|(c, o)| c >= o), "{px:?} vs {plain:?}");
+                edge += 1;
+            }
+        }
+    }
+    assert!(covered > 200 && clear > 200 && edge > 10, "{covered} {clear} {edge}");
+}

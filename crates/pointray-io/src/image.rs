@@ -8,23 +8,34 @@ use crate::{IoError, atomic_write};
 /// Writes 8-bit RGB pixels, rows top to bottom, `rgb8.len() == width * height * 3`.
 /// The file appears only when complete (see [`atomic_write`]).
 pub fn write_png(path: &Path, width: u32, height: u32, rgb8: &[u8]) -> Result<(), IoError> {
-    let expected = u64::from(width) * u64::from(height) * 3;
-    if width == 0 || height == 0 || rgb8.len() as u64 != expected {
+    write_png_of(path, width, height, rgb8, png::ColorType::Rgb)
+}
+
+/// [`write_png`] for 8-bit RGBA pixels (straight, not premultiplied, alpha).
+pub fn write_png_rgba(path: &Path, width: u32, height: u32, rgba8: &[u8]) -> Result<(), IoError> {
+    write_png_of(path, width, height, rgba8, png::ColorType::Rgba)
+}
+
+fn write_png_of(path: &Path, width: u32, height: u32, pixels: &[u8], color: png::ColorType) -> Result<(), IoError> {
+    let channels = color.samples() as u64;
+    let expected = u64::from(width) * u64::from(height) * channels;
+    if width == 0 || height == 0 || pixels.len() as u64 != expected {
+        let kind = if channels == 4 { "RGBA" } else { "RGB" };
         return Err(IoError::invalid(
             path,
-            format!("cannot write a {width}x{height} RGB image from {} bytes (need {expected})", rgb8.len()),
+            format!("cannot write a {width}x{height} {kind} image from {} bytes (need {expected})", pixels.len()),
         ));
     }
     atomic_write(path, |out| {
         let mut encoder = png::Encoder::new(out, width, height);
-        encoder.set_color(png::ColorType::Rgb);
+        encoder.set_color(color);
         encoder.set_depth(png::BitDepth::Eight);
         // fdeflate's PNG-tuned compressor: a 512² render encoded in ~60 instructions a pixel
         // against ~430 with the default zlib level, for files about 10 % larger (callgrind,
         // `docs/RESULTS.md`).
         encoder.set_compression(png::Compression::Fast);
         let mut writer = encoder.write_header()?;
-        writer.write_image_data(rgb8)?;
+        writer.write_image_data(pixels)?;
         writer.finish()?;
         Ok(())
     })

@@ -16,7 +16,7 @@ pub struct Film {
     /// Accelerator nodes visited per pixel, all rays of the pixel together.
     pub nodes_visited: Vec<u32>,
     /// What the camera rays' first hits were, in a film made to hold them
-    /// ([`Film::with_first_hits`]): 28 bytes a pixel that a plain render neither fills nor
+    /// ([`Film::with_first_hits`]): 32 bytes a pixel that a plain render neither fills nor
     /// allocates (zeroing them cost ~20 instructions a pixel, callgrind).
     pub first_hits: Option<FirstHitChannels>,
 }
@@ -28,8 +28,10 @@ pub struct FirstHitChannels {
     pub normal: Vec<[f32; 3]>,
     /// the albedo (linear surface colour),
     pub albedo: Vec<[f32; 3]>,
-    /// and the distance along the ray, averaged over the samples that hit (∞ if none did).
+    /// the distance along the ray, averaged over the samples that hit (∞ if none did),
     pub depth: Vec<f32>,
+    /// and the coverage: the fraction of the samples that hit (a PNG's or EXR's alpha).
+    pub coverage: Vec<f32>,
 }
 
 impl Film {
@@ -42,8 +44,12 @@ impl Film {
     /// A film that also holds the first hits' channels.
     pub fn with_first_hits(region: Region) -> Self {
         let n = region.pixel_count() as usize;
-        let channels =
-            FirstHitChannels { normal: vec![[0.0; 3]; n], albedo: vec![[0.0; 3]; n], depth: vec![f32::INFINITY; n] };
+        let channels = FirstHitChannels {
+            normal: vec![[0.0; 3]; n],
+            albedo: vec![[0.0; 3]; n],
+            depth: vec![f32::INFINITY; n],
+            coverage: vec![0.0; n],
+        };
         Self { first_hits: Some(channels), ..Self::new(region) }
     }
 

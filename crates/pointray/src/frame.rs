@@ -25,6 +25,9 @@ pub enum Aov {
     Depth,
     /// The surface colour, unlit.
     Albedo,
+    /// The coverage: the fraction of the pixel's camera samples that hit something (the
+    /// alpha of a PNG with `--transparent`, the `A` layer of an EXR).
+    Alpha,
 }
 
 impl Aov {
@@ -34,6 +37,7 @@ impl Aov {
             Aov::Normal => "normal",
             Aov::Depth => "depth",
             Aov::Albedo => "albedo",
+            Aov::Alpha => "alpha",
         }
     }
 }
@@ -69,6 +73,33 @@ impl Frame {
         out
     }
 
+    /// The whole frame as 8-bit sRGB with alpha (RGBA): the coverage as alpha, and the colour
+    /// with the background's share taken out (exact for a flat background, which each missed
+    /// sample adds), so that the image composites over any other. Needs the alpha AOV.
+    ///
+    /// # Panics
+    /// If the render did not record the first hits (`Settings::aovs` with `Aov::Alpha`).
+    pub fn srgba8(&self, tone: ToneMap) -> Vec<u8> {
+        let (srgb8, film) = (tone.encoder(), &self.film);
+        let coverage = &self.first_hits().coverage;
+        let mut out = vec![0u8; self.width as usize * self.height as usize * 4];
+        let r = film.region;
+        for (row, y) in (r.y0..r.y1).enumerate() {
+            for (col, x) in (r.x0..r.x1).enumerate() {
+                let i = row * r.width() as usize + col;
+                let alpha = coverage[i];
+                let px = &mut out[(y as usize * self.width as usize + x as usize) * 4..][..4];
+                if alpha > 0.0 {
+                    for ((byte, linear), background) in px.iter_mut().zip(film.rgb[i]).zip(self.background) {
+                        *byte = srgb8((linear - (1.0 - alpha) * background) / alpha);
+                    }
+                    px[3] = (alpha.clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
+                }
+            }
+        }
+        out
+    }
+
     /// Most nodes visited by one pixel (the top of the node heat map's scale).
     pub fn nodes_max(&self) -> u32 {
         self.film.nodes_visited.iter().copied().max().unwrap_or(0)
@@ -87,6 +118,7 @@ impl Frame {
                 let linear = &self.first_hits().albedo;
                 linear.iter().flat_map(|c| c.map(|v| byte(linear_to_srgb(v)))).collect()
             }
+            Aov::Alpha => self.first_hits().coverage.iter().flat_map(|&a| [byte(a); 3]).collect(),
             Aov::Depth => {
                 let depth = &self.first_hits().depth;
                 let finite = depth.iter().copied().filter(|d| d.is_finite());
@@ -134,6 +166,7 @@ impl Frame {
         for aov in aovs {
             match aov {
                 Aov::Nodes => add("nodes.Y".into(), &|i| film.nodes_visited[i] as f32, 0.0),
+                Aov::Alpha => add("A".into(), &|i| self.first_hits().coverage[i], 0.0),
                 Aov::Depth => add("depth.Z".into(), &|i| self.first_hits().depth[i], f32::INFINITY),
                 Aov::Normal => {
                     for (c, axis) in ["X", "Y", "Z"].iter().enumerate() {

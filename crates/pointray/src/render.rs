@@ -219,8 +219,8 @@ pub fn render_into_until<A: Accel>(
                     let centre = centres.as_ref().map(|rays| rays.ray(lane));
                     let pixel = render_pixel(accel, camera, config, &primary, (x, y, centre), &mut stats);
                     (rgb[i], nodes[i]) = (pixel.rgb, pixel.nodes);
-                    if let Some((normal, albedo, depth)) = &mut first_hits {
-                        (normal[i], albedo[i], depth[i]) = pixel.first.means();
+                    if let Some((normal, albedo, depth, coverage)) = &mut first_hits {
+                        (normal[i], albedo[i], depth[i], coverage[i]) = pixel.first.means();
                     }
                 }
             }
@@ -239,12 +239,12 @@ pub fn render_into_until<A: Accel>(
     let bands = bands.enumerate().with_max_len(1);
     match &mut film.first_hits {
         Some(c) if config.first_hit_aovs => {
-            let channels =
-                c.normal.par_chunks_mut(band).zip(c.albedo.par_chunks_mut(band)).zip(c.depth.par_chunks_mut(band));
+            let channels = c.normal.par_chunks_mut(band).zip(c.albedo.par_chunks_mut(band));
+            let channels = channels.zip(c.depth.par_chunks_mut(band)).zip(c.coverage.par_chunks_mut(band));
             bands
                 .zip(channels)
-                .map(|((b, (rgb, nodes)), ((normal, albedo), depth))| {
-                    render_band(b, rgb, nodes, Some((normal, albedo, depth)))
+                .map(|((b, (rgb, nodes)), (((normal, albedo), depth), coverage))| {
+                    render_band(b, rgb, nodes, Some((normal, albedo, depth, coverage)))
                 })
                 .reduce(RenderStats::default, sum)
         }
@@ -253,8 +253,8 @@ pub fn render_into_until<A: Accel>(
     }
 }
 
-/// A band's rows of the first hits' normal, albedo and depth.
-type BandFirstHits<'a> = (&'a mut [[f32; 3]], &'a mut [[f32; 3]], &'a mut [f32]);
+/// A band's rows of the first hits' normal, albedo, depth and coverage.
+type BandFirstHits<'a> = (&'a mut [[f32; 3]], &'a mut [[f32; 3]], &'a mut [f32], &'a mut [f32]);
 
 /// One pixel's values (see [`Film`]): its radiance, work and the sums of its first hits.
 struct Pixel {
@@ -274,12 +274,13 @@ struct FirstHits {
 }
 
 impl FirstHits {
-    /// The mean normal and albedo over the samples (a miss counts as zero) and the mean depth
-    /// over the hits (∞ without one): averaged only where the film records them.
-    fn means(&self) -> ([f32; 3], [f32; 3], f32) {
+    /// The mean normal and albedo over the samples (a miss counts as zero), the mean depth
+    /// over the hits (∞ without one) and the share of the samples that hit: averaged only
+    /// where the film records them.
+    fn means(&self) -> ([f32; 3], [f32; 3], f32, f32) {
         let n = self.samples as f32;
         let depth = if self.hits == 0 { f32::INFINITY } else { self.depth / self.hits as f32 };
-        ((self.normal / n).to_array(), (self.albedo / n).to_array(), depth)
+        ((self.normal / n).to_array(), (self.albedo / n).to_array(), depth, self.hits as f32 / n)
     }
 }
 

@@ -201,10 +201,14 @@ fn write_images(a: &RenderArgs, settings: &Settings, frame: &Frame) -> anyhow::R
         let channels = frame.float_channels(&settings.aovs);
         return pointray_io::write_exr(&a.output, w, h, channels).map_err(failure::output);
     }
-    let image = frame.srgb8(settings.tone_map());
-    pointray_io::image::write_png(&a.output, w, h, &image).map_err(failure::output)?;
+    if a.transparent {
+        pointray_io::write_png_rgba(&a.output, w, h, &frame.srgba8(settings.tone_map())).map_err(failure::output)?;
+    } else {
+        pointray_io::image::write_png(&a.output, w, h, &frame.srgb8(settings.tone_map())).map_err(failure::output)?;
+    }
+    // The AOVs asked for (not the alpha that --transparent records for itself).
     let mut written = Vec::new();
-    for &aov in &settings.aovs {
+    for &aov in &a.aov {
         if !written.contains(&aov) {
             let path = aov_path(&a.output, aov.name());
             pointray_io::image::write_png(&path, w, h, &frame.aov_rgb8(aov)).map_err(failure::output)?;
