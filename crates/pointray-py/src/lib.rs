@@ -5,7 +5,7 @@
 //! Long work runs with the GIL released; a render stops at Ctrl-C.
 
 use std::path::PathBuf;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::time::Duration;
 
 use glam::{DVec3, Vec3};
@@ -308,10 +308,14 @@ fn render_region<'py>(
 }
 
 /// `render`, returning a `Frame`: the image, the AOVs of `aovs=[...]` and the statistics
-/// (`count_work=True` counts the traversal's work too).
+/// (`count_work=True` counts the traversal's work too). Every render also takes `threads`
+/// (default: all cores) and `progress`, a callable given (pixels done, pixels in all) as the
+/// render goes, e.g. a tqdm bar's update.
 #[pyfunction]
 #[pyo3(signature = (source, **options))]
 fn render_frame(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Bound<'_, PyDict>>) -> PyResult<Frame> {
+    let (run, options) = RunOptions::take(options)?;
+    let options = options.as_ref();
     let prepared;
     let (scene, settings) = match source.cast::<Scene>() {
         Ok(scene) => {
@@ -324,7 +328,16 @@ fn render_frame(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Boun
         }
     };
     let job = scene.inner.job(&settings).map_err(value_error)?;
-    let frame = cancellable(py, |cancel| job.render_until(&|_| {}, cancel))?;
+    let pool = run.pool()?;
+    let (done, total) = (AtomicU64::new(0), job.config.region.pixel_count());
+    let count = |n: u64| {
+        done.fetch_add(n, Ordering::Relaxed);
+    };
+    let report = || match &run.progress {
+        Some(progress) => Python::attach(|py| progress.call1(py, (done.load(Ordering::Relaxed), total)).map(drop)),
+        None => Ok(()),
+    };
+    let frame = cancellable(py, report, |cancel| pool.install(|| job.render_until(&count, cancel)))?;
     let stats = serde_json::to_value(job.report(&frame)).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
     Ok(Frame { frame, aovs: settings.aovs.clone(), stats })
 }
@@ -352,25 +365,69 @@ fn to_srgb8<'py>(
     Ok(image.mapv(encode).into_pyarray(py))
 }
 
-/// Runs `work` on another thread with the GIL released, checking for Ctrl-C meanwhile: a
-/// signal sets `cancel` (the render stops within a band) and raises `KeyboardInterrupt`.
-fn cancellable<T: Send>(py: Python<'_>, work: impl FnOnce(&AtomicBool) -> Option<T> + Send) -> PyResult<T> {
+/// Runs `work` on another thread with the GIL released, checking for Ctrl-C and calling
+/// `report` (the progress) meanwhile: a signal, or an exception from `report`, sets `cancel`
+/// (the render stops within a band) and is raised.
+fn cancellable<T: Send>(
+    py: Python<'_>,
+    report: impl Fn() -> PyResult<()> + Send + Sync,
+    work: impl FnOnce(&AtomicBool) -> Option<T> + Send,
+) -> PyResult<T> {
     let cancel = AtomicBool::new(false);
     py.detach(|| {
         std::thread::scope(|s| {
             let handle = s.spawn(|| work(&cancel));
             while !handle.is_finished() {
                 std::thread::sleep(Duration::from_millis(20));
-                if let Err(e) = Python::attach(|py| py.check_signals()) {
+                if let Err(e) = Python::attach(|py| py.check_signals()).and_then(|()| report()) {
                     cancel.store(true, Ordering::Relaxed);
                     let _ = handle.join();
                     return Err(e);
                 }
             }
             let done = handle.join().map_err(|_| PyRuntimeError::new_err("the render panicked"))?;
+            report()?;
             done.ok_or_else(|| PyKeyboardInterrupt::new_err("render cancelled"))
         })
     })
+}
+
+/// A render's own options beside the settings: its threads and a progress callable.
+struct RunOptions {
+    threads: Option<usize>,
+    progress: Option<Py<PyAny>>,
+}
+
+impl RunOptions {
+    /// These options taken out of `options`, and the rest.
+    fn take<'py>(options: Option<&Bound<'py, PyDict>>) -> PyResult<(Self, Option<Bound<'py, PyDict>>)> {
+        let mut run = Self { threads: None, progress: None };
+        let Some(options) = options else { return Ok((run, None)) };
+        let rest = options.copy()?;
+        if let Some(threads) = rest.get_item("threads")? {
+            run.threads = threads.extract()?;
+            rest.del_item("threads")?;
+        }
+        if let Some(progress) = rest.get_item("progress")? {
+            if !progress.is_none() && !progress.is_callable() {
+                return Err(PyValueError::new_err("progress: expected a callable (done, total)"));
+            }
+            run.progress = (!progress.is_none()).then(|| progress.unbind());
+            rest.del_item("progress")?;
+        }
+        Ok((run, Some(rest)))
+    }
+
+    /// A pool of `threads` threads (all cores without).
+    fn pool(&self) -> PyResult<rayon::ThreadPool> {
+        if self.threads == Some(0) || self.threads.is_some_and(|t| t > 1024) {
+            return Err(PyValueError::new_err("threads must be between 1 and 1024"));
+        }
+        rayon::ThreadPoolBuilder::new()
+            .num_threads(self.threads.unwrap_or(0))
+            .build()
+            .map_err(|e| PyRuntimeError::new_err(e.to_string()))
+    }
 }
 
 /// The preprocessing options taken out of `options`, and the rest.

@@ -166,3 +166,20 @@ BUNNY = Path(__file__).resolve().parents[4] / "shared/data/stanford/bunny/recons
 def test_the_bunny_is_the_cli_png(tmp_path):
     expected = cli_png(tmp_path, [BUNNY, "--width", 192, "--height", 160])
     assert np.array_equal(pointray.to_srgb8(pointray.render(str(BUNNY), width=192, height=160)), expected)
+
+
+def test_threads_change_no_pixel_and_progress_reaches_the_total(sphere_file):
+    scene = pointray.prepare(str(sphere_file))
+    calls = []
+    one = pointray.render(scene, width=64, height=48, spp=2, threads=1, progress=lambda done, total: calls.append((done, total)))
+    assert np.array_equal(one, pointray.render(scene, width=64, height=48, spp=2))
+    assert calls and calls[-1] == (64 * 48, 64 * 48)
+    assert all(a[0] <= b[0] for a, b in zip(calls, calls[1:]))
+    with pytest.raises(ValueError, match="threads"):
+        pointray.render(scene, width=8, height=8, threads=0)
+
+    def stop(done, total):
+        raise RuntimeError("enough")
+
+    with pytest.raises(RuntimeError, match="enough"):
+        pointray.render(scene, width=64, height=48, progress=stop)

@@ -60,7 +60,8 @@ def prepare(source: Source, **options: Any) -> Scene:
     recompute), then the accelerator (accel, sphere_from_level, surface)."""
 
 def render(source: Source, **options: Any) -> npt.NDArray[np.float32]:
-    """The linear RGB image, H x W x 3 float32."""
+    """The linear RGB image, H x W x 3 float32. Besides the render options: ``threads`` (default
+    all cores) and ``progress``, a callable given (pixels done, pixels in all)."""
 
 def render_region(source: Source, region: Tuple[int, int, int, int], **options: Any) -> npt.NDArray[np.float32]:
     """The pixels (x0, y0, x1, y1) of the frame (x1, y1 exclusive), as a tile."""
