@@ -1334,3 +1334,28 @@ fn a_corrupt_e57_page_is_refused_by_its_checksum() {
     let message = expect_error(&write_file(dir.path(), "bad.e57", &bytes), "checksum");
     assert!(message.starts_with(&format!("{}", dir.path().join("bad.e57").display())), "{message}");
 }
+
+/// A file the crate's tests keep (`tests/data/README.md` gives each one's origin and licence).
+fn real_file(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(name)
+}
+
+#[test]
+fn real_e57_files_read_with_their_points_and_colours() {
+    // Cartesian floats with colour, far from the origin: recentred, every point kept.
+    let rgb = read_cloud(&real_file("tinyCartesianFloatRgb.e57")).unwrap();
+    assert_eq!((rgb.cloud.len(), rgb.info.format.as_str()), (2090, "E57, 1 scan"));
+    let colors = rgb.cloud.colors.as_ref().expect("the scan has colour");
+    assert!(colors.iter().flatten().all(|c| (0.0..=1.0).contains(c)) && colors.iter().any(|c| c[0] != c[1]));
+    assert!(world_positions(&rgb.cloud).iter().all(|p| (295.0..299.0).contains(&p.z)));
+    // Spherical coordinates, converted: the points lie within their ranges of the scanner.
+    let spherical = read_cloud(&real_file("tiny_spherical.e57")).unwrap();
+    assert_eq!(spherical.cloud.len(), 180);
+    assert!(world_positions(&spherical.cloud).iter().all(|p| p.length() <= 1.0 + 1e-6 && p.is_finite()));
+    // Intensity without colour shows as grey.
+    let intensity = read_cloud(&real_file("scaled_integer_intensity.e57")).unwrap();
+    assert_eq!(intensity.cloud.len(), 2);
+    assert!(intensity.cloud.colors.unwrap().iter().all(|c| c[0] == c[1] && c[1] == c[2]));
+    let message = expect_error(&real_file("corrupt_crc.e57"), "invalid checksum");
+    assert!(message.contains("corrupt_crc.e57: not a readable E57 file"), "{message}");
+}
