@@ -10,7 +10,7 @@ use glam::DVec3;
 
 use crate::builder::{Attributes, CloudBuilder, PointRecord};
 use crate::ply::{Mesh, MeshFile};
-use crate::text::{Lines, as_text, data_lines, data_part, split_values};
+use crate::text::{data_lines, first_word, split_values};
 use crate::{FileInfo, IoError, LoadedCloud};
 
 /// The keywords an OBJ file's first data line may start with.
@@ -18,8 +18,7 @@ const KEYWORDS: [&str; 10] = ["v", "vn", "vt", "vp", "f", "o", "g", "s", "mtllib
 
 /// Whether the first data line starts with an OBJ keyword.
 pub(crate) fn looks_like_obj(bytes: &[u8]) -> bool {
-    let first = Lines::new(bytes, 1).find_map(|(_, line)| as_text(line).and_then(data_part));
-    first.and_then(|l| l.split_whitespace().next()).is_some_and(|k| KEYWORDS.contains(&k))
+    first_word(bytes).is_some_and(|k| KEYWORDS.contains(&k))
 }
 
 /// The vertices as a cloud.

@@ -16,14 +16,12 @@ use glam::{DVec3, Vec3};
 
 use crate::builder::{Attributes, CloudBuilder, PointRecord};
 use crate::ply::{Mesh, MeshFile};
-use crate::text::{Lines, as_text, data_lines, data_part, split_values};
+use crate::text::{data_lines, first_word, split_values};
 use crate::{FileInfo, IoError, LoadedCloud};
 
 /// Whether the first data line is an OFF keyword.
 pub(crate) fn looks_like_off(bytes: &[u8]) -> bool {
-    let mut lines = Lines::new(bytes, 1);
-    let first = lines.find_map(|(_, line)| as_text(line).and_then(data_part));
-    first.and_then(|l| l.split_whitespace().next()).is_some_and(|k| keyword(k).is_some())
+    first_word(bytes).is_some_and(|k| keyword(k).is_some())
 }
 
 /// The attributes a keyword announces: (normals, colours).
@@ -115,16 +113,16 @@ fn read(path: &Path, bytes: &[u8], faces: bool) -> Result<MeshFile, IoError> {
     }
     let mut vertices_cloud = builder.finish();
     crate::builder::scale_colors_to_unit(&mut vertices_cloud);
-    let keyword = first.split_whitespace().next().unwrap_or("OFF");
+    let format = format!("{} text", first.split_whitespace().next().unwrap_or("OFF"));
+    drop(lines);
     let info = FileInfo {
-        format: format!("{keyword} text"),
+        format,
         elements: vec![("vertex".into(), vertices), ("face".into(), face_count)],
         vertex_properties: property_names(normals, colors),
+        comments,
         file_bytes: bytes.len() as u64,
-        ..FileInfo::default()
+        up: None,
     };
-    drop(lines);
-    let info = FileInfo { comments, ..info };
     Ok(MeshFile { mesh: Mesh { vertices: vertices_cloud, triangles, skipped_faces }, info })
 }
 

@@ -86,6 +86,12 @@ pub(crate) fn data_lines<'a>(
     })
 }
 
+/// The first word of the first data line: the keyword a text format opens with.
+pub(crate) fn first_word(bytes: &[u8]) -> Option<&str> {
+    let first = Lines::new(bytes, 1).find_map(|(_, line)| as_text(line).and_then(data_part))?;
+    first.split_whitespace().next()
+}
+
 /// The data part of a line (before any `#`), or `None` for blank and comment-only lines.
 pub(crate) fn data_part(text: &str) -> Option<&str> {
     let data = text.split('#').next().unwrap_or("").trim();

@@ -404,16 +404,14 @@ impl RunOptions {
         let mut run = Self { threads: None, progress: None };
         let Some(options) = options else { return Ok((run, None)) };
         let rest = options.copy()?;
-        if let Some(threads) = rest.get_item("threads")? {
+        if let Some(threads) = pop(&rest, "threads")? {
             run.threads = threads.extract()?;
-            rest.del_item("threads")?;
         }
-        if let Some(progress) = rest.get_item("progress")? {
-            if !progress.is_none() && !progress.is_callable() {
+        if let Some(progress) = pop(&rest, "progress")?.filter(|p| !p.is_none()) {
+            if !progress.is_callable() {
                 return Err(PyValueError::new_err("progress: expected a callable (done, total)"));
             }
-            run.progress = (!progress.is_none()).then(|| progress.unbind());
-            rest.del_item("progress")?;
+            run.progress = Some(progress.unbind());
         }
         Ok((run, Some(rest)))
     }
@@ -439,15 +437,23 @@ fn split_preprocess<'py>(
     let rest = options.copy()?;
     macro_rules! take {
         ($($key:ident),*) => {
-            $(if let Some(v) = rest.get_item(stringify!($key))? {
+            $(if let Some(v) = pop(&rest, stringify!($key))? {
                 config.$key = v.extract()?;
-                rest.del_item(stringify!($key))?;
             })*
         };
     }
     take!(k_normals, k_radius, radius_scale, recompute);
     config.check().map_err(value_error)?;
     Ok((config, Some(rest)))
+}
+
+/// The value of `key` in `dict`, taken out of it.
+fn pop<'py>(dict: &Bound<'py, PyDict>, key: &str) -> PyResult<Option<Bound<'py, PyAny>>> {
+    let value = dict.get_item(key)?;
+    if value.is_some() {
+        dict.del_item(key)?;
+    }
+    Ok(value)
 }
 
 /// `base` with `options` (keyword arguments by `Settings`' names) put in, checked.

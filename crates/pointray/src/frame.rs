@@ -64,11 +64,20 @@ impl Frame {
     /// The whole frame's linear radiance, row-major, top row first (the background outside
     /// the region): what [`Self::srgb8`] encodes.
     pub fn linear_rgb(&self) -> Vec<[f32; 3]> {
-        let mut out = vec![self.background; self.width as usize * self.height as usize];
+        self.whole(self.background, |i| self.film.rgb[i])
+    }
+
+    /// The whole frame, row-major: `fill` outside the film's region, `value(i)` at the region's
+    /// pixel `i`.
+    fn whole<T: Copy>(&self, fill: T, value: impl Fn(usize) -> T) -> Vec<T> {
+        let mut out = vec![fill; self.width as usize * self.height as usize];
         let r = self.film.region;
-        for (y, row) in (r.y0..r.y1).zip(self.film.rgb.chunks_exact(r.width().max(1) as usize)) {
+        let width = r.width() as usize;
+        for (row, y) in (r.y0..r.y1).enumerate() {
             let start = y as usize * self.width as usize + r.x0 as usize;
-            out[start..start + row.len()].copy_from_slice(row);
+            for (col, px) in out[start..start + width].iter_mut().enumerate() {
+                *px = value(row * width + col);
+            }
         }
         out
     }
@@ -80,24 +89,17 @@ impl Frame {
     /// # Panics
     /// If the render did not record the first hits (`Settings::aovs` with `Aov::Alpha`).
     pub fn srgba8(&self, tone: ToneMap) -> Vec<u8> {
-        let (srgb8, film) = (tone.encoder(), &self.film);
-        let coverage = &self.first_hits().coverage;
-        let mut out = vec![0u8; self.width as usize * self.height as usize * 4];
-        let r = film.region;
-        for (row, y) in (r.y0..r.y1).enumerate() {
-            for (col, x) in (r.x0..r.x1).enumerate() {
-                let i = row * r.width() as usize + col;
-                let alpha = coverage[i];
-                let px = &mut out[(y as usize * self.width as usize + x as usize) * 4..][..4];
-                if alpha > 0.0 {
-                    for ((byte, linear), background) in px.iter_mut().zip(film.rgb[i]).zip(self.background) {
-                        *byte = srgb8((linear - (1.0 - alpha) * background) / alpha);
-                    }
-                    px[3] = (alpha.clamp(0.0, 1.0) * 255.0 + 0.5) as u8;
-                }
+        let (srgb8, coverage) = (tone.encoder(), &self.first_hits().coverage);
+        let pixel = |i: usize| {
+            let alpha = coverage[i];
+            if alpha <= 0.0 {
+                return [0; 4];
             }
-        }
-        out
+            let [r, g, b] =
+                std::array::from_fn(|c| srgb8((self.film.rgb[i][c] - (1.0 - alpha) * self.background[c]) / alpha));
+            [r, g, b, (alpha.clamp(0.0, 1.0) * 255.0 + 0.5) as u8]
+        };
+        self.whole([0; 4], pixel).into_iter().flatten().collect()
     }
 
     /// Most nodes visited by one pixel (the top of the node heat map's scale).
@@ -128,14 +130,7 @@ impl Frame {
                 depth.iter().flat_map(|&d| [shade(d); 3]).collect()
             }
         };
-        let mut frame = vec![0u8; self.width as usize * self.height as usize * 3];
-        let r = self.film.region;
-        let row_bytes = r.width() as usize * 3;
-        for (row, y) in (r.y0..r.y1).enumerate() {
-            let dst = (y as usize * self.width as usize + r.x0 as usize) * 3;
-            frame[dst..dst + row_bytes].copy_from_slice(&region[row * row_bytes..(row + 1) * row_bytes]);
-        }
-        frame
+        self.whole([0; 3], |i| [region[3 * i], region[3 * i + 1], region[3 * i + 2]]).into_iter().flatten().collect()
     }
 
     /// The linear radiance as channels `R`, `G`, `B` (the background outside the region) and
@@ -143,16 +138,7 @@ impl Frame {
     /// layers of an EXR.
     pub fn float_channels(&self, aovs: &[Aov]) -> Vec<(String, Vec<f32>)> {
         let film = &self.film;
-        let whole = |value: &dyn Fn(usize) -> f32, fill: f32| {
-            let mut out = vec![fill; self.width as usize * self.height as usize];
-            let r = film.region;
-            for (row, y) in (r.y0..r.y1).enumerate() {
-                for (col, x) in (r.x0..r.x1).enumerate() {
-                    out[y as usize * self.width as usize + x as usize] = value(row * r.width() as usize + col);
-                }
-            }
-            out
-        };
+        let whole = |value: &dyn Fn(usize) -> f32, fill: f32| self.whole(fill, value);
         let mut channels: Vec<(String, Vec<f32>)> = ["R", "G", "B"]
             .iter()
             .enumerate()
