@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use pointray::color_by::ColorBy;
 use pointray::film::ToneCurve;
 use pointray::frame::Aov;
 use pointray::render::{Filter, Integrator, Sampler};
@@ -243,6 +244,18 @@ pub struct RenderArgs {
     /// background (what mirrors and glass show).
     #[arg(long)]
     pub sky: bool,
+    /// What the points' colours show: auto (the file's colours, else the material's), rgb,
+    /// intensity (viridis), classification (the ASPRS class colours), elevation (viridis along
+    /// --up) or normal.
+    #[arg(long, value_enum, default_value_t = D.color_by)]
+    pub color_by: ColorBy,
+    /// Draw only the points of these ASPRS classes (comma-separated codes: 2 ground, 6
+    /// building, 3-5 vegetation, 9 water, 7 and 18 noise).
+    #[arg(long, value_delimiter = ',', num_args = 1..)]
+    pub classes: Option<Vec<u8>>,
+    /// Leave out the points of these classes (e.g. 7,18: noise).
+    #[arg(long, value_delimiter = ',', num_args = 1..)]
+    pub exclude_classes: Vec<u8>,
 
     /// Level of detail: a subtree narrower than this many pixels (its bounding sphere's
     /// radius against the ray's footprint) is drawn as its representative splat; 0 is full
@@ -334,6 +347,9 @@ impl RenderArgs {
             ior: self.ior,
             sky: self.sky,
             ground: self.ground,
+            color_by: self.color_by,
+            classes: self.classes.clone(),
+            exclude_classes: self.exclude_classes.clone(),
             integrator: self.integrator,
             ao_distance: self.ao_distance,
             diffuse_spread: self.diffuse_spread,

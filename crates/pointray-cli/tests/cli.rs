@@ -772,6 +772,81 @@ fn render_and_prepare_accept_xyz() {
     run_in(dir.path(), &["info", "x.ply"]).assert_success().assert_stdout_contains("points:      2000");
 }
 
+/// A sphere of 3,000 points whose upper half (y > 0, the default view's up) is class 6
+/// (building) and lower half class 9 (water), with an intensity that grows with y.
+fn classified_sphere() -> String {
+    let points = sphere_points(3000);
+    let mut s = format!("ply\nformat ascii 1.0\nelement vertex {}\n", points.len());
+    s.push_str("property float x\nproperty float y\nproperty float z\nproperty ushort intensity\n");
+    s.push_str("property uchar classification\nend_header\n");
+    for [x, y, z] in points {
+        let class = if y > 0.0 { 6 } else { 9 };
+        s += &format!("{x} {y} {z} {} {class}\n", ((y + 1.0) * 1000.0) as u16);
+    }
+    s
+}
+
+/// The share of the image's model pixels (not the background) where `test` holds.
+fn share_of_model(image: &Image, test: impl Fn([u8; 3]) -> bool) -> f64 {
+    let model: Vec<[u8; 3]> = image.pixels().map(|(.., p)| p).filter(|&p| p != background_srgb8()).collect();
+    assert!(model.len() > 300, "the model covers {} pixels", model.len());
+    model.iter().filter(|&&p| test(p)).count() as f64 / model.len() as f64
+}
+
+#[test]
+fn colour_by_class_and_class_filters() {
+    let dir = temp_dir();
+    write_file(dir.path(), "sphere.ply", classified_sphere());
+    let render = |name: &str, flags: &[&str]| {
+        let args = [&["sphere.ply", "-o", name, "--distance", "0.6"], flags].concat();
+        render_in(dir.path(), &args).assert_success();
+        read_png(&dir.path().join(name))
+    };
+    let (red, blue) = (|p: [u8; 3]| p[0] > p[2], |p: [u8; 3]| p[2] > p[0]);
+    // Buildings orange-red, water blue, lit by the headlight: both show.
+    let both = render("both.png", &["--color-by", "classification"]);
+    let (reds, blues) = (share_of_model(&both, red), share_of_model(&both, blue));
+    assert!(reds > 0.2 && blues > 0.2, "red {reds:.2}, blue {blues:.2}");
+    // A filter leaves one half: its colour alone (but at rims blended with the background).
+    let water = render("water.png", &["--color-by", "classification", "--classes", "9", "--stats", "w.json"]);
+    assert!(share_of_model(&water, blue) > 0.97);
+    let stats = read_stats(&dir.path().join("w.json"));
+    assert_eq!(
+        (&stats["color_by"], &stats["classes"]),
+        (&serde_json::json!("classification"), &serde_json::json!([9]))
+    );
+    assert_eq!(stat_u64(&stats, "points"), 1500, "half the sphere");
+    let buildings = render("buildings.png", &["--color-by", "classification", "--exclude-classes", "9,2"]);
+    assert!(share_of_model(&buildings, red) > 0.95);
+    // Intensity on viridis: from purple (low, blue above red) to yellow (high, red above blue).
+    let ramp = render("ramp.png", &["--color-by", "intensity"]);
+    assert!(share_of_model(&ramp, red) > 0.2 && share_of_model(&ramp, blue) > 0.2);
+    // By default the attributes change nothing: the same image as the bare positions'.
+    let plain = render("plain.png", &[]);
+    write_file(dir.path(), "bare.ply", ascii_ply(&sphere_points(3000), 0));
+    render_in(dir.path(), &["bare.ply", "-o", "bare.png", "--distance", "0.6"]).assert_success();
+    assert_eq!(plain.rgb, read_png(&dir.path().join("bare.png")).rgb);
+}
+
+#[test]
+fn colour_and_class_flags_the_cloud_cannot_serve_are_refused() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    for (flags, message) in [
+        (&["--color-by", "intensity"][..], "--color-by intensity: the cloud has no intensity"),
+        (&["--color-by", "rgb"][..], "--color-by rgb: the cloud has no colours"),
+        (&["--classes", "2"][..], "--classes needs classified points; the cloud has no classification"),
+    ] {
+        let args = [&["sphere.ply", "-o", "x.png"], flags].concat();
+        render_in(dir.path(), &args).assert_failure(1).assert_stderr_contains(message);
+        assert!(!dir.path().join("x.png").exists(), "no partial output");
+    }
+    write_file(dir.path(), "classified.ply", classified_sphere());
+    render_in(dir.path(), &["classified.ply", "-o", "x.png", "--classes", "2,3"])
+        .assert_failure(1)
+        .assert_stderr_contains("--classes leaves no points (the cloud's classes: 6, 9)");
+}
+
 // ---------------------------------------------------------------------------------------------
 // 7. Bad input files
 // ---------------------------------------------------------------------------------------------

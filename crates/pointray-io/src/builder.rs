@@ -2,6 +2,7 @@
 
 use glam::{DVec3, Vec3};
 use pointray::PointCloud;
+use pointray::cloud::ScanAttributes;
 
 /// Which optional attributes the file provides.
 #[derive(Clone, Copy, Debug, Default)]
@@ -9,6 +10,29 @@ pub(crate) struct Attributes {
     pub normals: bool,
     pub radii: bool,
     pub colors: bool,
+    pub scan: ScanFields,
+}
+
+/// Which scan attributes ([`ScanAttributes`]) the file provides.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct ScanFields {
+    pub intensity: bool,
+    pub classification: bool,
+    pub return_number: bool,
+    pub gps_time: bool,
+}
+
+impl ScanFields {
+    /// The names [`crate::FileInfo::vertex_properties`] lists for them.
+    pub(crate) fn names(&self) -> impl Iterator<Item = String> {
+        let fields = [
+            (self.intensity, "intensity"),
+            (self.classification, "classification"),
+            (self.return_number, "return_number"),
+            (self.gps_time, "gps_time"),
+        ];
+        fields.into_iter().filter(|(has, _)| *has).map(|(_, name)| name.to_string())
+    }
 }
 
 pub(crate) struct CloudBuilder {
@@ -16,6 +40,7 @@ pub(crate) struct CloudBuilder {
     normals: Option<Vec<Vec3>>,
     radii: Option<Vec<f32>>,
     colors: Option<Vec<[f32; 3]>>,
+    scan: ScanAttributes,
 }
 
 /// One point as read from a file; attributes the file lacks are ignored.
@@ -25,6 +50,10 @@ pub(crate) struct PointRecord {
     pub normal: Vec3,
     pub radius: f32,
     pub color: [f32; 3],
+    pub intensity: f32,
+    pub classification: u8,
+    pub return_number: u8,
+    pub gps_time: f64,
 }
 
 impl CloudBuilder {
@@ -35,6 +64,12 @@ impl CloudBuilder {
             normals: attributes.normals.then(|| Vec::with_capacity(capacity)),
             radii: attributes.radii.then(|| Vec::with_capacity(capacity)),
             colors: attributes.colors.then(|| Vec::with_capacity(capacity)),
+            scan: ScanAttributes {
+                intensity: attributes.scan.intensity.then(|| Vec::with_capacity(capacity)),
+                classification: attributes.scan.classification.then(|| Vec::with_capacity(capacity)),
+                return_number: attributes.scan.return_number.then(|| Vec::with_capacity(capacity)),
+                gps_time: attributes.scan.gps_time.then(|| Vec::with_capacity(capacity)),
+            },
         }
     }
 
@@ -49,6 +84,10 @@ impl CloudBuilder {
         if let Some(colors) = &mut self.colors {
             colors.push(point.color);
         }
+        push_some(&mut self.scan.intensity, point.intensity);
+        push_some(&mut self.scan.classification, point.classification);
+        push_some(&mut self.scan.return_number, point.return_number);
+        push_some(&mut self.scan.gps_time, point.gps_time);
     }
 
     pub(crate) fn has_colors(&self) -> bool {
@@ -67,7 +106,14 @@ impl CloudBuilder {
         cloud.normals = self.normals;
         cloud.radii = self.radii;
         cloud.colors = self.colors;
+        cloud.scan = self.scan;
         cloud
+    }
+}
+
+fn push_some<T>(values: &mut Option<Vec<T>>, value: T) {
+    if let Some(values) = values {
+        values.push(value);
     }
 }
 

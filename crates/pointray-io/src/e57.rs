@@ -1,16 +1,16 @@
 //! E57 (ASTM E2807), what terrestrial laser scanners export: several scans, each with its pose,
 //! in Cartesian or spherical coordinates, as floats or scaled integers, with colour and
 //! intensity and per-point validity flags. Read with the `e57` crate: every scan's valid
-//! points, its pose applied and spherical coordinates converted; colours normalised by the
-//! file's limits (a scan without colour shows its intensity as grey); pages with a bad CRC
-//! refused.
+//! points, its pose applied and spherical coordinates converted; colours and intensity
+//! normalised by the file's limits (a scan without colour shows its intensity as grey; the
+//! intensity is kept as a scan attribute too); pages with a bad CRC refused.
 
 use std::io::Cursor;
 use std::path::Path;
 
 use glam::DVec3;
 
-use crate::builder::{Attributes, CloudBuilder, PointRecord};
+use crate::builder::{Attributes, CloudBuilder, PointRecord, ScanFields};
 use crate::{FileInfo, IoError, LoadedCloud};
 
 /// The signature E57 files start with.
@@ -28,8 +28,11 @@ fn decode(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     let error = |e: e57::Error| IoError::invalid(path, format!("not a readable E57 file: {e}"));
     let mut reader = e57::E57Reader::new(Cursor::new(bytes)).map_err(error)?;
     let scans = reader.pointclouds();
+    // A scan without colour shows its intensity as grey (the crate's conversion), as scanners'
+    // own viewers do; the intensity is kept besides.
     let colors = scans.iter().any(|s| s.has_color() || s.has_intensity());
-    let mut builder = CloudBuilder::new(0, Attributes { colors, ..Attributes::default() });
+    let scan_fields = ScanFields { intensity: scans.iter().any(|s| s.has_intensity()), ..ScanFields::default() };
+    let mut builder = CloudBuilder::new(0, Attributes { colors, scan: scan_fields, ..Attributes::default() });
     let mut skipped = 0u64;
     for (index, scan) in scans.iter().enumerate() {
         let in_scan = |e: e57::Error| IoError::invalid(path, format!("scan {}: {e}", index + 1));
@@ -40,7 +43,8 @@ fn decode(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
                 continue;
             };
             let color = point.color.map_or([0.5; 3], |c| [c.red, c.green, c.blue]);
-            builder.push(&PointRecord { position: DVec3::new(x, y, z), color, ..PointRecord::default() });
+            let intensity = point.intensity.unwrap_or(0.0);
+            builder.push(&PointRecord { position: DVec3::new(x, y, z), color, intensity, ..PointRecord::default() });
         }
     }
     if skipped > 0 {
@@ -62,6 +66,7 @@ fn decode(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     if colors {
         properties.extend(["red".into(), "green".into(), "blue".into()]);
     }
+    properties.extend(scan_fields.names());
     let info = FileInfo {
         format: format!("E57, {} {}", scans.len(), if scans.len() == 1 { "scan" } else { "scans" }),
         elements: vec![("point".into(), points)],

@@ -11,7 +11,7 @@ use std::path::Path;
 
 use glam::DVec3;
 
-use crate::builder::{Attributes, CloudBuilder, PointRecord};
+use crate::builder::{Attributes, CloudBuilder, PointRecord, ScanFields};
 use crate::file::FileBytes;
 use crate::{FileInfo, IoError, LoadedCloud};
 
@@ -128,7 +128,10 @@ fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
             format!("the header declares {count} points of {} bytes, more than the file holds", format.len()),
         ));
     }
-    let attributes = Attributes { colors: format.has_color, ..Attributes::default() };
+    // Every point format has intensity, a class and a return number (zero where the writer
+    // recorded none); GPS time from format 1 on.
+    let scan = ScanFields { intensity: true, classification: true, return_number: true, gps_time: format.has_gps_time };
+    let attributes = Attributes { colors: format.has_color, scan, ..Attributes::default() };
     let mut builder = CloudBuilder::new(0, attributes);
     let mut max_channel = 0u16;
     let mut batch = las::PointDataBuilder::new().for_header(&header).build();
@@ -146,7 +149,15 @@ fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
             let color = point.color.map_or([0; 3], |c| [c.red, c.green, c.blue]);
             max_channel = color.into_iter().fold(max_channel, u16::max);
             let position = DVec3::new(point.x, point.y, point.z);
-            builder.push(&PointRecord { position, color: color.map(f32::from), ..PointRecord::default() });
+            builder.push(&PointRecord {
+                position,
+                color: color.map(f32::from),
+                intensity: f32::from(point.intensity),
+                classification: u8::from(point.classification),
+                return_number: point.return_number,
+                gps_time: point.gps_time.unwrap_or(0.0),
+                ..PointRecord::default()
+            });
         }
     }
     let mut cloud = builder.finish();
@@ -167,6 +178,7 @@ fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
             .into_iter()
             .chain(format.has_color.then_some(["red", "green", "blue"]).into_iter().flatten())
             .map(String::from)
+            .chain(scan.names())
             .collect(),
         comments: Vec::new(),
         file_bytes,

@@ -28,7 +28,7 @@ use std::path::{Path, PathBuf};
 pub use error::IoError;
 use file::{FileBytes, read_file};
 pub use image::{decode_png, read_png, write_exr, write_png, write_png_rgba};
-pub use ply::{Mesh, read_ply, write_ply};
+pub use ply::{Mesh, read_ply, write_ply, write_ply_with_up};
 pub use xyz::read_xyz;
 
 /// A cloud and what its file said about itself.
@@ -51,8 +51,8 @@ pub struct FileInfo {
     /// PLY `comment` texts and whole `obj_info` lines; whole-line `#` comments for XYZ.
     pub comments: Vec<String>,
     pub file_bytes: u64,
-    /// The up axis the format's convention gives, where it gives one: +z for LAS and LAZ
-    /// (surveys in east, north and height).
+    /// The up axis the file gives, where it gives one: +z for LAS, LAZ and E57 (surveys in
+    /// east, north and height, levelled scans), a prepared PLY's `comment up`.
     pub up: Option<[f32; 3]>,
 }
 

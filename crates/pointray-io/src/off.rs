@@ -70,7 +70,7 @@ fn read(path: &Path, bytes: &[u8], faces: bool) -> Result<MeshFile, IoError> {
         let message = format!("{vertices} vertices and {face_count} faces cannot fit in {} bytes", bytes.len());
         return Err(IoError::at_line(path, line, message));
     }
-    let attributes = Attributes { normals, radii: false, colors };
+    let attributes = Attributes { normals, colors, ..Attributes::default() };
     let mut builder = CloudBuilder::new(vertices, attributes);
     let columns = 3 + 3 * usize::from(normals) + 3 * usize::from(colors);
     for _ in 0..vertices {

@@ -11,7 +11,7 @@ use std::path::Path;
 
 use glam::{DVec3, Vec3};
 
-use crate::builder::{Attributes, CloudBuilder, PointRecord};
+use crate::builder::{Attributes, CloudBuilder, PointRecord, ScanFields};
 use crate::text::{Lines, as_text, split_values};
 use crate::{FileInfo, IoError, LoadedCloud};
 
@@ -204,7 +204,9 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
             header.fields[f].bits(raw(i, f))
         }
     };
-    let attributes = Attributes { normals: normal.is_some(), colors: color.is_some(), radii: false };
+    let intensity = find("intensity");
+    let scan = ScanFields { intensity: intensity.is_some(), ..ScanFields::default() };
+    let attributes = Attributes { normals: normal.is_some(), colors: color.is_some(), radii: false, scan };
     let mut builder = CloudBuilder::new(n, attributes);
     let mut dropped = 0usize;
     for i in 0..n {
@@ -218,7 +220,8 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
             let v = bits(i, c);
             [(v >> 16) & 255, (v >> 8) & 255, v & 255].map(|c| c as f32 / 255.0)
         });
-        builder.push(&PointRecord { position, normal, color, radius: 0.0 });
+        let intensity = intensity.map_or(0.0, |f| value(i, f) as f32);
+        builder.push(&PointRecord { position, normal, color, intensity, ..PointRecord::default() });
     }
     if dropped > 0 {
         tracing::warn!("{}: {dropped} of {n} points have no finite coordinates (NaN) and were dropped", path.display());

@@ -81,6 +81,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         normals: all(|l| l.cloud.normals.is_some()),
         radii: all(|l| l.cloud.radii.is_some()),
         colors: all(|l| l.cloud.colors.is_some()),
+        ..Attributes::default()
     };
     let total = loaded.iter().map(|l| l.cloud.len()).sum();
     let mut builder = CloudBuilder::new(total, attributes);
@@ -94,6 +95,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
                 normal: c.normals.as_ref().map_or(glam::Vec3::ZERO, |n| (to_world * n[i].as_dvec3()).as_vec3()),
                 radius: c.radii.as_ref().map_or(0.0, |r| r[i]),
                 color: c.colors.as_ref().map_or([0.0; 3], |col| col[i]),
+                ..PointRecord::default()
             });
         }
     }

@@ -241,14 +241,15 @@ fn place(points: &mut PointCloud, spec: &CloudSpec) {
     points.origin = DVec3::ZERO;
 }
 
-/// One cloud of all the placed ones; colours kept where every cloud has them, else the
-/// default colour for those without.
+/// One cloud of all the placed ones; colours kept where any cloud has them, the default
+/// colour for those without; scan attributes likewise (zero for those without).
 fn merge(clouds: Vec<PointCloud>) -> PointCloud {
     let any_colors = clouds.iter().any(|c| c.colors.is_some());
     let mut all = PointCloud::default();
     let (mut normals, mut radii, mut colors) = (Vec::new(), Vec::new(), Vec::new());
     for c in clouds {
         let n = c.len();
+        all.scan.append(all.positions.len(), c.scan, n);
         all.positions.extend(c.positions);
         normals.extend(c.normals.expect("preprocessed"));
         radii.extend(c.radii.expect("preprocessed"));

@@ -21,7 +21,7 @@ use std::path::Path;
 
 use glam::{DVec3, Vec3};
 
-use crate::builder::{Attributes, CloudBuilder, PointRecord};
+use crate::builder::{Attributes, CloudBuilder, PointRecord, ScanFields};
 use crate::text::{Lines, as_text, data_lines, data_part, split_values};
 use crate::{FileInfo, IoError, LoadedCloud};
 
@@ -54,17 +54,19 @@ impl Columns {
     }
 
     fn attributes(self) -> Attributes {
+        let intensity = matches!(self, Self::PositionIntensity | Self::PositionIntensityColor);
         Attributes {
             normals: matches!(self, Self::PositionNormal | Self::PositionNormalColor),
             radii: false,
             colors: !matches!(self, Self::Position | Self::PositionNormal | Self::PositionIntensity),
+            scan: ScanFields { intensity, ..ScanFields::default() },
         }
     }
 
     fn property_names(self) -> Vec<String> {
         let attributes = self.attributes();
         let mut names = vec!["x", "y", "z"];
-        if matches!(self, Self::PositionIntensity | Self::PositionIntensityColor) {
+        if attributes.scan.intensity {
             names.push("intensity");
         }
         if attributes.normals {
@@ -182,8 +184,12 @@ fn parse_point(values: &[&str], layout: Columns) -> Result<PointRecord, String> 
     let as_vec3 = |[x, y, z]: [f64; 3]| Vec3::new(x as f32, y as f32, z as f32);
     let mut record = PointRecord { position: DVec3::from_array(triple(0)), ..PointRecord::default() };
     match layout {
-        Columns::Position | Columns::PositionIntensity => {}
-        Columns::PositionIntensityColor => record.color = as_vec3(triple(4)).to_array(),
+        Columns::Position => {}
+        Columns::PositionIntensity => record.intensity = numbers[3] as f32,
+        Columns::PositionIntensityColor => {
+            record.intensity = numbers[3] as f32;
+            record.color = as_vec3(triple(4)).to_array();
+        }
         Columns::PositionNormal => record.normal = as_vec3(triple(3)),
         Columns::PositionColor | Columns::PositionColorAlpha => record.color = as_vec3(triple(3)).to_array(),
         Columns::PositionNormalColor => {

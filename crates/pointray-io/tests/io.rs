@@ -5,7 +5,8 @@ use std::path::{Path, PathBuf};
 
 use glam::{DVec3, Vec3};
 use pointray::PointCloud;
-use pointray_io::{FileInfo, IoError, atomic_write, read_cloud, read_png, write_ply, write_png};
+use pointray::cloud::ScanAttributes;
+use pointray_io::{FileInfo, IoError, atomic_write, read_cloud, read_png, write_ply, write_ply_with_up, write_png};
 
 // ---------------------------------------------------------------- hand-written PLY
 
@@ -1352,10 +1353,88 @@ fn real_e57_files_read_with_their_points_and_colours() {
     let spherical = read_cloud(&real_file("tiny_spherical.e57")).unwrap();
     assert_eq!(spherical.cloud.len(), 180);
     assert!(world_positions(&spherical.cloud).iter().all(|p| p.length() <= 1.0 + 1e-6 && p.is_finite()));
-    // Intensity without colour shows as grey.
+    // Intensity without colour shows as grey, and is kept, normalised by the file's limits.
     let intensity = read_cloud(&real_file("scaled_integer_intensity.e57")).unwrap();
     assert_eq!(intensity.cloud.len(), 2);
     assert!(intensity.cloud.colors.unwrap().iter().all(|c| c[0] == c[1] && c[1] == c[2]));
+    let values = intensity.cloud.scan.intensity.expect("the scan has intensity");
+    assert!(values.iter().all(|v| (0.0..=1.0).contains(v)) && values[0] != values[1], "{values:?}");
     let message = expect_error(&real_file("corrupt_crc.e57"), "invalid checksum");
     assert!(message.contains("corrupt_crc.e57: not a readable E57 file"), "{message}");
+}
+
+/// The distinct values of a column, in order.
+fn distinct<T: Copy + PartialOrd>(values: &[T]) -> Vec<T> {
+    let mut values = values.to_vec();
+    values.sort_by(|a, b| a.partial_cmp(b).unwrap());
+    values.dedup();
+    values
+}
+
+#[test]
+fn real_las_files_keep_their_scan_attributes() {
+    // (file, format, points, classes): laspy's LAS 1.1 point format 1, LAS 1.4 point format 6,
+    // and a COPC file (LAZ 1.4, point format 7, its points in octree order).
+    let files = [
+        ("simple1_1.las", "LAS 1.1, point format 1", 1065, vec![1, 2]),
+        ("test1_4.las", "LAS 1.4, point format 6", 1000, vec![2]),
+        ("simple.copc.laz", "LAZ 1.4, point format 7", 1065, vec![1, 2]),
+    ];
+    for (name, format, points, classes) in files {
+        let loaded = read_cloud(&real_file(name)).unwrap();
+        assert_eq!((loaded.info.format.as_str(), loaded.cloud.len()), (format, points), "{name}");
+        let scan = &loaded.cloud.scan;
+        assert_eq!(distinct(scan.classification.as_ref().unwrap()), classes, "{name}");
+        assert!(distinct(scan.intensity.as_ref().unwrap()).len() > 10, "{name}: intensity varies");
+        let returns = distinct(scan.return_number.as_ref().unwrap());
+        assert!(returns[0] >= 1 && *returns.last().unwrap() <= 15, "{name}: {returns:?}");
+        assert!(distinct(scan.gps_time.as_ref().unwrap()).len() > 10, "{name}: GPS time varies");
+        for property in ["intensity", "classification", "return_number", "gps_time"] {
+            assert!(loaded.info.vertex_properties.contains(&property.to_string()), "{name}: {property}");
+        }
+    }
+    // The COPC file has colour (point format 7), the others none.
+    assert!(read_cloud(&real_file("simple.copc.laz")).unwrap().cloud.colors.is_some());
+    assert!(read_cloud(&real_file("test1_4.las")).unwrap().cloud.colors.is_none());
+}
+
+#[test]
+fn ply_keeps_scan_attributes_and_the_up_axis() {
+    let dir = temp_dir();
+    let (_, mut cloud) = sample_cloud(20, DVec3::ZERO);
+    cloud.scan = ScanAttributes {
+        intensity: Some((0..20).map(|i| i as f32 * 100.5).collect()),
+        classification: Some((0..20).map(|i| [2, 6, 9][i % 3]).collect()),
+        return_number: Some((0..20).map(|i| 1 + (i % 4) as u8).collect()),
+        gps_time: Some((0..20).map(|i| 3.5e8 + f64::from(i) * 1e-6).collect()),
+    };
+    let path = dir.path().join("scan.ply");
+    write_ply_with_up(&path, &cloud, Some([0.0, 0.0, 1.0])).unwrap();
+    let loaded = read_cloud(&path).unwrap();
+    assert_eq!(loaded.info.up, Some([0.0, 0.0, 1.0]));
+    let (read, truth) = (&loaded.cloud.scan, &cloud.scan);
+    assert_eq!(read.intensity, truth.intensity);
+    assert_eq!(read.classification, truth.classification);
+    assert_eq!(read.return_number, truth.return_number);
+    assert_eq!(read.gps_time, truth.gps_time, "GPS time keeps its microseconds (double)");
+    // Without an up axis, none comes back.
+    write_ply(&path, &cloud).unwrap();
+    assert_eq!(read_cloud(&path).unwrap().info.up, None);
+}
+
+#[test]
+fn scan_attributes_are_found_under_other_tools_names() {
+    let dir = temp_dir();
+    // CloudCompare's scalar fields, and a 4-column XYZ file's intensity.
+    let ply = "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n\
+               property float scalar_Intensity\nproperty float scalar_Classification\n\
+               property float scalar_Return_Number\nproperty double scalar_GpsTime\nend_header\n\
+               0 0 0 12.5 6 1 100.25\n1 0 0 40 2 3 200.5\n";
+    let scan = read_cloud(&write_file(dir.path(), "cc.ply", ply.as_bytes())).unwrap().cloud.scan;
+    assert_eq!(scan.intensity, Some(vec![12.5, 40.0]));
+    assert_eq!(scan.classification, Some(vec![6, 2]));
+    assert_eq!(scan.return_number, Some(vec![1, 3]));
+    assert_eq!(scan.gps_time, Some(vec![100.25, 200.5]));
+    let xyz = read_cloud(&write_file(dir.path(), "i.xyz", b"0 0 0 7\n1 0 0 -3\n")).unwrap().cloud;
+    assert_eq!((xyz.scan.intensity, xyz.colors), (Some(vec![7.0, -3.0]), None));
 }

@@ -23,7 +23,9 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 /// A point cloud: positions (N×3, float64, in the file's coordinates), and where known the
-/// normals (N×3), colours (N×3, linear, 0 to 1) and splat radii (N), float32.
+/// normals (N×3), colours (N×3, linear, 0 to 1) and splat radii (N), float32; and the scan
+/// attributes: intensity (float32), classification and return number (uint8), GPS time
+/// (float64), N each.
 #[pyclass(module = "pointray", name = "Cloud", frozen)]
 struct Cloud {
     inner: PointCloud,
@@ -32,12 +34,18 @@ struct Cloud {
 #[pymethods]
 impl Cloud {
     #[new]
-    #[pyo3(signature = (positions, normals=None, colors=None, radii=None))]
+    #[pyo3(signature = (positions, normals=None, colors=None, radii=None, *, intensity=None,
+        classification=None, return_number=None, gps_time=None))]
+    #[allow(clippy::too_many_arguments)] // Python's keywords, one a column
     fn new(
         positions: PyArrayLike2<'_, f64, AllowTypeChange>,
         normals: Option<PyArrayLike2<'_, f32, AllowTypeChange>>,
         colors: Option<PyArrayLike2<'_, f32, AllowTypeChange>>,
         radii: Option<PyArrayLike1<'_, f32, AllowTypeChange>>,
+        intensity: Option<PyArrayLike1<'_, f32, AllowTypeChange>>,
+        classification: Option<PyArrayLike1<'_, u8, AllowTypeChange>>,
+        return_number: Option<PyArrayLike1<'_, u8, AllowTypeChange>>,
+        gps_time: Option<PyArrayLike1<'_, f64, AllowTypeChange>>,
     ) -> PyResult<Self> {
         let world: Vec<DVec3> = rows::<f64>("positions", &positions, None)?.into_iter().map(DVec3::from).collect();
         let n = world.len();
@@ -45,13 +53,11 @@ impl Cloud {
         inner.normals =
             normals.map(|a| rows("normals", &a, Some(n))).transpose()?.map(|v| v.into_iter().map(Vec3::from).collect());
         inner.colors = colors.map(|a| rows("colors", &a, Some(n))).transpose()?;
-        if let Some(radii) = radii {
-            let radii = radii.as_array();
-            if radii.len() != n {
-                return Err(PyValueError::new_err(format!("radii: {} values for {n} points", radii.len())));
-            }
-            inner.radii = Some(radii.iter().copied().collect());
-        }
+        inner.radii = radii.map(|a| column("radii", &a, n)).transpose()?;
+        inner.scan.intensity = intensity.map(|a| column("intensity", &a, n)).transpose()?;
+        inner.scan.classification = classification.map(|a| column("classification", &a, n)).transpose()?;
+        inner.scan.return_number = return_number.map(|a| column("return_number", &a, n)).transpose()?;
+        inner.scan.gps_time = gps_time.map(|a| column("gps_time", &a, n)).transpose()?;
         if inner.colors.as_ref().is_some_and(|c| c.iter().flatten().any(|v| !(0.0..=1.0).contains(v))) {
             return Err(PyValueError::new_err("colors: every channel must be between 0 and 1"));
         }
@@ -94,6 +100,35 @@ impl Cloud {
     fn radii<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f32>>> {
         self.inner.radii.as_ref().map(|r| Array1::from(r.clone()).into_pyarray(py))
     }
+
+    #[getter]
+    fn intensity<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f32>>> {
+        self.inner.scan.intensity.as_ref().map(|v| Array1::from(v.clone()).into_pyarray(py))
+    }
+
+    #[getter]
+    fn classification<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<u8>>> {
+        self.inner.scan.classification.as_ref().map(|v| Array1::from(v.clone()).into_pyarray(py))
+    }
+
+    #[getter]
+    fn return_number<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<u8>>> {
+        self.inner.scan.return_number.as_ref().map(|v| Array1::from(v.clone()).into_pyarray(py))
+    }
+
+    #[getter]
+    fn gps_time<'py>(&self, py: Python<'py>) -> Option<Bound<'py, PyArray1<f64>>> {
+        self.inner.scan.gps_time.as_ref().map(|v| Array1::from(v.clone()).into_pyarray(py))
+    }
+}
+
+/// A column of `n` values, checked for the length.
+fn column<T: numpy::Element + Copy>(name: &str, a: &PyArrayLike1<'_, T, AllowTypeChange>, n: usize) -> PyResult<Vec<T>> {
+    let a = a.as_array();
+    if a.len() != n {
+        return Err(PyValueError::new_err(format!("{name}: {} values for {n} points", a.len())));
+    }
+    Ok(a.iter().copied().collect())
 }
 
 /// An N×3 array's rows, checked for the shape (and `expect`ed count).

@@ -68,6 +68,23 @@ def test_a_cloud_from_numpy_renders_like_its_file(sphere_file):
     assert (a.max(axis=2) > 0.05).mean() > 0.1, "the sphere shows"
 
 
+def test_scan_attributes_round_trip_and_colour_the_points(sphere_file):
+    points = sphere_points()
+    up = points[:, 1] > 20.0
+    classes = np.where(up, 6, 9).astype(np.uint8)
+    cloud = pointray.Cloud(points, intensity=points[:, 1], classification=classes)
+    assert np.array_equal(cloud.classification, classes) and cloud.classification.dtype == np.uint8
+    np.testing.assert_allclose(cloud.intensity, points[:, 1].astype(np.float32))
+    assert cloud.gps_time is None and pointray.read_cloud(sphere_file).classification is None
+    image = pointray.render(cloud, width=64, height=48, color_by="classification", classes=[9])
+    lit = image.max(axis=2) > 0.02
+    assert lit.sum() > 100 and (image[lit][:, 2] > image[lit][:, 0]).mean() > 0.95, "water alone: blue"
+    with pytest.raises(ValueError, match="color_by rgb: the cloud has no colours"):
+        pointray.render(cloud, width=8, height=8, color_by="rgb")
+    with pytest.raises(ValueError, match="classification: 2 values for 3000 points"):
+        pointray.Cloud(points, classification=classes[:2])
+
+
 def test_a_region_is_that_part_of_the_frame(sphere_file):
     scene = pointray.prepare(str(sphere_file))
     whole = pointray.render(scene, width=64, height=48, spp=2)

@@ -24,6 +24,76 @@ pub struct PointCloud {
     /// Where the scanner stood, in the same local coordinates as `positions`, where the file
     /// says (an organised depth frame's PCD `VIEWPOINT`): computed normals are turned to face it.
     pub viewpoint: Option<Vec3>,
+    /// What the scanner recorded of each point beside position and colour.
+    pub scan: ScanAttributes,
+}
+
+/// Per-point values a scanner records (LAS/LAZ and E57 carry them; PLY, PCD and text files
+/// where a column has one of their names), each `None` where the input has none. They ride
+/// along through preprocessing; `color_by` turns one into colours and filters by class.
+#[derive(Clone, Debug, Default)]
+pub struct ScanAttributes {
+    /// The return's strength, in the file's own units (LAS: 16-bit; E57: normalised by the
+    /// file's limits to `[0, 1]`).
+    pub intensity: Option<Vec<f32>>,
+    /// The ASPRS class code (LAS; 2 ground, 6 building, …).
+    pub classification: Option<Vec<u8>>,
+    /// Which return of its pulse the point is (1 the first).
+    pub return_number: Option<Vec<u8>>,
+    /// When the point was recorded (LAS GPS time, seconds).
+    pub gps_time: Option<Vec<f64>>,
+}
+
+impl ScanAttributes {
+    /// Whether the input had none of them.
+    pub fn is_empty(&self) -> bool {
+        self.intensity.is_none()
+            && self.classification.is_none()
+            && self.return_number.is_none()
+            && self.gps_time.is_none()
+    }
+
+    /// Each attribute present, by name, with its length.
+    fn lengths(&self) -> [(&'static str, Option<usize>); 4] {
+        [
+            ("intensity", self.intensity.as_ref().map(Vec::len)),
+            ("classification", self.classification.as_ref().map(Vec::len)),
+            ("return_number", self.return_number.as_ref().map(Vec::len)),
+            ("gps_time", self.gps_time.as_ref().map(Vec::len)),
+        ]
+    }
+
+    fn permute(&mut self, order: &[u32]) {
+        permute_some(&mut self.intensity, order);
+        permute_some(&mut self.classification, order);
+        permute_some(&mut self.return_number, order);
+        permute_some(&mut self.gps_time, order);
+    }
+
+    /// Appends `other`'s values after this one's `len` points; an attribute only one side has
+    /// is filled with zeros on the other.
+    pub fn append(&mut self, len: usize, other: ScanAttributes, other_len: usize) {
+        append_some(&mut self.intensity, len, other.intensity, other_len);
+        append_some(&mut self.classification, len, other.classification, other_len);
+        append_some(&mut self.return_number, len, other.return_number, other_len);
+        append_some(&mut self.gps_time, len, other.gps_time, other_len);
+    }
+}
+
+/// Element `i` of the result is element `order[i]` of `v`.
+fn permute_some<T: Copy>(v: &mut Option<Vec<T>>, order: &[u32]) {
+    if let Some(v) = v {
+        *v = order.iter().map(|&i| v[i as usize]).collect();
+    }
+}
+
+/// `a` (of `len` points) followed by `b` (of `b_len`), zeros standing in for a missing side.
+fn append_some<T: Copy + Default>(a: &mut Option<Vec<T>>, len: usize, b: Option<Vec<T>>, b_len: usize) {
+    if a.is_none() && b.is_none() {
+        return;
+    }
+    let a = a.get_or_insert_with(|| vec![T::default(); len]);
+    a.extend(b.unwrap_or_else(|| vec![T::default(); b_len]));
 }
 
 impl PointCloud {
@@ -63,19 +133,11 @@ impl PointCloud {
 
     /// Applies a permutation: element `i` of the result is element `order[i]` of `self`.
     pub fn permute(&mut self, order: &[u32]) {
-        fn apply<T: Copy>(v: &mut Vec<T>, order: &[u32]) {
-            *v = order.iter().map(|&i| v[i as usize]).collect();
-        }
-        apply(&mut self.positions, order);
-        if let Some(n) = &mut self.normals {
-            apply(n, order);
-        }
-        if let Some(r) = &mut self.radii {
-            apply(r, order);
-        }
-        if let Some(c) = &mut self.colors {
-            apply(c, order);
-        }
+        self.positions = order.iter().map(|&i| self.positions[i as usize]).collect();
+        permute_some(&mut self.normals, order);
+        permute_some(&mut self.radii, order);
+        permute_some(&mut self.colors, order);
+        self.scan.permute(order);
     }
 
     /// Checks that every attribute has one entry per point.
@@ -87,13 +149,31 @@ impl PointCloud {
         };
         check("normals", self.normals.as_ref().map(Vec::len))?;
         check("radii", self.radii.as_ref().map(Vec::len))?;
-        check("colors", self.colors.as_ref().map(Vec::len))
+        check("colors", self.colors.as_ref().map(Vec::len))?;
+        self.scan.lengths().into_iter().try_for_each(|(name, len)| check(name, len))
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn scan_attributes_follow_their_points() {
+        let mut cloud = PointCloud::from_positions(vec![Vec3::X, Vec3::Y, Vec3::Z]);
+        cloud.scan.classification = Some(vec![2, 6, 9]);
+        cloud.scan.gps_time = Some(vec![0.5, 1.5, 2.5]);
+        cloud.permute(&[2, 0]);
+        assert_eq!(cloud.scan.classification, Some(vec![9, 2]));
+        assert_eq!(cloud.scan.gps_time, Some(vec![2.5, 0.5]));
+        assert!(cloud.scan.intensity.is_none());
+        cloud.check_lengths().unwrap();
+        cloud.scan.return_number = Some(vec![1]);
+        assert_eq!(cloud.check_lengths().unwrap_err(), "return_number has 1 entries for 2 points");
+        let mut other = ScanAttributes { intensity: Some(vec![7.0]), ..ScanAttributes::default() };
+        other.append(1, ScanAttributes { classification: Some(vec![5]), ..ScanAttributes::default() }, 1);
+        assert_eq!((other.intensity, other.classification), (Some(vec![7.0, 0.0]), Some(vec![0, 5])));
+    }
 
     #[test]
     fn recentres_on_the_finite_points() {

@@ -191,6 +191,11 @@ pub struct FrameReport {
     pub materials: Vec<&'static str>,
     /// The analytic ground plane's material, if there is one.
     pub ground: Option<&'static str>,
+    /// What the points' colours show, and the class filter (the classes drawn, all if null,
+    /// less those left out).
+    pub color_by: crate::color_by::ColorBy,
+    pub classes: Option<Vec<u8>>,
+    pub exclude_classes: Vec<u8>,
     pub samples_per_pixel: u32,
     pub rays: u64,
     pub primary_rays: u64,

@@ -14,6 +14,7 @@ pub mod accel;
 pub mod camera;
 pub mod cloud;
 pub mod color;
+pub mod color_by;
 pub mod culling;
 pub mod demo;
 pub mod film;

@@ -28,6 +28,7 @@ use crate::PointCloud;
 use crate::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds};
 use crate::camera::{Camera, Region};
 use crate::color::srgb_to_linear;
+use crate::color_by::{self, ColorBy};
 use crate::culling::backfacing_fraction;
 use crate::film::Film;
 use crate::frame::{Aov, Frame, FrameReport};
@@ -93,6 +94,9 @@ pub enum SceneError {
     Empty,
     #[error("the points' material indices are not one a point")]
     MaterialCount,
+    /// A colour or class filter the cloud cannot give (no such attribute, no point left).
+    #[error(transparent)]
+    Settings(#[from] SettingsError),
 }
 
 /// The accelerators a scene can be built on; the render loop is monomorphised for each.
@@ -114,18 +118,28 @@ macro_rules! on_accel {
 }
 
 /// How a scene was built: what settings it can render with.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 struct Build {
     accel: AccelKind,
     node_bounds: NodeBounds,
     shape: DiskShape,
+    color_by: ColorBy,
+    classes: Option<Vec<u8>>,
+    exclude_classes: Vec<u8>,
 }
 
 impl Build {
     fn of(settings: &Settings) -> Self {
         // Only the BVH has bounding volumes to choose.
         let node_bounds = if settings.accel == AccelKind::Bvh { settings.sphere_from_level } else { NodeBounds::Boxes };
-        Self { accel: settings.accel, node_bounds, shape: settings.surface.shape() }
+        Self {
+            accel: settings.accel,
+            node_bounds,
+            shape: settings.surface.shape(),
+            color_by: settings.color_by,
+            classes: settings.classes.clone(),
+            exclude_classes: settings.exclude_classes.clone(),
+        }
     }
 }
 
@@ -166,9 +180,16 @@ pub struct RayHit {
 impl Scene {
     /// Builds the accelerator the settings name (`accel`, `sphere_from_level`, and the disks
     /// `surface` tests) over the parts' cloud, which it consumes: the splats hold all the rest
-    /// needs of the points, and the cloud is freed before the build's peak.
+    /// needs of the points, and the cloud is freed before the build's peak. The points are
+    /// those of the settings' `classes` (less `exclude_classes`), coloured by `color_by`.
     pub fn build(parts: SceneParts, settings: &Settings) -> Result<Scene, SceneError> {
-        let SceneParts { cloud, point_materials, content, view, light, up } = parts;
+        let SceneParts { mut cloud, mut point_materials, content, view, light, up } = parts;
+        let kept = color_by::filter_classes(&mut cloud, settings.classes.as_deref(), &settings.exclude_classes)?;
+        if let (Some(kept), Some(materials)) = (&kept, &mut point_materials) {
+            *materials = kept.iter().map(|&i| materials[i as usize]).collect();
+        }
+        let up = up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y);
+        color_by::apply(&mut cloud, settings.color_by, settings.up.unwrap_or(up))?;
         if cloud.is_empty() {
             return Err(SceneError::Empty);
         }
@@ -207,6 +228,11 @@ impl Scene {
             AccelKind::Brute => Accelerator::Brute(BruteForce::new(splats)),
         };
         let build_seconds = start.elapsed().as_secs_f64();
+        // Ids name the points as they came, before the class filter.
+        let ids = match (ids, kept) {
+            (Some(slots), Some(kept)) => Some(slots.iter().map(|&s| kept.get(s as usize).map_or(s, |&i| i)).collect()),
+            (ids, kept) => ids.or(kept),
+        };
         // The camera frames the points' bounds (the Embree bench's convention); a cloud of one
         // point, or of coincident points, has none, and then the disks' bounds serve.
         let bounds = if bounds.diagonal() > 0.0 { bounds } else { on_accel!(&accel, a => a.bounds()) };
@@ -221,7 +247,7 @@ impl Scene {
             build,
             content,
             view,
-            up: up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y),
+            up,
             light,
             origin,
             bounds,
@@ -334,7 +360,7 @@ impl Scene {
     /// Refuses settings that need another build: another accelerator, other bounding volumes,
     /// or disks of another shape in the bounds.
     fn check_build(&self, settings: &Settings) -> Result<(), SettingsError> {
-        let (built, asked) = (self.build, Build::of(settings));
+        let (built, asked) = (&self.build, Build::of(settings));
         let problem =
             |what: &str| format!("differs from the scene's build ({what}): prepare the scene with these settings");
         if built.accel != asked.accel {
@@ -345,6 +371,12 @@ impl Scene {
         }
         if built.shape != asked.shape {
             return Err(SettingsError::new("surface", problem("the disks its bounds hold")));
+        }
+        if built.color_by != asked.color_by {
+            return Err(SettingsError::new("color_by", problem("its splats' colours")));
+        }
+        if (&built.classes, &built.exclude_classes) != (&asked.classes, &asked.exclude_classes) {
+            return Err(SettingsError::new("classes", problem("the classes it holds")));
         }
         Ok(())
     }
@@ -548,6 +580,9 @@ impl RenderJob<'_> {
             ao_distance: (config.integrator == Integrator::Ao).then_some(config.ao_distance),
             materials: config.materials.iter().map(Material::name).collect(),
             ground: config.ground.map(|g| g.material.name()),
+            color_by: scene.build.color_by,
+            classes: scene.build.classes.clone(),
+            exclude_classes: scene.build.exclude_classes.clone(),
             samples_per_pixel: s.spp,
             rays: stats.rays,
             primary_rays: stats.primary_rays,
@@ -616,6 +651,28 @@ mod tests {
         assert_eq!(render(&scene, &rfd).unwrap_err().option, "surface");
         let kd = Settings { accel: AccelKind::Kdtree, ..small };
         assert_eq!(render(&scene, &kd).unwrap_err().option, "accel");
+    }
+
+    #[test]
+    fn a_class_filter_keeps_its_points_whose_ids_name_them_as_given() {
+        let mut cloud = crate::demo::demo_cloud(3000, 1);
+        crate::preprocess::preprocess(&mut cloud, &crate::preprocess::PreprocessConfig::standard()).unwrap();
+        // Even points class 2, odd ones class 6.
+        cloud.scan.classification = Some((0..cloud.len()).map(|i| if i % 2 == 0 { 2 } else { 6 }).collect());
+        for accel in [AccelKind::Bvh, AccelKind::Kdtree, AccelKind::Brute] {
+            let s =
+                Settings { accel, classes: Some(vec![6]), color_by: ColorBy::Classification, ..Settings::default() };
+            let scene = Scene::build(cloud.clone().into(), &s).unwrap();
+            assert_eq!(scene.points(), cloud.len() / 2);
+            let hits = scene.intersect(&rays_at(&scene, 500), &s).unwrap();
+            assert!(hits.iter().flatten().count() > 100, "{accel:?}");
+            assert!(hits.iter().flatten().all(|h| h.splat % 2 == 1), "{accel:?}: only class 6, by the input's ids");
+            // Settings that need another build are refused.
+            let other = Settings { classes: None, ..s.clone() };
+            assert_eq!(render(&scene, &other).unwrap_err().option, "classes");
+            let other = Settings { color_by: ColorBy::Auto, ..s };
+            assert_eq!(render(&scene, &other).unwrap_err().option, "color_by");
+        }
     }
 
     #[test]

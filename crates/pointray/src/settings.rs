@@ -7,6 +7,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::accel::NodeBounds;
 use crate::camera::Region;
+use crate::color_by::ColorBy;
 use crate::film::{MAX_PIXELS, ToneCurve, ToneMap};
 use crate::frame::Aov;
 use crate::material::Material;
@@ -137,6 +138,12 @@ pub struct Settings {
     pub ior: f32,
     pub sky: bool,
     pub ground: bool,
+    /// What the points' colours show (a scene is built with it).
+    pub color_by: ColorBy,
+    /// Draw only the points of these ASPRS classes (all, if none; a scene is built with it).
+    pub classes: Option<Vec<u8>>,
+    /// Leave out the points of these classes (a scene is built with it).
+    pub exclude_classes: Vec<u8>,
 
     pub integrator: Integrator,
     /// Ambient occlusion's reach (default: a tenth of the bounding-box diagonal).
@@ -193,6 +200,9 @@ impl Default for Settings {
             ior: 1.5,
             sky: false,
             ground: false,
+            color_by: ColorBy::Auto,
+            classes: None,
+            exclude_classes: Vec::new(),
             integrator: Integrator::Whitted,
             ao_distance: None,
             // The path tracer's bounced rays: 1.23–1.31× faster on the dragon, 54 dB from full
@@ -262,6 +272,7 @@ impl Settings {
         check(self.light_radius.is_none() || self.light_pos.is_some(), "light_radius", "needs light_pos")?;
         check(self.light_intensity >= 0.0 && finite(self.light_intensity), "light_intensity", "must be non-negative")?;
         check(self.max_depth <= 64, "max_depth", "must be at most 64")?;
+        check(self.classes.as_ref().is_none_or(|c| !c.is_empty()), "classes", "must name at least one class")?;
         let most = ToneMap::MAX_EXPOSURE;
         if self.exposure.is_nan() || self.exposure.abs() > most {
             return Err(SettingsError::new("exposure", format!("must be between -{most} and {most} stops")));

@@ -19,7 +19,7 @@ pub fn run(a: &InfoArgs, quiet: bool) -> anyhow::Result<()> {
         writeln!(out, "comment:     {c}")?;
     }
     if let Some([x, y, z]) = info.up {
-        writeln!(out, "up:          {x},{y},{z} (the format's convention)")?;
+        writeln!(out, "up:          {x},{y},{z} (given by the file)")?;
     }
     writeln!(out, "points:      {}", cloud.len())?;
     let has = |b: bool| if b { "yes" } else { "no" };

@@ -1,4 +1,5 @@
-//! `pointray prepare`: preprocess once, write a binary PLY with normals, radii and colours.
+//! `pointray prepare`: preprocess once, write a binary PLY with normals, radii, colours, scan
+//! attributes and the data's up axis.
 
 use crate::args::PrepareArgs;
 
@@ -9,9 +10,9 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     let spinner = crate::progress::spinner("read", quiet);
     let stage = |s: &str| spinner.set_message(s.to_string());
     let prepared = pointray_io::source::read_prepared(&a.input, &config, &stage)?;
-    let (cloud, stats) = (prepared.cloud, prepared.preprocess);
+    let (cloud, stats, up) = (prepared.cloud, prepared.preprocess, prepared.up.map(|u| u.to_array()));
     spinner.finish_and_clear();
-    crate::progress::spinning("write", quiet, || pointray_io::write_ply(&a.output, &cloud))
+    crate::progress::spinning("write", quiet, || pointray_io::write_ply_with_up(&a.output, &cloud, up))
         .map_err(crate::failure::output)?;
     if !quiet {
         eprintln!(

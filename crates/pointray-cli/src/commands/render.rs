@@ -7,7 +7,7 @@ use std::time::Instant;
 
 use anyhow::Context;
 use pointray::frame::{Frame, FrameReport};
-use pointray::scene::{RenderJob, Scene, SceneParts};
+use pointray::scene::{RenderJob, Scene, SceneError, SceneParts};
 use pointray::settings::{Settings, SettingsError};
 use pointray_io::source::Source;
 use serde::Serialize;
@@ -158,7 +158,13 @@ fn load_input(a: &RenderArgs, quiet: bool) -> anyhow::Result<(Source, String)> {
 /// fresh memory), each from a copy made before its clock starts, the last from the parts
 /// themselves; and the builds' seconds, fastest first.
 fn build(parts: SceneParts, settings: &Settings, timed: u32, quiet: bool) -> anyhow::Result<(Scene, Vec<f64>)> {
-    let build = |parts| crate::progress::spinning("build", quiet, || Scene::build(parts, settings));
+    let build = |parts| {
+        crate::progress::spinning("build", quiet, || Scene::build(parts, settings)).map_err(|e| match e {
+            // A colour or class flag the cloud cannot give: named as the flag.
+            SceneError::Settings(e) => flag_error(e),
+            e => e.into(),
+        })
+    };
     let mut seconds = Vec::new();
     for _ in 1..timed {
         seconds.push(build(parts.clone())?.build_seconds());

@@ -102,8 +102,16 @@ fn file_info(header: &Header, vertex_index: usize, file_bytes: usize) -> FileInf
         vertex_properties,
         comments: header.comments.clone(),
         file_bytes: file_bytes as u64,
-        up: None,
+        up: header.comments.iter().find_map(|c| up_comment(c)),
     }
+}
+
+/// The axis of a `comment up X Y Z` line ([`write_ply_with_up`]), if it is one and a direction.
+fn up_comment(comment: &str) -> Option<[f32; 3]> {
+    let values: Vec<f32> =
+        comment.strip_prefix("up ")?.split_whitespace().map(str::parse).collect::<Result<_, _>>().ok()?;
+    let up: [f32; 3] = values.try_into().ok()?;
+    (up.iter().all(|v| v.is_finite()) && up != [0.0; 3]).then_some(up)
 }
 
 /// Writes a binary little-endian PLY with `x y z`, then `nx ny nz`, `radius` and
@@ -115,11 +123,24 @@ fn file_info(header: &Header, vertex_index: usize, file_bytes: usize) -> FileInf
 /// (a mesh sampled near the origin: 24 bytes a point, not 36). The file appears only when
 /// complete (see [`atomic_write`]).
 pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<(), IoError> {
+    write_ply_with_up(path, cloud, None)
+}
+
+/// [`write_ply`], naming the data's up axis in a `comment up X Y Z` line, which the reader
+/// gives back as [`FileInfo::up`] (a prepared survey keeps its +z).
+pub fn write_ply_with_up(path: &Path, cloud: &PointCloud, up: Option<[f32; 3]>) -> Result<(), IoError> {
     cloud
         .check_lengths()
         .map_err(|message| IoError::invalid(path, format!("cannot write an inconsistent cloud: {message}")))?;
     let world_doubles = cloud.origin.abs().max_element() > f64::from(cloud.bounds().diagonal());
-    let header = write_header(cloud, world_doubles);
+    let mut header = write_header(cloud, world_doubles);
+    if let Some([x, y, z]) = up {
+        header = header.replacen(
+            "comment written by pointray-io\n",
+            &format!("comment written by pointray-io\ncomment up {x} {y} {z}\n"),
+            1,
+        );
+    }
     atomic_write(path, |out| {
         out.write_all(header.as_bytes())?;
         let mut record = Vec::with_capacity(64);
@@ -147,6 +168,16 @@ fn write_header(cloud: &PointCloud, world_doubles: bool) -> String {
     }
     if cloud.colors.is_some() {
         header += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
+    }
+    let scan = &cloud.scan;
+    let scan_properties = [
+        (scan.intensity.is_some(), "float intensity"),
+        (scan.classification.is_some(), "uchar classification"),
+        (scan.return_number.is_some(), "uchar return_number"),
+        (scan.gps_time.is_some(), "double gps_time"),
+    ];
+    for (_, property) in scan_properties.iter().filter(|(has, _)| *has) {
+        header += &format!("property {property}\n");
     }
     header += "end_header\n";
     header
@@ -177,5 +208,14 @@ fn encode_vertex(cloud: &PointCloud, index: usize, world_doubles: bool, record: 
     if let Some(color) = cloud.colors.as_ref().and_then(|c| c.get(index)) {
         // `as u8` saturates and maps NaN to 0.
         record.extend(color.map(|channel| (channel.clamp(0.0, 1.0) * 255.0).round() as u8));
+    }
+    let scan = &cloud.scan;
+    if let Some(intensity) = scan.intensity.as_ref().and_then(|v| v.get(index)) {
+        record.extend_from_slice(&intensity.to_le_bytes());
+    }
+    record.extend(scan.classification.as_ref().and_then(|v| v.get(index)));
+    record.extend(scan.return_number.as_ref().and_then(|v| v.get(index)));
+    if let Some(time) = scan.gps_time.as_ref().and_then(|v| v.get(index)) {
+        record.extend_from_slice(&time.to_le_bytes());
     }
 }

@@ -12,7 +12,9 @@ Source = Union[str, "os.PathLike[str]", "Cloud", "Scene"]
 
 class Cloud:
     """A point cloud: positions (N x 3, float64, the file's coordinates) and, where known,
-    normals (N x 3), colours (N x 3, linear, 0 to 1) and radii (N), float32."""
+    normals (N x 3), colours (N x 3, linear, 0 to 1) and radii (N), float32; and the scan
+    attributes: intensity (float32), classification and return number (uint8), GPS time
+    (float64), N each."""
 
     def __init__(
         self,
@@ -20,6 +22,11 @@ class Cloud:
         normals: Optional[npt.ArrayLike] = None,
         colors: Optional[npt.ArrayLike] = None,
         radii: Optional[npt.ArrayLike] = None,
+        *,
+        intensity: Optional[npt.ArrayLike] = None,
+        classification: Optional[npt.ArrayLike] = None,
+        return_number: Optional[npt.ArrayLike] = None,
+        gps_time: Optional[npt.ArrayLike] = None,
     ) -> None: ...
     def __len__(self) -> int: ...
     @property
@@ -30,6 +37,14 @@ class Cloud:
     def colors(self) -> Optional[npt.NDArray[np.float32]]: ...
     @property
     def radii(self) -> Optional[npt.NDArray[np.float32]]: ...
+    @property
+    def intensity(self) -> Optional[npt.NDArray[np.float32]]: ...
+    @property
+    def classification(self) -> Optional[npt.NDArray[np.uint8]]: ...
+    @property
+    def return_number(self) -> Optional[npt.NDArray[np.uint8]]: ...
+    @property
+    def gps_time(self) -> Optional[npt.NDArray[np.float64]]: ...
 
 class Scene:
     """Splats in a multiresolution accelerator, built once by ``prepare``."""
