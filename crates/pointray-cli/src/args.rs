@@ -88,6 +88,15 @@ pub struct PreprocessArgs {
     /// Scale applied to the computed radii.
     #[arg(long, default_value_t = pointray::preprocess::PreprocessConfig::standard().radius_scale)]
     pub radius_scale: f32,
+    /// Points whose computed radius would exceed 8 times their neighbours' median (stray
+    /// returns, no-return pixels stored at the origin): drop them, or clamp their radii.
+    #[arg(long, value_enum, default_value_t = pointray::preprocess::PreprocessConfig::standard().strays)]
+    pub strays: pointray::preprocess::Strays,
+    /// Statistical outlier removal (as PCL's and Open3D's): drop the points whose mean distance
+    /// to their --k-normals nearest neighbours exceeds the cloud's mean by this many standard
+    /// deviations (1 to 2 is usual). Off by default.
+    #[arg(long)]
+    pub outlier_std: Option<f32>,
     /// Recompute normals and radii even when the file has them.
     #[arg(long)]
     pub recompute: bool,
@@ -372,6 +381,8 @@ impl PreprocessArgs {
             k_radius: self.k_radius,
             radius_scale: self.radius_scale,
             recompute: self.recompute,
+            strays: self.strays,
+            outlier_std: self.outlier_std,
             ..pointray::preprocess::PreprocessConfig::standard()
         }
     }

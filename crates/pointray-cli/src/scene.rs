@@ -137,6 +137,8 @@ mod tests {
             "k_radius",
             "radius_scale",
             "recompute",
+            "strays",
+            "outlier_std",
         ];
         let cli = crate::args::Cli::command();
         let render = cli.find_subcommand("render").expect("a render subcommand");

@@ -35,6 +35,37 @@ impl ScanFields {
     }
 }
 
+/// The scan attributes' column names, as [`scan_column`] reduces them.
+const SCAN_KEYS: [&str; 4] = ["intensity", "classification", "returnnumber", "gpstime"];
+
+/// Which scan attribute a column of this name holds (0 intensity, 1 classification, 2 return
+/// number, 3 GPS time): our names (`return_number`, `gps_time`), CloudCompare's scalar fields
+/// (`scalar_Intensity`, `scalar_Return_Number`, `scalar_GpsTime`) and PDAL's (`Intensity`,
+/// `Classification`, `ReturnNumber`, `GpsTime`): case, underscores and `scalar_` aside.
+pub(crate) fn scan_column(name: &str) -> Option<usize> {
+    let lower = name.to_ascii_lowercase();
+    let key = lower.strip_prefix("scalar_").unwrap_or(&lower).replace('_', "");
+    SCAN_KEYS.iter().position(|k| *k == key)
+}
+
+impl ScanFields {
+    /// The fields present in `columns` (each `Some` where a column holds it).
+    pub(crate) fn of<T>(columns: &[Option<T>; 4]) -> Self {
+        let [intensity, classification, return_number, gps_time] = std::array::from_fn(|k| columns[k].is_some());
+        Self { intensity, classification, return_number, gps_time }
+    }
+}
+
+impl PointRecord {
+    /// Sets the scan attributes from their columns' values (`[intensity, class, return, time]`;
+    /// a class or return outside `0..=255` saturates, NaN is 0).
+    pub(crate) fn set_scan(&mut self, values: [Option<f64>; 4]) {
+        let [intensity, class, ret, time] = values.map(|v| v.unwrap_or(0.0));
+        (self.intensity, self.classification, self.return_number, self.gps_time) =
+            (intensity as f32, class as u8, ret as u8, time);
+    }
+}
+
 pub(crate) struct CloudBuilder {
     world: Vec<DVec3>,
     normals: Option<Vec<Vec3>>,
@@ -117,12 +148,19 @@ fn push_some<T>(values: &mut Option<Vec<T>>, value: T) {
     }
 }
 
-/// Text formats' colours, read raw: `0..=255` if any channel exceeds 1, else `0..=1`; scaled
-/// to `[0, 1]` and clamped (NaN to 0).
+/// Colours read raw (text formats, PDAL's PCD channels): `0..=65535` if any channel exceeds
+/// 255, else `0..=255` if any exceeds 1, else `0..=1`; scaled to `[0, 1]` and clamped (NaN
+/// to 0).
 pub(crate) fn scale_colors_to_unit(cloud: &mut PointCloud) {
     let Some(colors) = &mut cloud.colors else { return };
     let max = colors.iter().flatten().fold(0.0f32, |m, &c| m.max(c));
-    let divisor = if max > 1.0 { 255.0 } else { 1.0 };
+    let divisor = if max > 255.0 {
+        65535.0
+    } else if max > 1.0 {
+        255.0
+    } else {
+        1.0
+    };
     for color in colors.iter_mut() {
         *color = color.map(|c| if c.is_nan() { 0.0 } else { (c / divisor).clamp(0.0, 1.0) });
     }

@@ -98,6 +98,13 @@ fn little_endian(bytes: &[u8], at: usize, n: usize) -> Option<u64> {
     Some(field.iter().rev().fold(0u64, |v, &byte| v << 8 | u64::from(byte)))
 }
 
+/// The point's ASPRS class code as the file stores it. The crate turns code 12 (overlap
+/// points) into its overlap flag and "unclassified"; in the legacy point formats (0–5), which
+/// have no overlap flag, the flag can only have come from code 12, which is given back.
+fn class_code(point: &las::Point, extended: bool) -> u8 {
+    if point.is_overlap && !extended { 12 } else { u8::from(point.classification) }
+}
+
 /// Points decoded at a time: the header's count is not trusted for an allocation.
 const BATCH: u64 = 1 << 16;
 
@@ -153,7 +160,7 @@ fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
                 position,
                 color: color.map(f32::from),
                 intensity: f32::from(point.intensity),
-                classification: u8::from(point.classification),
+                classification: class_code(&point, format.is_extended),
                 return_number: point.return_number,
                 gps_time: point.gps_time.unwrap_or(0.0),
                 ..PointRecord::default()
@@ -161,6 +168,12 @@ fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
         }
     }
     let mut cloud = builder.finish();
+    if max_channel == 0 && cloud.colors.is_some() {
+        // A point format with colour whose writer had none to give (laspy's plane.laz): black
+        // everywhere is no colour.
+        tracing::info!("{}: every colour is black; taken as none", path.display());
+        cloud.colors = None;
+    }
     if let Some(colors) = &mut cloud.colors {
         let scale = if max_channel <= 255 { 255.0 } else { 65535.0 };
         colors.iter_mut().for_each(|c| *c = c.map(|v| v / scale));

@@ -11,7 +11,7 @@ use std::path::Path;
 
 use glam::{DVec3, Vec3};
 
-use crate::builder::{Attributes, CloudBuilder, PointRecord, ScanFields};
+use crate::builder::{Attributes, CloudBuilder, PointRecord, ScanFields, scan_column};
 use crate::text::{Lines, as_text, split_values};
 use crate::{FileInfo, IoError, LoadedCloud};
 
@@ -139,12 +139,18 @@ fn parse_header(path: &Path, bytes: &[u8]) -> Result<Header, IoError> {
 
 pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     let header = parse_header(path, bytes)?;
-    let find = |name: &str| header.fields.iter().position(|f| f.name == name);
+    // PCL writes `x y z`, PDAL `X Y Z`.
+    let find = |name: &str| header.fields.iter().position(|f| f.name.eq_ignore_ascii_case(name));
     let (Some(x), Some(y), Some(z)) = (find("x"), find("y"), find("z")) else {
         return Err(IoError::invalid(path, "the PCD file has no x, y and z fields"));
     };
     let normal = find("normal_x").zip(find("normal_y")).zip(find("normal_z")).map(|((a, b), c)| [a, b, c]);
     let color = find("rgb").or(find("rgba")).filter(|&c| header.fields[c].size == 4);
+    // PDAL's separate channels, where there is no packed colour.
+    let channels = find("red").zip(find("green")).zip(find("blue")).map(|((r, g), b)| [r, g, b]);
+    let channels = channels.filter(|_| color.is_none());
+    let scan: [Option<usize>; 4] =
+        std::array::from_fn(|k| header.fields.iter().position(|f| scan_column(&f.name) == Some(k)));
     let record = header.fields.iter().try_fold(0usize, |sum, f| sum.checked_add(f.bytes()));
     let record = record.ok_or_else(|| IoError::invalid(path, "the PCD fields' sizes overflow"))?;
     let body = &bytes[header.body..];
@@ -204,9 +210,8 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
             header.fields[f].bits(raw(i, f))
         }
     };
-    let intensity = find("intensity");
-    let scan = ScanFields { intensity: intensity.is_some(), ..ScanFields::default() };
-    let attributes = Attributes { normals: normal.is_some(), colors: color.is_some(), radii: false, scan };
+    let colors = color.is_some() || channels.is_some();
+    let attributes = Attributes { normals: normal.is_some(), colors, radii: false, scan: ScanFields::of(&scan) };
     let mut builder = CloudBuilder::new(n, attributes);
     let mut dropped = 0usize;
     for i in 0..n {
@@ -216,12 +221,17 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
             continue;
         }
         let normal = normal.map_or(Vec3::ZERO, |[a, b, c]| DVec3::new(value(i, a), value(i, b), value(i, c)).as_vec3());
-        let color = color.map_or([0.0; 3], |c| {
-            let v = bits(i, c);
-            [(v >> 16) & 255, (v >> 8) & 255, v & 255].map(|c| c as f32 / 255.0)
-        });
-        let intensity = intensity.map_or(0.0, |f| value(i, f) as f32);
-        builder.push(&PointRecord { position, normal, color, intensity, ..PointRecord::default() });
+        let color = match (color, channels) {
+            (Some(c), _) => {
+                let v = bits(i, c);
+                [(v >> 16) & 255, (v >> 8) & 255, v & 255].map(|c| c as f32 / 255.0)
+            }
+            (None, Some(rgb)) => rgb.map(|f| value(i, f) as f32), // scaled below
+            (None, None) => [0.0; 3],
+        };
+        let mut record = PointRecord { position, normal, color, ..PointRecord::default() };
+        record.set_scan(scan.map(|f| f.map(|f| value(i, f))));
+        builder.push(&record);
     }
     if dropped > 0 {
         tracing::warn!("{}: {dropped} of {n} points have no finite coordinates (NaN) and were dropped", path.display());
@@ -239,6 +249,9 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         up: None,
     };
     let mut cloud = builder.finish();
+    if channels.is_some() {
+        crate::builder::scale_colors_to_unit(&mut cloud);
+    }
     cloud.viewpoint = header.viewpoint.map(|v| (glam::DVec3::from(v) - cloud.origin).as_vec3());
     Ok(LoadedCloud { cloud, info })
 }

@@ -10,9 +10,10 @@
 //!   9 = position + normal + colour, 6 = position + colour if each of its last three values
 //!   is an integer literal in `0..=255` and the triple is not unit length, else
 //!   position + normal; 4 = position + intensity, 7 = position + intensity + colour (PTS; the
-//!   intensity is read and not kept), except that 7 columns whose last four are byte
-//!   integers ending in an opaque 255, in a file that is not PTS (no `.pts` extension, no
-//!   point count), are position + colour + alpha (CloudCompare's `x y z R G B A` export);
+//!   intensity is kept as a scan attribute), except that 7 columns whose last four are whole
+//!   numbers in `0..=255` (`117` or `117.0`) ending in an opaque 255, in a file that is not
+//!   PTS (no `.pts` extension, no point count), are position + colour + alpha (CloudCompare's
+//!   `x y z R G B A` export, with integer or float channels);
 //! - colours are `0..=255` if any colour value in the file exceeds 1, else `0..=1`;
 //!   clamped to `[0, 1]` either way;
 //! - non-finite coordinates (`nan`, `inf`) are kept, as for PLY.
@@ -87,7 +88,7 @@ impl Columns {
         match tokens.len() {
             3 => Ok(Self::Position),
             4 => Ok(Self::PositionIntensity),
-            7 if !pts && tokens[3..].iter().all(|t| t.parse::<u8>().is_ok()) && tokens[6] == "255" => {
+            7 if !pts && tokens[3..].iter().all(|t| byte_value(t).is_some()) && byte_value(tokens[6]) == Some(255) => {
                 Ok(Self::PositionColorAlpha)
             }
             7 => Ok(Self::PositionIntensityColor),
@@ -99,6 +100,12 @@ impl Columns {
             )),
         }
     }
+}
+
+/// A whole number in `0..=255`, written as an integer or a float (`117`, `117.0`).
+fn byte_value(token: &str) -> Option<u8> {
+    let value: f64 = token.parse().ok()?;
+    (value.fract() == 0.0 && (0.0..=255.0).contains(&value)).then_some(value as u8)
 }
 
 fn looks_like_rgb(tokens: &[&str]) -> bool {
@@ -223,6 +230,11 @@ mod tests {
         assert_eq!(Columns::from_first_line(&pts, false), Ok(Columns::PositionIntensityColor));
         let translucent = ["1", "2", "3", "10", "20", "30", "128"];
         assert_eq!(Columns::from_first_line(&translucent, false), Ok(Columns::PositionIntensityColor));
+        // CloudCompare may write the channels as floats.
+        let floats = ["1", "2", "3", "117.0", "73.0", "49.0", "255.0"];
+        assert_eq!(Columns::from_first_line(&floats, false), Ok(Columns::PositionColorAlpha));
+        let fractions = ["1", "2", "3", "117.5", "73.0", "49.0", "255.0"];
+        assert_eq!(Columns::from_first_line(&fractions, false), Ok(Columns::PositionIntensityColor));
     }
 
     #[test]

@@ -1373,29 +1373,90 @@ fn distinct<T: Copy + PartialOrd>(values: &[T]) -> Vec<T> {
 
 #[test]
 fn real_las_files_keep_their_scan_attributes() {
-    // (file, format, points, classes): laspy's LAS 1.1 point format 1, LAS 1.4 point format 6,
-    // and a COPC file (LAZ 1.4, point format 7, its points in octree order).
+    // (file, format, points, classes, distinct intensities and GPS times, returns), the last
+    // three as laspy 2.7 with lazrs 0.8 reads them: LAS 1.1 to 1.4, point formats 1, 4, 6, 7
+    // and 10, a COPC file (LAZ 1.4, its points in octree order) and class 12 (overlap) in a
+    // legacy format.
     let files = [
-        ("simple1_1.las", "LAS 1.1, point format 1", 1065, vec![1, 2]),
-        ("test1_4.las", "LAS 1.4, point format 6", 1000, vec![2]),
-        ("simple.copc.laz", "LAZ 1.4, point format 7", 1065, vec![1, 2]),
+        ("simple1_1.las", "LAS 1.1, point format 1", 1065, vec![1, 2], (214, 1065), 4),
+        ("1.2-empty-geotiff-vlrs.las", "LAS 1.2, point format 1", 43, vec![0], (1, 43), 2),
+        ("mvk-thin.las", "LAS 1.2, point format 1", 6280, vec![1, 2, 4, 5, 9, 12], (221, 6280), 4),
+        ("simple1_3.las", "LAS 1.3, point format 4", 999, vec![1], (187, 999), 1),
+        ("test1_4.las", "LAS 1.4, point format 6", 1000, vec![2], (61, 1000), 4),
+        ("autzen-bmx-2010.las", "LAS 1.4, point format 7", 829, vec![2], (206, 357), 4),
+        ("simple.copc.laz", "LAZ 1.4, point format 7", 1065, vec![1, 2], (214, 1065), 4),
+        ("fullwave.laz", "LAZ 1.4, point format 10", 10_750, vec![0], (5969, 7124), 9),
     ];
-    for (name, format, points, classes) in files {
+    for (name, format, points, classes, (intensities, times), most_returns) in files {
         let loaded = read_cloud(&real_file(name)).unwrap();
         assert_eq!((loaded.info.format.as_str(), loaded.cloud.len()), (format, points), "{name}");
         let scan = &loaded.cloud.scan;
         assert_eq!(distinct(scan.classification.as_ref().unwrap()), classes, "{name}");
-        assert!(distinct(scan.intensity.as_ref().unwrap()).len() > 10, "{name}: intensity varies");
+        assert_eq!(distinct(scan.intensity.as_ref().unwrap()).len(), intensities, "{name}");
+        assert_eq!(distinct(scan.gps_time.as_ref().unwrap()).len(), times, "{name}");
         let returns = distinct(scan.return_number.as_ref().unwrap());
-        assert!(returns[0] >= 1 && *returns.last().unwrap() <= 15, "{name}: {returns:?}");
-        assert!(distinct(scan.gps_time.as_ref().unwrap()).len() > 10, "{name}: GPS time varies");
+        assert_eq!(returns, (1..=most_returns).collect::<Vec<u8>>(), "{name}");
         for property in ["intensity", "classification", "return_number", "gps_time"] {
             assert!(loaded.info.vertex_properties.contains(&property.to_string()), "{name}: {property}");
         }
     }
-    // The COPC file has colour (point format 7), the others none.
-    assert!(read_cloud(&real_file("simple.copc.laz")).unwrap().cloud.colors.is_some());
-    assert!(read_cloud(&real_file("test1_4.las")).unwrap().cloud.colors.is_none());
+    // Formats 7 and 10 have colour, 1, 4 and 6 none; a colour format whose writer filled in
+    // zeros (laspy's plane.laz) has none either, rather than a black model.
+    for (name, coloured) in
+        [("simple.copc.laz", true), ("fullwave.laz", true), ("test1_4.las", false), ("plane.laz", false)]
+    {
+        let colors = read_cloud(&real_file(name)).unwrap().cloud.colors;
+        assert_eq!(colors.is_some(), coloured, "{name}");
+        assert!(colors.is_none_or(|c| c.iter().flatten().any(|&v| v > 0.2)), "{name}");
+    }
+}
+
+#[test]
+fn real_meshes_and_text_files_read_right() {
+    // OFF with comments and face colours; OBJ with float vertex colours, and with a NaN one.
+    let off = pointray_io::read_mesh(&real_file("comments.off")).unwrap();
+    assert_eq!((off.vertices.len(), off.triangles.len()), (8, 12), "six quads, two triangles each");
+    let obj = pointray_io::read_mesh(&real_file("reference.obj")).unwrap();
+    assert_eq!((obj.vertices.len(), obj.triangles.len()), (845, 1610));
+    let colors = obj.vertices.colors.as_ref().unwrap();
+    assert!(
+        colors.iter().flatten().all(|c| (0.0..=1.0).contains(c))
+            && distinct(&colors.iter().map(|c| c[0]).collect::<Vec<_>>()).len() > 50
+    );
+    let nan = read_cloud(&real_file("nancolor.obj")).unwrap().cloud;
+    assert!(nan.colors.unwrap().iter().flatten().all(|c| (0.0..=1.0).contains(c)), "NaN read as 0");
+    // PLY with its faces before its vertices, ASCII and binary alike: five Platonic solids.
+    let ascii = pointray_io::read_mesh(&real_file("platonic_shelf_ascii.ply")).unwrap();
+    let binary = pointray_io::read_mesh(&real_file("platonic_shelf.ply")).unwrap();
+    assert_eq!((ascii.vertices.len(), ascii.triangles.len()), (50, 4 + 12 + 8 + 36 + 20));
+    assert_eq!((ascii.vertices.positions, ascii.triangles), (binary.vertices.positions, binary.triangles));
+    // CloudCompare's x y z R G B A (float channels) and Agisoft's x y z r g b: the same colours.
+    let cc = read_cloud(&real_file("points_cloudcompare.xyz")).unwrap();
+    assert_eq!(cc.info.vertex_properties.last().map(String::as_str), Some("alpha"));
+    let agisoft = read_cloud(&real_file("points_agisoft.xyz")).unwrap().cloud;
+    let [cc, agisoft] = [cc.cloud.colors.unwrap(), agisoft.colors.unwrap()];
+    assert_eq!((cc.len(), agisoft.len()), (101, 100));
+    assert_eq!((cc[0], agisoft[0]), ([117.0 / 255.0, 73.0 / 255.0, 49.0 / 255.0], cc[0]));
+}
+
+#[test]
+fn real_pcd_files_read_right() {
+    // PCL's: binary with packed rgb and normals (1000 rows of one column), and a compressed
+    // unorganised one with rgba.
+    let colored = read_cloud(&real_file("colored_cloud.pcd")).unwrap().cloud;
+    assert_eq!(colored.len(), 1000);
+    assert!(colored.normals.unwrap().iter().all(|n| (n.length() - 1.0).abs() < 1e-3));
+    assert!(colored.colors.unwrap().iter().any(|c| c[0] != c[2]));
+    let milk = read_cloud(&real_file("milk_color.pcd")).unwrap();
+    assert_eq!((milk.info.format.as_str(), milk.cloud.len()), ("PCD binary_compressed", 13_704));
+    // PDAL's: upper-case X Y Z, its attribute names, 16-bit colour channels; the same points
+    // as laspy's simple1_1.las (the Autzen sample), classes and all.
+    let pdal = read_cloud(&real_file("autzen-utm.pcd")).unwrap().cloud;
+    assert_eq!(pdal.len(), 1065);
+    assert_eq!(distinct(pdal.scan.classification.as_ref().unwrap()), vec![1, 2]);
+    assert!(pdal.scan.gps_time.is_some() && pdal.scan.return_number.is_some());
+    let colors = pdal.colors.unwrap();
+    assert!(colors.iter().flatten().all(|c| (0.0..=1.0).contains(c)) && colors.iter().flatten().any(|&c| c > 0.5));
 }
 
 #[test]

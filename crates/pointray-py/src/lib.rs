@@ -284,7 +284,8 @@ fn read_cloud(py: Python<'_>, path: PathBuf) -> PyResult<Cloud> {
 
 /// Prepares a scene from a cloud file, a scene file (.toml) or a `Cloud`: what it lacks
 /// computed (normals, orientation, radii; `k_normals`, `k_radius`, `radius_scale`,
-/// `recompute`), and the accelerator built (`accel`, `sphere_from_level`, and the disks
+/// `recompute`, `strays`, `outlier_std`), points filtered by class (`classes`,
+/// `exclude_classes`) and coloured (`color_by`), and the accelerator built (`accel`, `sphere_from_level`, and the disks
 /// `surface` tests). The other options become the scene's defaults for `render`.
 #[pyfunction]
 #[pyo3(signature = (source, **options))]
@@ -477,7 +478,10 @@ fn split_preprocess<'py>(
             })*
         };
     }
-    take!(k_normals, k_radius, radius_scale, recompute);
+    take!(k_normals, k_radius, radius_scale, recompute, outlier_std);
+    if let Some(v) = pop(&rest, "strays")? {
+        config.strays = pythonize::depythonize(&v).map_err(value_error)?;
+    }
     config.check().map_err(value_error)?;
     Ok((config, Some(rest)))
 }

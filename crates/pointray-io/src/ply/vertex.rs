@@ -7,7 +7,7 @@ use glam::{DVec3, Vec3};
 
 use super::header::{Element, PropertyKind, Scalar};
 use crate::IoError;
-use crate::builder::{Attributes, PointRecord, ScanFields};
+use crate::builder::{Attributes, PointRecord, ScanFields, scan_column};
 
 const NORMAL_NAMES: [[&str; 3]; 2] = [["nx", "ny", "nz"], ["normal_x", "normal_y", "normal_z"]];
 /// Full names first; the short `r g b` only count when all three are present, since a lone
@@ -28,20 +28,9 @@ pub(crate) struct VertexLayout {
     pub normal: Option<[Field; 3]>,
     pub radius: Option<Field>,
     pub color: Option<[Field; 3]>,
-    /// Intensity, classification, return number and GPS time, in that order.
+    /// Intensity, classification, return number and GPS time, in that order
+    /// ([`scan_column`]'s names).
     pub scan: [Option<Field>; 4],
-}
-
-/// The scan attributes' names, as [`scan_key`] reduces them: ours (`intensity`,
-/// `classification`, `return_number`, `gps_time`), CloudCompare's scalar fields
-/// (`scalar_Intensity`, `scalar_Classification`, `scalar_Return_Number`, `scalar_GpsTime`) and
-/// PDAL's (`Intensity`, `Classification`, `ReturnNumber`, `GpsTime`).
-const SCAN_KEYS: [&str; 4] = ["intensity", "classification", "returnnumber", "gpstime"];
-
-/// A property's name without case, underscores and CloudCompare's `scalar_` prefix.
-fn scan_key(name: &str) -> String {
-    let lower = name.to_ascii_lowercase();
-    lower.strip_prefix("scalar_").unwrap_or(&lower).replace('_', "")
 }
 
 impl VertexLayout {
@@ -56,8 +45,8 @@ impl VertexLayout {
             None => find_triple(vertex, SHORT_COLOR_NAMES).unwrap_or(None),
         };
         let radius = find_field(vertex, "radius").map_err(invalid)?;
-        let scan = SCAN_KEYS.map(|key| {
-            let found = vertex.properties.iter().enumerate().find(|(_, p)| scan_key(&p.name) == key);
+        let scan = std::array::from_fn(|k| {
+            let found = vertex.properties.iter().enumerate().find(|(_, p)| scan_column(&p.name) == Some(k));
             // A list of that name is not a scan attribute: left alone.
             found.and_then(|(index, p)| match p.kind {
                 PropertyKind::Scalar(scalar) => Some(Field { index, scalar }),
@@ -68,12 +57,11 @@ impl VertexLayout {
     }
 
     pub(crate) fn attributes(&self) -> Attributes {
-        let [intensity, classification, return_number, gps_time] = self.scan.map(|f| f.is_some());
         Attributes {
             normals: self.normal.is_some(),
             radii: self.radius.is_some(),
             colors: self.color.is_some(),
-            scan: ScanFields { intensity, classification, return_number, gps_time },
+            scan: ScanFields::of(&self.scan),
         }
     }
 
@@ -102,12 +90,7 @@ impl VertexLayout {
         if let Some(color) = self.color {
             record.color = color.map(|field| color_channel(get(field), field.scalar));
         }
-        let [intensity, class, ret, time] = self.scan.map(|f| f.map(get));
-        record.intensity = intensity.unwrap_or(0.0) as f32;
-        // `as u8` saturates (NaN to 0): a class or return outside 0–255 is not one.
-        record.classification = class.unwrap_or(0.0) as u8;
-        record.return_number = ret.unwrap_or(0.0) as u8;
-        record.gps_time = time.unwrap_or(0.0);
+        record.set_scan(self.scan.map(|f| f.map(get)));
         record
     }
 }

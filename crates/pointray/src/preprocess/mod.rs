@@ -16,6 +16,7 @@
 
 pub mod normals;
 pub mod orient;
+pub mod outliers;
 pub mod radii;
 
 use std::time::Instant;
@@ -41,6 +42,25 @@ pub struct PreprocessConfig {
     pub sort: bool,
     /// Compute normals and radii even where the cloud has them.
     pub recompute: bool,
+    /// What becomes of a point whose computed radius exceeds [`radii::MAX_OVER_NEIGHBOURS`]
+    /// times its neighbours' median (a stray point).
+    pub strays: Strays,
+    /// Drop the points whose mean distance to their `k_normals` nearest neighbours exceeds the
+    /// cloud's mean by this many standard deviations ([`outliers`]; PCL's and Open3D's filter,
+    /// usually at 1 to 2). Off if `None`.
+    pub outlier_std: Option<f32>,
+}
+
+/// What preprocessing does with stray points, whose computed radius would be a giant disk.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
+pub enum Strays {
+    /// Drop them: a stray return or a no-return pixel stored at the origin is no surface.
+    #[default]
+    Drop,
+    /// Keep them, their radii clamped to the limit.
+    Clamp,
 }
 
 impl PreprocessConfig {
@@ -55,7 +75,15 @@ impl PreprocessConfig {
     ///   settings reaching 99.9 % (k 6 / scale 1.0: 2.7×) leave holes in a few pixels per
     ///   million. Same rule as the Embree reference benchmark.
     pub fn standard() -> Self {
-        Self { k_normals: 16, k_radius: 8, radius_scale: 1.0, sort: true, recompute: false }
+        Self {
+            k_normals: 16,
+            k_radius: 8,
+            radius_scale: 1.0,
+            sort: true,
+            recompute: false,
+            strays: Strays::Drop,
+            outlier_std: None,
+        }
     }
 
     /// Every parameter in range, else the first that is not, named.
@@ -69,7 +97,9 @@ impl PreprocessConfig {
                 return Err(SettingsError::new(option, format!("must be at most {MAX_NEIGHBOURS}")));
             }
         }
-        check(self.radius_scale > 0.0 && self.radius_scale.is_finite(), "radius_scale", "must be positive")
+        check(self.radius_scale > 0.0 && self.radius_scale.is_finite(), "radius_scale", "must be positive")?;
+        let std = self.outlier_std.is_none_or(|s| s > 0.0 && s.is_finite());
+        check(std, "outlier_std", "must be a positive number of standard deviations")
     }
 }
 
@@ -85,6 +115,8 @@ pub struct StageSeconds {
     /// Dropping non-finite and repeated points.
     pub clean: f64,
     pub sort: f64,
+    /// Statistical outlier removal (its own neighbour search).
+    pub outliers: f64,
     pub knn: f64,
     pub normals: f64,
     pub orient: f64,
@@ -93,7 +125,7 @@ pub struct StageSeconds {
 
 impl StageSeconds {
     pub fn total(&self) -> f64 {
-        self.clean + self.sort + self.knn + self.normals + self.orient + self.radii
+        self.clean + self.sort + self.outliers + self.knn + self.normals + self.orient + self.radii
     }
 }
 
@@ -125,17 +157,21 @@ pub struct PreprocessStats {
     /// (`orient::turn_given_outward`).
     pub turned_outward: bool,
     /// Computed radii clamped to [`radii::MAX_OVER_NEIGHBOURS`] times their neighbours' median
-    /// (stray points, see [`radii::clamp_to_neighbours`]).
+    /// (stray points kept by [`Strays::Clamp`], see [`radii::clamp_to_neighbours`]).
     pub clamped_radii: usize,
+    /// Stray points dropped ([`Strays::Drop`]).
+    pub dropped_strays: usize,
+    /// Points dropped by the statistical outlier filter (`outlier_std`).
+    pub dropped_outliers: usize,
 }
 
 impl PreprocessStats {
     /// One warning (`tracing`) per kind of bad point dropped or repaired, naming `input`.
     pub fn warn_repairs(&self, input: &str) {
-        let clamped = format!(
-            "over {} times the median of the neighbours' radii (stray points); clamped to that",
-            radii::MAX_OVER_NEIGHBOURS
-        );
+        let limit = radii::MAX_OVER_NEIGHBOURS;
+        let clamped = format!("over {limit} times the median of the neighbours' radii (stray points); clamped to that");
+        let stray = format!("(radius over {limit} times the median of the neighbours')");
+        let outlying = "far from their neighbours (statistical outliers)";
         // (count, what comes before it, the noun for one and for many, what comes after)
         let repairs = [
             (self.dropped_non_finite, "dropped ", "point", "points", "with a non-finite coordinate"),
@@ -155,6 +191,8 @@ impl PreprocessStats {
                 "zero, negative or non-finite; computed from the neighbours",
             ),
             (self.clamped_radii, "", "radius was", "radii were", &clamped),
+            (self.dropped_strays, "dropped ", "stray point", "stray points", &stray),
+            (self.dropped_outliers, "dropped ", "point", "points", outlying),
             (
                 self.degenerate_normals,
                 "",
@@ -186,10 +224,13 @@ impl PreprocessStats {
         self.orientation_components += o.orientation_components;
         self.turned_outward |= o.turned_outward;
         self.clamped_radii += o.clamped_radii;
+        self.dropped_strays += o.dropped_strays;
+        self.dropped_outliers += o.dropped_outliers;
         let (s, t) = (&mut self.seconds, &o.seconds);
-        (s.clean, s.sort, s.knn, s.normals, s.orient, s.radii) = (
+        (s.clean, s.sort, s.outliers, s.knn, s.normals, s.orient, s.radii) = (
             s.clean + t.clean,
             s.sort + t.sort,
+            s.outliers + t.outliers,
             s.knn + t.knn,
             s.normals + t.normals,
             s.orient + t.orient,
@@ -220,16 +261,17 @@ fn check_neighbours(cfg: &PreprocessConfig) -> Result<(), PreprocessError> {
 pub const MAX_NEIGHBOURS: usize = 256;
 
 /// Makes `cloud` ready for splatting, in order: drops points with non-finite coordinates
-/// and exact repeats (with their attributes), Morton-sorts (if `cfg.sort`), re-normalises
-/// given normals, computes kNN once (only if normals or radii are missing), PCA normals where
-/// missing, orients the computed ones, and computes radii where missing.
+/// and exact repeats (with their attributes), Morton-sorts (if `cfg.sort`), drops statistical
+/// outliers (if `cfg.outlier_std`), re-normalises given normals, computes kNN once (only if
+/// normals or radii are missing), PCA normals where missing, orients the computed ones, and
+/// computes radii where missing, dropping (or clamping) the strays' (`cfg.strays`).
 ///
 /// Panics if an attribute does not have one entry per point ([`PointCloud::check_lengths`]).
 pub fn preprocess(cloud: &mut PointCloud, cfg: &PreprocessConfig) -> Result<PreprocessStats, PreprocessError> {
     preprocess_with_progress(cloud, cfg, &|_| {})
 }
 
-/// [`preprocess`], telling `stage` the name of each stage as it starts (`"clean"`, `"sort"`,
+/// [`preprocess`], telling `stage` the name of each stage as it starts (`"clean"`, `"sort"`, `"outliers"`,
 /// `"kNN"`, `"normals"`, `"orient"`, `"radii"`), for a progress display.
 pub fn preprocess_with_progress(
     cloud: &mut PointCloud,
@@ -260,6 +302,12 @@ pub fn preprocess_with_progress(
         cloud.permute(&morton::sort_order(&cloud.positions));
         stats.seconds.sort = start.elapsed().as_secs_f64();
         debug!(seconds = stats.seconds.sort, "Morton sort");
+    }
+    if let Some(std_ratio) = cfg.outlier_std {
+        stage("outliers");
+        let start = Instant::now();
+        stats.dropped_outliers = drop_outliers(cloud, cfg.k_normals, std_ratio);
+        stats.seconds.outliers = start.elapsed().as_secs_f64();
     }
     let n = cloud.len();
     let normals_missing = invalid_normals(cloud);
@@ -308,7 +356,11 @@ pub fn preprocess_with_progress(
                 *r = c;
             }
         }
-        stats.clamped_radii = radii::clamp_to_neighbours(radii, &radii_missing, &nbrs);
+        let strays = radii::clamp_to_neighbours(radii, &radii_missing, &nbrs);
+        match cfg.strays {
+            Strays::Clamp => stats.clamped_radii = strays.len(),
+            Strays::Drop => stats.dropped_strays = drop_indices(cloud, &strays),
+        }
         stats.seconds.radii = start.elapsed().as_secs_f64();
         debug!(seconds = stats.seconds.radii, "radii");
     }
@@ -322,6 +374,28 @@ pub fn preprocess_with_progress(
         "preprocess done"
     );
     Ok(stats)
+}
+
+/// Removes the statistical outliers among `k` neighbours ([`outliers`]); returns how many.
+fn drop_outliers(cloud: &mut PointCloud, k: usize, std_ratio: f32) -> usize {
+    if cloud.len() < 2 {
+        return 0;
+    }
+    let keep = outliers::statistical_inliers(&k_nearest(&cloud.positions, k), std_ratio);
+    let dropped = cloud.len() - keep.len();
+    if dropped > 0 {
+        cloud.permute(&keep);
+    }
+    dropped
+}
+
+/// Removes the points at `indices` (ascending); returns how many.
+fn drop_indices(cloud: &mut PointCloud, indices: &[u32]) -> usize {
+    if !indices.is_empty() {
+        let keep: Vec<u32> = (0..cloud.len() as u32).filter(|i| indices.binary_search(i).is_err()).collect();
+        cloud.permute(&keep);
+    }
+    indices.len()
 }
 
 /// Removes points with a non-finite coordinate; returns how many.
@@ -460,6 +534,35 @@ mod tests {
         for (n, c) in normals.iter().zip(cloud.colors.unwrap()) {
             assert!(n.dot(Vec3::from(c)) > 0.9);
         }
+    }
+
+    #[test]
+    fn strays_are_dropped_or_clamped_and_outliers_dropped_on_request() {
+        let (mut points, _) = sphere(5_000, 1);
+        // A stray return far off the unit sphere, and two points off it (outliers to the
+        // statistical filter, not strays: their radii stay below 8 times their neighbours').
+        points.extend([Vec3::new(0.0, 3.0, 0.0), Vec3::new(1.3, 0.0, 0.0), Vec3::new(0.0, 0.0, -1.3)]);
+        let cloud_of = |points: &[Vec3]| {
+            let mut cloud = PointCloud::from_positions(points.to_vec());
+            cloud.scan.gps_time = Some((0..points.len()).map(|i| i as f64).collect());
+            cloud
+        };
+        let config = PreprocessConfig { sort: false, ..PreprocessConfig::standard() };
+        let mut cloud = cloud_of(&points);
+        let stats = preprocess(&mut cloud, &config).unwrap();
+        assert_eq!((stats.dropped_strays, stats.clamped_radii, cloud.len()), (1, 0, 5_002));
+        assert!(cloud.positions.iter().all(|p| p.length() < 2.0), "the stray is gone");
+        let times = cloud.scan.gps_time.as_ref().unwrap();
+        assert_eq!((times[4_999], times[5_000]), (4_999.0, 5_001.0), "attributes follow their points");
+        let mut clamped = cloud_of(&points);
+        let stats = preprocess(&mut clamped, &PreprocessConfig { strays: Strays::Clamp, ..config }).unwrap();
+        assert_eq!((stats.dropped_strays, stats.clamped_radii, clamped.len()), (0, 1, 5_003));
+        let mut filtered = cloud_of(&points);
+        let stats = preprocess(&mut filtered, &PreprocessConfig { outlier_std: Some(3.0), ..config }).unwrap();
+        assert_eq!((stats.dropped_outliers, stats.dropped_strays), (3, 0), "all three, before the radii");
+        assert!(filtered.positions.iter().all(|p| (p.length() - 1.0).abs() < 1e-5));
+        let bad = PreprocessConfig { outlier_std: Some(0.0), ..config };
+        assert_eq!(bad.check().unwrap_err().option, "outlier_std");
     }
 
     #[test]

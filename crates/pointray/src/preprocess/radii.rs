@@ -42,14 +42,14 @@ const MEDIAN_OF: usize = 16;
 
 /// Clamps the radii `which` marks to [`MAX_OVER_NEIGHBOURS`] times the median radius of their
 /// nearest neighbours (at most [`MEDIAN_OF`]), as the radii were before any was clamped;
-/// returns how many it clamped. A stray point (a stray return, a pixel without a return stored
+/// returns the indices it clamped, in order (preprocessing drops those points by default). A stray point (a stray return, a pixel without a return stored
 /// at the origin) lies far from its nearest neighbours, whose radii are the model's: by the
 /// k-th-neighbour rule alone it got a radius of its distance to the model, a big flat disc over
 /// it. A sparse region's points have neighbours as sparse as they are, and keep their radii.
-pub fn clamp_to_neighbours(radii: &mut [f32], which: &[bool], nbrs: &Neighbourhoods) -> usize {
+pub fn clamp_to_neighbours(radii: &mut [f32], which: &[bool], nbrs: &Neighbourhoods) -> Vec<u32> {
     let k = nbrs.k.min(MEDIAN_OF);
     if k == 0 {
-        return 0;
+        return Vec::new();
     }
     let limits: Vec<Option<f32>> = (0..radii.len())
         .into_par_iter()
@@ -66,11 +66,11 @@ pub fn clamp_to_neighbours(radii: &mut [f32], which: &[bool], nbrs: &Neighbourho
             (radii[i] > limit && limit > 0.0).then_some(limit)
         })
         .collect();
-    let mut clamped = 0;
-    for (r, limit) in radii.iter_mut().zip(limits) {
+    let mut clamped = Vec::new();
+    for (i, (r, limit)) in radii.iter_mut().zip(limits).enumerate() {
         if let Some(limit) = limit {
             *r = limit;
-            clamped += 1;
+            clamped.push(i as u32);
         }
     }
     clamped
@@ -139,14 +139,14 @@ mod tests {
         assert!(unclamped[stray] > 2.0, "{}", unclamped[stray]);
         let mut radii = unclamped.clone();
         let all = vec![true; points.len()];
-        assert_eq!(clamp_to_neighbours(&mut radii, &all, &nbrs), 1);
+        assert_eq!(clamp_to_neighbours(&mut radii, &all, &nbrs), vec![stray as u32]);
         let near = nbrs.of(stray).iter().map(|&j| unclamped[j as usize]).fold(0.0, f32::max);
         assert!(radii[stray] <= MAX_OVER_NEIGHBOURS * near && radii[stray] < 0.5, "{}", radii[stray]);
         assert_eq!(radii[..stray], unclamped[..stray]);
         // Only the radii asked for are clamped.
         let mut radii = unclamped.clone();
         let none = vec![false; points.len()];
-        assert_eq!((clamp_to_neighbours(&mut radii, &none, &nbrs), radii), (0, unclamped));
+        assert_eq!((clamp_to_neighbours(&mut radii, &none, &nbrs), radii), (vec![], unclamped));
     }
 
     fn mean_nn_spacing(nbrs: &Neighbourhoods) -> f32 {
