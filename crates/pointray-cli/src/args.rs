@@ -77,6 +77,22 @@ pub enum Command {
     Report(ReportArgs),
 }
 
+/// How to read the input where its content does not say.
+#[derive(Args, Clone, Debug, Default)]
+pub struct ReadArgs {
+    /// The input is text with these columns, in order (comma-separated: x,y,z, nx,ny,nz, r,g,b,
+    /// a (alpha), i (intensity), c (class), return, t (GPS time), _ (a column to skip)), for a
+    /// layout the first line cannot tell: e.g. --columns x,y,z,r,g,b,i.
+    #[arg(long)]
+    pub columns: Option<pointray_io::TextColumns>,
+}
+
+impl ReadArgs {
+    pub fn options(&self) -> pointray_io::ReadOptions {
+        pointray_io::ReadOptions { columns: self.columns.clone() }
+    }
+}
+
 #[derive(Args, Clone, Debug)]
 pub struct PreprocessArgs {
     /// Neighbours for PCA normals.
@@ -307,6 +323,8 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 300_000)]
     pub demo_points: usize,
     #[command(flatten)]
+    pub read: ReadArgs,
+    #[command(flatten)]
     pub preprocess: PreprocessArgs,
     /// The ids (field names) of the flags given on the command line, as opposed to defaults:
     /// a scene file's settings give way to these (`main` fills it in).
@@ -396,6 +414,8 @@ pub struct PrepareArgs {
     #[arg(short, long)]
     pub output: PathBuf,
     #[command(flatten)]
+    pub read: ReadArgs,
+    #[command(flatten)]
     pub preprocess: PreprocessArgs,
 }
 
@@ -428,6 +448,8 @@ pub enum NormalsArg {
 pub struct InfoArgs {
     /// Point cloud (PLY, LAS/LAZ, E57, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf).
     pub input: PathBuf,
+    #[command(flatten)]
+    pub read: ReadArgs,
 }
 
 #[cfg(feature = "bench")]

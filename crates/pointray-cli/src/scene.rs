@@ -8,9 +8,9 @@ use pointray::settings::Settings;
 use crate::args::{RenderArgs, Switch};
 use crate::failure;
 
-/// Flags that mean nothing beside a scene file, whose camera, lights, materials and sky are its
-/// own: given, they are refused rather than silently ignored.
-const SCENE_OWNS: [&str; 18] = [
+/// Flags that mean nothing beside a scene file, whose camera, lights, materials, sky and clouds'
+/// files are its own: given, they are refused rather than silently ignored.
+const SCENE_OWNS: [&str; 19] = [
     "eye",
     "look_at",
     "up",
@@ -29,6 +29,7 @@ const SCENE_OWNS: [&str; 18] = [
     "sky",
     "ground",
     "demo_points",
+    "columns",
 ];
 
 /// The settings of a render of the scene file at `path`: the scene's, but for the render
@@ -38,7 +39,7 @@ pub fn settings(path: &Path, scene: &Settings, a: &RenderArgs) -> anyhow::Result
     if let Some(flag) = SCENE_OWNS.iter().find(|id| a.given(id)) {
         let flag = flag.replace('_', "-");
         let e = anyhow::anyhow!(
-            "--{flag} does not apply to a scene file: {} sets its camera, lights, materials and sky",
+            "--{flag} does not apply to a scene file: {} sets its camera, lights, materials, sky and clouds",
             path.display()
         );
         return Err(failure::usage(e));

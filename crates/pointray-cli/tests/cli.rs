@@ -847,6 +847,33 @@ fn colour_and_class_flags_the_cloud_cannot_serve_are_refused() {
         .assert_stderr_contains("--classes leaves no points (the cloud's classes: 6, 9)");
 }
 
+#[test]
+fn columns_name_a_text_layout_the_first_line_cannot_tell() {
+    let dir = temp_dir();
+    // x y z r g b intensity: seven columns, which by themselves read as x y z intensity r g b.
+    let mut text = String::new();
+    for (i, [x, y, z]) in sphere_points(3000).into_iter().enumerate() {
+        text += &format!("{x} {y} {z} 200 30 20 {}\n", i % 100);
+    }
+    write_file(dir.path(), "scan.txt", text);
+    let run = run_in(dir.path(), &["info", "scan.txt", "--columns", "x,y,z,r,g,b,i"]);
+    run.assert_success().assert_stdout_contains("properties:  x, y, z, red, green, blue, intensity");
+    render_in(dir.path(), &["scan.txt", "-o", "red.png", "--columns", "x,y,z,r,g,b,i"]).assert_success();
+    let red = read_png(&dir.path().join("red.png"));
+    assert!(share_of_model(&red, |p| p[0] > 2 * p[2]) > 0.95, "the colour columns are red");
+    render_in(dir.path(), &["scan.txt", "-o", "guessed.png"]).assert_success();
+    assert!(share_of_model(&read_png(&dir.path().join("guessed.png")), |p| p[0] > 2 * p[2]) < 0.5);
+    // A layout that does not fit, or does not parse, is named.
+    render_in(dir.path(), &["scan.txt", "-o", "x.png", "--columns", "x,y,z,r,g,b"])
+        .assert_failure(1)
+        .assert_stderr_contains("expected 6 values (x y z red green blue), found 7");
+    run_in(dir.path(), &["info", "scan.txt", "--columns", "x,y,q"])
+        .assert_failure(2)
+        .assert_stderr_contains("unknown column 'q'");
+    write_file(dir.path(), "five.txt", "1 2 3 4 5\n");
+    render_in(dir.path(), &["five.txt", "-o", "x.png"]).assert_failure(1).assert_stderr_contains("--columns");
+}
+
 // ---------------------------------------------------------------------------------------------
 // 7. Bad input files
 // ---------------------------------------------------------------------------------------------

@@ -9,7 +9,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let [input, output] = args.as_slice() else {
         return Err("usage: render CLOUD OUT.png".into());
     };
-    let source = pointray_io::source::load(input.as_ref(), &Default::default(), &|_| {})?;
+    let source = pointray_io::source::load(input.as_ref(), &Default::default(), &Default::default(), &|_| {})?;
     let settings = Settings { width: 640, height: 480, spp: 4, ..Settings::default() };
     let scene = Scene::build(source.parts, &settings)?;
     let frame = render(&scene, &settings)?; // frame.film: linear RGB; frame.stats: the work

@@ -29,7 +29,15 @@ pub use error::IoError;
 use file::{FileBytes, read_file};
 pub use image::{decode_png, read_png, write_exr, write_png, write_png_rgba};
 pub use ply::{Mesh, read_ply, write_ply, write_ply_with_up};
-pub use xyz::read_xyz;
+pub use xyz::{Column, TextColumns, read_xyz};
+
+/// What a reader cannot learn from the file itself.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ReadOptions {
+    /// The file is XYZ-like text with these columns (`--columns`), rather than whatever the
+    /// content and the first line suggest.
+    pub columns: Option<TextColumns>,
+}
 
 /// A cloud and what its file said about itself.
 #[derive(Clone, Debug)]
@@ -65,6 +73,14 @@ const XYZ_EXTENSIONS: [&str; 7] = ["xyz", "txt", "pts", "csv", "asc", "xyzn", "x
 /// with `camera` or `bmesh` a scan set, whose scans are read and merged; otherwise XYZ when the
 /// extension says so or the first data line is all numbers.
 pub fn read_cloud(path: &Path) -> Result<LoadedCloud, IoError> {
+    read_cloud_with(path, &ReadOptions::default())
+}
+
+/// [`read_cloud`] told what the file does not say ([`ReadOptions`]).
+pub fn read_cloud_with(path: &Path, options: &ReadOptions) -> Result<LoadedCloud, IoError> {
+    if let Some(columns) = &options.columns {
+        return xyz::parse(path, &read_file(path, false)?, Some(columns));
+    }
     read_any(path, true)
 }
 
@@ -113,7 +129,7 @@ fn parse_any(path: &Path, bytes: FileBytes, scan_sets: bool) -> Result<LoadedClo
         return Err(IoError::invalid(path, "not a PLY file: it does not start with the line 'ply'"));
     }
     if extension.as_deref().is_some_and(|e| XYZ_EXTENSIONS.contains(&e)) || xyz::looks_like_xyz(&bytes) {
-        return xyz::parse(path, &bytes);
+        return xyz::parse(path, &bytes, None);
     }
     Err(IoError::invalid(path, "unrecognised format: not PLY, LAS/LAZ, E57, PCD, OFF, OBJ, a scan set or XYZ text"))
 }

@@ -18,8 +18,8 @@ use pointray::scene::{SceneContent, SceneParts};
 use pointray::settings::Settings;
 use pointray::shading::{Environment, Light};
 
-use crate::IoError;
 use crate::scene::{CloudSpec, EnvironmentSpec, GridSpec, GroundSpec, LightSpec, MaterialSpec, SceneFile, parse_scene};
+use crate::{IoError, ReadOptions};
 
 /// A render's input, read and prepared.
 pub struct Source {
@@ -39,14 +39,19 @@ pub fn is_scene(path: &Path) -> bool {
     path.extension().is_some_and(|e| e.eq_ignore_ascii_case("toml"))
 }
 
-/// Reads a cloud file or a scene file and prepares what it holds. `stage` is told what is
-/// being done ("read FILE", "preprocess: kNN", …), for a progress display; what was dropped or
-/// repaired is logged as warnings naming the file.
-pub fn load(path: &Path, preprocess: &PreprocessConfig, stage: &dyn Fn(&str)) -> Result<Source, IoError> {
+/// Reads a cloud file (as `read` says) or a scene file and prepares what it holds. `stage` is
+/// told what is being done ("read FILE", "preprocess: kNN", …), for a progress display; what
+/// was dropped or repaired is logged as warnings naming the file.
+pub fn load(
+    path: &Path,
+    preprocess: &PreprocessConfig,
+    read: &ReadOptions,
+    stage: &dyn Fn(&str),
+) -> Result<Source, IoError> {
     if is_scene(path) {
         return load_scene(path, preprocess, stage);
     }
-    let p = read_prepared(path, preprocess, stage)?;
+    let p = read_prepared(path, preprocess, read, stage)?;
     let parts = SceneParts { up: p.up, ..SceneParts::from(p.cloud) };
     Ok(Source {
         parts,
@@ -68,12 +73,17 @@ pub struct PreparedCloud {
     pub read_seconds: f64,
 }
 
-/// Reads a cloud file and preprocesses it.
-pub fn read_prepared(path: &Path, config: &PreprocessConfig, stage: &dyn Fn(&str)) -> Result<PreparedCloud, IoError> {
+/// Reads a cloud file (as `read` says) and preprocesses it.
+pub fn read_prepared(
+    path: &Path,
+    config: &PreprocessConfig,
+    read: &ReadOptions,
+    stage: &dyn Fn(&str),
+) -> Result<PreparedCloud, IoError> {
     config.check().map_err(|e| IoError::invalid(path, e.to_string()))?;
     let start = Instant::now();
     stage("read");
-    let loaded = crate::read_cloud(path)?;
+    let loaded = crate::read_cloud_with(path, read)?;
     let read_seconds = start.elapsed().as_secs_f64();
     let (mut cloud, up) = (loaded.cloud, loaded.info.up.map(Vec3::from));
     tracing::info!("read {} points from {} in {read_seconds:.3} s", cloud.len(), path.display());

@@ -29,76 +29,182 @@ use crate::{FileInfo, IoError, LoadedCloud};
 /// Reads an XYZ file whatever its extension.
 pub fn read_xyz(path: &Path) -> Result<LoadedCloud, IoError> {
     let bytes = crate::file::read_file(path, false)?;
-    parse(path, &bytes)
+    parse(path, &bytes, None)
 }
 
+/// What one column of a text file holds.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Columns {
-    Position,
-    PositionNormal,
-    PositionColor,
-    PositionNormalColor,
-    PositionIntensity,
-    PositionIntensityColor,
-    PositionColorAlpha,
+pub enum Column {
+    X,
+    Y,
+    Z,
+    Nx,
+    Ny,
+    Nz,
+    Red,
+    Green,
+    Blue,
+    /// Read and not kept (splats are opaque).
+    Alpha,
+    Intensity,
+    Classification,
+    ReturnNumber,
+    GpsTime,
+    /// Read and not kept.
+    Skip,
 }
 
-impl Columns {
-    fn count(self) -> usize {
-        match self {
-            Self::Position => 3,
-            Self::PositionIntensity => 4,
-            Self::PositionNormal | Self::PositionColor => 6,
-            Self::PositionIntensityColor | Self::PositionColorAlpha => 7,
-            Self::PositionNormalColor => 9,
+/// The columns of a text file, in order: detected from the first line, or given (`--columns
+/// x,y,z,r,g,b,a`; names: `x y z`, `nx ny nz`, `r g b` or `red green blue`, `a`/`alpha`,
+/// `i`/`intensity`, `c`/`class`/`classification`, `return`/`return_number`, `t`/`gps_time`, and
+/// `_`/`skip` for a column to ignore).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TextColumns(Vec<Column>);
+
+impl std::str::FromStr for TextColumns {
+    type Err = String;
+
+    fn from_str(names: &str) -> Result<Self, String> {
+        let columns = names.split(',').map(|name| column_named(name.trim())).collect::<Result<Vec<_>, _>>()?;
+        let count = |c: Column| columns.iter().filter(|&&k| k == c).count();
+        for c in columns.iter().filter(|&&c| c != Column::Skip) {
+            if count(*c) > 1 {
+                return Err(format!("{c:?} is named twice"));
+            }
         }
+        for (group, what) in [
+            ([Column::X, Column::Y, Column::Z], "x, y and z are needed"),
+            ([Column::Nx, Column::Ny, Column::Nz], "nx, ny and nz go together"),
+            ([Column::Red, Column::Green, Column::Blue], "r, g and b go together"),
+        ] {
+            let present = group.iter().filter(|&&c| count(c) == 1).count();
+            if present != 3 && (present != 0 || group[0] == Column::X) {
+                return Err(what.to_string());
+            }
+        }
+        Ok(Self(columns))
+    }
+}
+
+fn column_named(name: &str) -> Result<Column, String> {
+    Ok(match name.to_ascii_lowercase().as_str() {
+        "x" => Column::X,
+        "y" => Column::Y,
+        "z" => Column::Z,
+        "nx" => Column::Nx,
+        "ny" => Column::Ny,
+        "nz" => Column::Nz,
+        "r" | "red" => Column::Red,
+        "g" | "green" => Column::Green,
+        "b" | "blue" => Column::Blue,
+        "a" | "alpha" => Column::Alpha,
+        "i" | "intensity" => Column::Intensity,
+        "c" | "class" | "classification" => Column::Classification,
+        "return" | "return_number" => Column::ReturnNumber,
+        "t" | "gps_time" => Column::GpsTime,
+        "_" | "skip" => Column::Skip,
+        other => {
+            return Err(format!("unknown column '{other}' (x, y, z, nx, ny, nz, r, g, b, a, i, c, return, t or _)"));
+        }
+    })
+}
+
+impl TextColumns {
+    fn of(names: &str) -> Self {
+        names.parse().expect("a valid layout")
     }
 
-    fn attributes(self) -> Attributes {
-        let intensity = matches!(self, Self::PositionIntensity | Self::PositionIntensityColor);
+    fn count(&self) -> usize {
+        self.0.len()
+    }
+
+    fn has(&self, column: Column) -> bool {
+        self.0.contains(&column)
+    }
+
+    fn attributes(&self) -> Attributes {
         Attributes {
-            normals: matches!(self, Self::PositionNormal | Self::PositionNormalColor),
+            normals: self.has(Column::Nx),
             radii: false,
-            colors: !matches!(self, Self::Position | Self::PositionNormal | Self::PositionIntensity),
-            scan: ScanFields { intensity, ..ScanFields::default() },
+            colors: self.has(Column::Red),
+            scan: ScanFields {
+                intensity: self.has(Column::Intensity),
+                classification: self.has(Column::Classification),
+                return_number: self.has(Column::ReturnNumber),
+                gps_time: self.has(Column::GpsTime),
+            },
         }
     }
 
-    fn property_names(self) -> Vec<String> {
-        let attributes = self.attributes();
-        let mut names = vec!["x", "y", "z"];
-        if attributes.scan.intensity {
-            names.push("intensity");
-        }
-        if attributes.normals {
-            names.extend(["nx", "ny", "nz"]);
-        }
-        if attributes.colors {
-            names.extend(["red", "green", "blue"]);
-        }
-        if self == Self::PositionColorAlpha {
-            names.push("alpha");
-        }
-        names.into_iter().map(String::from).collect()
+    fn property_names(&self) -> Vec<String> {
+        let name = |c: &Column| match c {
+            Column::Red => "red".to_string(),
+            Column::Green => "green".to_string(),
+            Column::Blue => "blue".to_string(),
+            Column::Skip => "_".to_string(),
+            Column::ReturnNumber => "return_number".to_string(),
+            Column::GpsTime => "gps_time".to_string(),
+            other => format!("{other:?}").to_lowercase(),
+        };
+        self.0.iter().map(name).collect()
     }
 
     /// Decides from the first data line (`pts`: the file is PTS by its extension or count);
     /// see the module doc.
-    fn from_first_line(tokens: &[&str], pts: bool) -> Result<Self, String> {
-        match tokens.len() {
-            3 => Ok(Self::Position),
-            4 => Ok(Self::PositionIntensity),
+    fn detect(tokens: &[&str], pts: bool) -> Result<Self, String> {
+        let layout = match tokens.len() {
+            3 => "x,y,z",
+            4 => "x,y,z,i",
             7 if !pts && tokens[3..].iter().all(|t| byte_value(t).is_some()) && byte_value(tokens[6]) == Some(255) => {
-                Ok(Self::PositionColorAlpha)
+                "x,y,z,r,g,b,a"
             }
-            7 => Ok(Self::PositionIntensityColor),
-            6 if looks_like_rgb(&tokens[3..]) => Ok(Self::PositionColor),
-            6 => Ok(Self::PositionNormal),
-            9 => Ok(Self::PositionNormalColor),
-            n => Err(format!(
-                "expected 3, 4, 6, 7 or 9 values (x y z [nx ny nz] [r g b], or x y z intensity [r g b]), found {n}"
-            )),
+            7 => "x,y,z,i,r,g,b",
+            6 if looks_like_rgb(&tokens[3..]) => "x,y,z,r,g,b",
+            6 => "x,y,z,nx,ny,nz",
+            9 => "x,y,z,nx,ny,nz,r,g,b",
+            n => {
+                return Err(format!(
+                    "{n} values on the first line: no layout of 3, 4, 6, 7 or 9 (x y z [nx ny nz] [r g b], or x y z \
+                     intensity [r g b]) fits; name the columns (--columns, e.g. x,y,z,i,r,g,b,_)"
+                ));
+            }
+        };
+        Ok(Self::of(layout))
+    }
+
+    /// One line's point; colours are left raw (the caller scales them once the whole file is
+    /// seen).
+    fn record(&self, values: &[&str]) -> Result<PointRecord, String> {
+        let mut record = PointRecord::default();
+        let (mut position, mut normal, mut scan) = ([0.0f64; 3], [0.0f32; 3], [None; 4]);
+        for (index, (column, token)) in self.0.iter().zip(values).enumerate() {
+            if matches!(column, Column::Skip | Column::Alpha) {
+                continue;
+            }
+            let value = token.parse::<f64>().map_err(|_| {
+                format!("bad value '{}' in column {}", token.chars().take(40).collect::<String>(), index + 1)
+            })?;
+            match column {
+                Column::X => position[0] = value,
+                Column::Y => position[1] = value,
+                Column::Z => position[2] = value,
+                Column::Nx => normal[0] = value as f32,
+                Column::Ny => normal[1] = value as f32,
+                Column::Nz => normal[2] = value as f32,
+                Column::Red => record.color[0] = value as f32,
+                Column::Green => record.color[1] = value as f32,
+                Column::Blue => record.color[2] = value as f32,
+                Column::Intensity => scan[0] = Some(value),
+                Column::Classification => scan[1] = Some(value),
+                Column::ReturnNumber => scan[2] = Some(value),
+                Column::GpsTime => scan[3] = Some(value),
+                Column::Skip | Column::Alpha => {}
+            }
         }
+        record.position = DVec3::from_array(position);
+        record.normal = Vec3::from_array(normal);
+        record.set_scan(scan);
+        Ok(record)
     }
 }
 
@@ -134,8 +240,10 @@ pub(crate) fn looks_like_xyz(bytes: &[u8]) -> bool {
     false
 }
 
-pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
-    let mut columns: Option<Columns> = None;
+/// Reads XYZ text, its columns `given` or detected from the first line.
+pub(crate) fn parse(path: &Path, bytes: &[u8], given: Option<&TextColumns>) -> Result<LoadedCloud, IoError> {
+    // The columns, once the first point's line is seen.
+    let mut layout: Option<TextColumns> = None;
     let mut builder = CloudBuilder::new(0, Attributes::default());
     let mut comments = Vec::new();
     let mut seen_data = false;
@@ -151,21 +259,23 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
             pts = true;
             continue; // `.pts` point count
         }
-        let layout = match columns {
-            Some(layout) => layout,
-            None => {
-                let layout = Columns::from_first_line(&values, pts).map_err(error)?;
-                builder = CloudBuilder::new(bytes.len() / (layout.count() * 6), layout.attributes());
-                *columns.insert(layout)
-            }
-        };
-        if values.len() != layout.count() {
-            return Err(error(format!("expected {} values, found {}", layout.count(), values.len())));
+        if layout.is_none() {
+            let columns = match given {
+                Some(columns) => columns.clone(),
+                None => TextColumns::detect(&values, pts).map_err(error)?,
+            };
+            builder = CloudBuilder::new(bytes.len() / (columns.count() * 6), columns.attributes());
+            layout = Some(columns);
         }
-        builder.push(&parse_point(&values, layout).map_err(error)?);
+        let layout = layout.as_ref().expect("set at the first point");
+        if values.len() != layout.count() {
+            let names = layout.property_names().join(" ");
+            return Err(error(format!("expected {} values ({names}), found {}", layout.count(), values.len())));
+        }
+        builder.push(&layout.record(&values).map_err(error)?);
     }
 
-    let layout = columns.unwrap_or(Columns::Position);
+    let layout = layout.or(given.cloned()).unwrap_or_else(|| TextColumns::of("x,y,z"));
     let mut cloud = builder.finish();
     crate::builder::scale_colors_to_unit(&mut cloud);
     let info = FileInfo {
@@ -179,62 +289,57 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     Ok(LoadedCloud { cloud, info })
 }
 
-/// Colours are left raw here; the caller scales them once the whole file is seen.
-fn parse_point(values: &[&str], layout: Columns) -> Result<PointRecord, String> {
-    let mut numbers = [0.0f64; 9];
-    for (column, (slot, token)) in numbers.iter_mut().zip(values).enumerate() {
-        *slot = token.parse::<f64>().map_err(|_| {
-            format!("bad value '{}' in column {}", token.chars().take(40).collect::<String>(), column + 1)
-        })?;
-    }
-    let triple = |start: usize| [numbers[start], numbers[start + 1], numbers[start + 2]];
-    let as_vec3 = |[x, y, z]: [f64; 3]| Vec3::new(x as f32, y as f32, z as f32);
-    let mut record = PointRecord { position: DVec3::from_array(triple(0)), ..PointRecord::default() };
-    match layout {
-        Columns::Position => {}
-        Columns::PositionIntensity => record.intensity = numbers[3] as f32,
-        Columns::PositionIntensityColor => {
-            record.intensity = numbers[3] as f32;
-            record.color = as_vec3(triple(4)).to_array();
-        }
-        Columns::PositionNormal => record.normal = as_vec3(triple(3)),
-        Columns::PositionColor | Columns::PositionColorAlpha => record.color = as_vec3(triple(3)).to_array(),
-        Columns::PositionNormalColor => {
-            record.normal = as_vec3(triple(3));
-            record.color = as_vec3(triple(6)).to_array();
-        }
-    }
-    Ok(record)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
     fn six_columns_are_colour_only_for_byte_triples_that_are_not_unit_vectors() {
-        assert_eq!(Columns::from_first_line(&["0", "0", "0", "255", "128", "0"], false), Ok(Columns::PositionColor));
-        assert_eq!(Columns::from_first_line(&["0", "0", "0", "0", "0", "1"], false), Ok(Columns::PositionNormal));
-        assert_eq!(Columns::from_first_line(&["0", "0", "0", "0.5", "0.5", "0.7"], false), Ok(Columns::PositionNormal));
-        assert_eq!(Columns::from_first_line(&["0", "0", "0", "256", "0", "0"], false), Ok(Columns::PositionNormal));
-        assert_eq!(Columns::from_first_line(&["0", "0", "0", "1"], false), Ok(Columns::PositionIntensity));
-        assert!(Columns::from_first_line(&["0", "0", "0", "1", "2"], false).is_err());
+        let detect = |tokens: &[&str]| TextColumns::detect(tokens, false);
+        let layout = |names: &str| Ok(TextColumns::of(names));
+        assert_eq!(detect(&["0", "0", "0", "255", "128", "0"]), layout("x,y,z,r,g,b"));
+        assert_eq!(detect(&["0", "0", "0", "0", "0", "1"]), layout("x,y,z,nx,ny,nz"));
+        assert_eq!(detect(&["0", "0", "0", "0.5", "0.5", "0.7"]), layout("x,y,z,nx,ny,nz"));
+        assert_eq!(detect(&["0", "0", "0", "256", "0", "0"]), layout("x,y,z,nx,ny,nz"));
+        assert_eq!(detect(&["0", "0", "0", "1"]), layout("x,y,z,i"));
+        assert!(detect(&["0", "0", "0", "1", "2"]).unwrap_err().contains("--columns"));
+    }
+
+    #[test]
+    fn named_columns_are_checked() {
+        let layout: TextColumns = "X,y,z,_,Intensity,r,g,b,c".parse().unwrap();
+        let record = layout.record(&["1", "2", "3", "99", "7.5", "10", "20", "30", "6"]).unwrap();
+        assert_eq!((record.position, record.color), (DVec3::new(1.0, 2.0, 3.0), [10.0, 20.0, 30.0]));
+        assert_eq!((record.intensity, record.classification), (7.5, 6));
+        assert_eq!(layout.property_names().join(" "), "x y z _ intensity red green blue classification");
+        for (bad, message) in [
+            ("x,y", "x, y and z are needed"),
+            ("x,y,z,r,g", "r, g and b go together"),
+            ("x,y,z,nx", "nx, ny and nz go together"),
+            ("x,y,z,x", "X is named twice"),
+            ("x,y,z,w", "unknown column 'w'"),
+        ] {
+            let e = bad.parse::<TextColumns>().unwrap_err();
+            assert!(e.starts_with(message), "{bad}: {e}");
+        }
+        assert!("x,y,z,_,_".parse::<TextColumns>().is_ok(), "several columns may be skipped");
     }
 
     #[test]
     fn seven_columns_ending_in_an_opaque_byte_are_rgba_unless_the_file_is_pts() {
-        let rgba = ["1", "2", "3", "10", "20", "30", "255"];
-        assert_eq!(Columns::from_first_line(&rgba, false), Ok(Columns::PositionColorAlpha));
-        assert_eq!(Columns::from_first_line(&rgba, true), Ok(Columns::PositionIntensityColor));
+        let (rgba, irgb) = (Ok(TextColumns::of("x,y,z,r,g,b,a")), Ok(TextColumns::of("x,y,z,i,r,g,b")));
+        let tokens = ["1", "2", "3", "10", "20", "30", "255"];
+        assert_eq!(TextColumns::detect(&tokens, false), rgba);
+        assert_eq!(TextColumns::detect(&tokens, true), irgb);
         let pts = ["1", "2", "3", "-1024", "255", "0", "51"];
-        assert_eq!(Columns::from_first_line(&pts, false), Ok(Columns::PositionIntensityColor));
+        assert_eq!(TextColumns::detect(&pts, false), irgb);
         let translucent = ["1", "2", "3", "10", "20", "30", "128"];
-        assert_eq!(Columns::from_first_line(&translucent, false), Ok(Columns::PositionIntensityColor));
+        assert_eq!(TextColumns::detect(&translucent, false), irgb);
         // CloudCompare may write the channels as floats.
         let floats = ["1", "2", "3", "117.0", "73.0", "49.0", "255.0"];
-        assert_eq!(Columns::from_first_line(&floats, false), Ok(Columns::PositionColorAlpha));
+        assert_eq!(TextColumns::detect(&floats, false), rgba);
         let fractions = ["1", "2", "3", "117.5", "73.0", "49.0", "255.0"];
-        assert_eq!(Columns::from_first_line(&fractions, false), Ok(Columns::PositionIntensityColor));
+        assert_eq!(TextColumns::detect(&fractions, false), irgb);
     }
 
     #[test]

@@ -657,9 +657,14 @@ fn xyz_errors_name_the_line() {
     let path = write_file(dir.path(), "bad.xyz", b"# header\n1 2 3\n4 5 x\n");
     expect_error(&path, "line 3: bad value 'x' in column 3");
     let path = write_file(dir.path(), "ragged.xyz", b"1 2 3\n\n4 5 6 7\n");
-    expect_error(&path, "line 3: expected 3 values, found 4");
+    expect_error(&path, "line 3: expected 3 values (x y z), found 4");
     let path = write_file(dir.path(), "five.xyz", b"1 2 3 4 5\n");
-    expect_error(&path, "line 1: expected 3, 4, 6, 7 or 9 values");
+    expect_error(&path, "line 1: 5 values on the first line: no layout of 3, 4, 6, 7 or 9");
+    // Named, the columns read; a PTS count line before them is still a count.
+    let options = pointray_io::ReadOptions { columns: Some("x,y,z,_,c".parse().unwrap()) };
+    let path = write_file(dir.path(), "five.pts", b"2\n1 2 3 4 5\n6 7 8 9 2\n");
+    let cloud = pointray_io::read_cloud_with(&path, &options).unwrap().cloud;
+    assert_eq!((cloud.len(), cloud.scan.classification), (2, Some(vec![5, 2])));
 }
 
 // ---------------------------------------------------------------- atomic writes and PNG

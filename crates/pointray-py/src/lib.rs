@@ -123,7 +123,11 @@ impl Cloud {
 }
 
 /// A column of `n` values, checked for the length.
-fn column<T: numpy::Element + Copy>(name: &str, a: &PyArrayLike1<'_, T, AllowTypeChange>, n: usize) -> PyResult<Vec<T>> {
+fn column<T: numpy::Element + Copy>(
+    name: &str,
+    a: &PyArrayLike1<'_, T, AllowTypeChange>,
+    n: usize,
+) -> PyResult<Vec<T>> {
     let a = a.as_array();
     if a.len() != n {
         return Err(PyValueError::new_err(format!("{name}: {} values for {n} points", a.len())));
@@ -275,22 +279,31 @@ fn image_array(frame: &pointray::Frame) -> Array3<f32> {
 }
 
 /// Reads a point-cloud file (PLY, LAS/LAZ, E57, PCD, XYZ/PTS, an OFF or OBJ mesh's vertices, a scan set), recognised by
-/// its content.
+/// its content; `columns` ("x,y,z,r,g,b,i") names a text file's columns, as `--columns` does.
 #[pyfunction]
-fn read_cloud(py: Python<'_>, path: PathBuf) -> PyResult<Cloud> {
-    let loaded = py.detach(|| pointray_io::read_cloud(&path)).map_err(io_error)?;
+#[pyo3(signature = (path, *, columns=None))]
+fn read_cloud(py: Python<'_>, path: PathBuf, columns: Option<String>) -> PyResult<Cloud> {
+    let read = read_options(columns)?;
+    let loaded = py.detach(|| pointray_io::read_cloud_with(&path, &read)).map_err(io_error)?;
     Ok(Cloud { inner: loaded.cloud })
+}
+
+/// The read options of a `columns` keyword.
+fn read_options(columns: Option<String>) -> PyResult<pointray_io::ReadOptions> {
+    let columns = columns.map(|c| c.parse().map_err(|e: String| PyValueError::new_err(format!("columns: {e}"))));
+    Ok(pointray_io::ReadOptions { columns: columns.transpose()? })
 }
 
 /// Prepares a scene from a cloud file, a scene file (.toml) or a `Cloud`: what it lacks
 /// computed (normals, orientation, radii; `k_normals`, `k_radius`, `radius_scale`,
-/// `recompute`, `strays`, `outlier_std`), points filtered by class (`classes`,
-/// `exclude_classes`) and coloured (`color_by`), and the accelerator built (`accel`, `sphere_from_level`, and the disks
-/// `surface` tests). The other options become the scene's defaults for `render`.
+/// `recompute`, `strays`, `outlier_std`; a text file's `columns`), points filtered by class
+/// (`classes`, `exclude_classes`) and coloured (`color_by`), and the accelerator built
+/// (`accel`, `sphere_from_level`, and the disks `surface` tests). The other options become
+/// the scene's defaults for `render`.
 #[pyfunction]
 #[pyo3(signature = (source, **options))]
 fn prepare(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Bound<'_, PyDict>>) -> PyResult<Scene> {
-    let (preprocess, options) = split_preprocess(options)?;
+    let (preprocess, read, options) = split_preprocess(options)?;
     let (parts, base) = if let Ok(cloud) = source.cast::<Cloud>() {
         let mut cloud = cloud.get().inner.clone();
         py.detach(|| pointray_io::source::prepare(&mut cloud, &preprocess, "cloud", &|_| {}))
@@ -300,7 +313,7 @@ fn prepare(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Bound<'_,
         let path: PathBuf = source
             .extract()
             .map_err(|_| pyo3::exceptions::PyTypeError::new_err("source: expected a path, a Cloud or a Scene"))?;
-        let loaded = py.detach(|| pointray_io::source::load(&path, &preprocess, &|_| {})).map_err(io_error)?;
+        let loaded = py.detach(|| pointray_io::source::load(&path, &preprocess, &read, &|_| {})).map_err(io_error)?;
         (loaded.parts, loaded.settings.unwrap_or_default())
     };
     let settings = with_options(&base, options.as_ref())?;
@@ -464,12 +477,12 @@ impl RunOptions {
     }
 }
 
-/// The preprocessing options taken out of `options`, and the rest.
+/// The preprocessing and reading options taken out of `options`, and the rest.
 fn split_preprocess<'py>(
     options: Option<&Bound<'py, PyDict>>,
-) -> PyResult<(PreprocessConfig, Option<Bound<'py, PyDict>>)> {
+) -> PyResult<(PreprocessConfig, pointray_io::ReadOptions, Option<Bound<'py, PyDict>>)> {
     let mut config = PreprocessConfig::standard();
-    let Some(options) = options else { return Ok((config, None)) };
+    let Some(options) = options else { return Ok((config, pointray_io::ReadOptions::default(), None)) };
     let rest = options.copy()?;
     macro_rules! take {
         ($($key:ident),*) => {
@@ -483,7 +496,8 @@ fn split_preprocess<'py>(
         config.strays = pythonize::depythonize(&v).map_err(value_error)?;
     }
     config.check().map_err(value_error)?;
-    Ok((config, Some(rest)))
+    let columns = pop(&rest, "columns")?.map(|v| v.extract::<String>()).transpose()?;
+    Ok((config, read_options(columns)?, Some(rest)))
 }
 
 /// The value of `key` in `dict`, taken out of it.

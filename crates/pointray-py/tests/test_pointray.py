@@ -85,6 +85,18 @@ def test_scan_attributes_round_trip_and_colour_the_points(sphere_file):
         pointray.Cloud(points, classification=classes[:2])
 
 
+def test_columns_name_a_text_layout(tmp_path):
+    path = tmp_path / "scan.txt"
+    points = sphere_points(500)
+    np.savetxt(path, np.hstack([points, np.full((500, 1), 42.0), np.full((500, 1), 6.0)]), fmt="%.6f")
+    cloud = pointray.read_cloud(path, columns="x,y,z,i,c")
+    assert np.all(cloud.intensity == 42.0) and np.all(cloud.classification == 6)
+    scene = pointray.prepare(str(path), columns="x,y,z,i,c", color_by="classification")
+    assert len(scene) == 500
+    with pytest.raises(ValueError, match="columns: unknown column 'q'"):
+        pointray.read_cloud(path, columns="x,y,q")
+
+
 def test_a_region_is_that_part_of_the_frame(sphere_file):
     scene = pointray.prepare(str(sphere_file))
     whole = pointray.render(scene, width=64, height=48, spp=2)

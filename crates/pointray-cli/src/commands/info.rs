@@ -5,7 +5,7 @@ use std::io::{self, Write};
 use crate::args::InfoArgs;
 
 pub fn run(a: &InfoArgs, quiet: bool) -> anyhow::Result<()> {
-    let (loaded, seconds) = super::load(&a.input, quiet)?;
+    let (loaded, seconds) = super::load(&a.input, &a.read.options(), quiet)?;
     let (info, cloud) = (&loaded.info, &loaded.cloud);
     let mut out = io::stdout().lock();
     writeln!(out, "file:        {}", a.input.display())?;

@@ -28,9 +28,13 @@ pub fn check_output_path(path: &Path) -> anyhow::Result<()> {
 }
 
 /// Reads a cloud file, with the file name in any error.
-pub fn load(path: &Path, quiet: bool) -> anyhow::Result<(pointray_io::LoadedCloud, f64)> {
+pub fn load(
+    path: &Path,
+    read: &pointray_io::ReadOptions,
+    quiet: bool,
+) -> anyhow::Result<(pointray_io::LoadedCloud, f64)> {
     let t = Instant::now();
-    let loaded = crate::progress::spinning("read", quiet, || pointray_io::read_cloud(path))?;
+    let loaded = crate::progress::spinning("read", quiet, || pointray_io::read_cloud_with(path, read))?;
     tracing::info!("read {} points from {} in {:.3} s", loaded.cloud.len(), path.display(), t.elapsed().as_secs_f64());
     Ok((loaded, t.elapsed().as_secs_f64()))
 }

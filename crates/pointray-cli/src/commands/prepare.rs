@@ -9,7 +9,7 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     config.check().map_err(|e| crate::failure::usage(super::render::flag_error(e)))?;
     let spinner = crate::progress::spinner("read", quiet);
     let stage = |s: &str| spinner.set_message(s.to_string());
-    let prepared = pointray_io::source::read_prepared(&a.input, &config, &stage)?;
+    let prepared = pointray_io::source::read_prepared(&a.input, &config, &a.read.options(), &stage)?;
     let (cloud, stats, up) = (prepared.cloud, prepared.preprocess, prepared.up.map(|u| u.to_array()));
     spinner.finish_and_clear();
     crate::progress::spinning("write", quiet, || pointray_io::write_ply_with_up(&a.output, &cloud, up))

@@ -140,7 +140,9 @@ fn load_input(a: &RenderArgs, quiet: bool) -> anyhow::Result<(Source, String)> {
     let spinner = crate::progress::spinner("read", quiet);
     let stage = |s: &str| spinner.set_message(s.to_string());
     let loaded = match &a.input {
-        Some(path) => (pointray_io::source::load(path, &config, &stage)?, path.display().to_string()),
+        Some(path) => {
+            (pointray_io::source::load(path, &config, &a.read.options(), &stage)?, path.display().to_string())
+        }
         None => {
             let mut cloud = pointray::demo::demo_cloud(a.demo_points, a.seed);
             let points_read = cloud.len();

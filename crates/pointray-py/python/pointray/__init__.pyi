@@ -67,8 +67,9 @@ class Frame:
     @property
     def stats(self) -> dict[str, Any]: ...
 
-def read_cloud(path: Union[str, "os.PathLike[str]"]) -> Cloud:
-    """Reads PLY, LAS/LAZ, E57, PCD, XYZ/PTS, OFF or OBJ vertices, or a Stanford scan set (by content)."""
+def read_cloud(path: Union[str, "os.PathLike[str]"], *, columns: Optional[str] = None) -> Cloud:
+    """Reads PLY, LAS/LAZ, E57, PCD, XYZ/PTS, OFF or OBJ vertices, or a Stanford scan set (by
+    content); ``columns`` ("x,y,z,r,g,b,i") names a text file's columns, as ``--columns`` does."""
 
 def prepare(source: Source, **options: Any) -> Scene:
     """Normals, orientation and radii where missing (k_normals, k_radius, radius_scale,
