@@ -1,7 +1,8 @@
 //! E57 (ASTM E2807), what terrestrial laser scanners export: several scans, each with its pose,
 //! in Cartesian or spherical coordinates, as floats or scaled integers, with colour and
 //! intensity and per-point validity flags. Read with the `e57` crate: every scan's valid
-//! points, its pose applied and spherical coordinates converted; colours and intensity
+//! points, its pose applied and spherical coordinates converted (each scanner's position kept
+//! to orient its points' normals); colours and intensity
 //! normalised by the file's limits (a scan without colour shows its intensity as grey; the
 //! intensity is kept as a scan attribute too); pages with a bad CRC refused.
 
@@ -34,6 +35,8 @@ fn decode(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     let scan_fields = ScanFields { intensity: scans.iter().any(|s| s.has_intensity()), ..ScanFields::default() };
     let mut builder = CloudBuilder::new(0, Attributes { colors, scan: scan_fields, ..Attributes::default() });
     let mut skipped = 0u64;
+    // Which scan each point came from, for the scanners' viewpoints.
+    let mut scan_of: Vec<u16> = Vec::new();
     for (index, scan) in scans.iter().enumerate() {
         let in_scan = |e: e57::Error| IoError::invalid(path, format!("scan {}: {e}", index + 1));
         for point in reader.pointcloud_simple(scan).map_err(in_scan)? {
@@ -45,6 +48,7 @@ fn decode(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
             let color = point.color.map_or([0.5; 3], |c| [c.red, c.green, c.blue]);
             let intensity = point.intensity.unwrap_or(0.0);
             builder.push(&PointRecord { position: DVec3::new(x, y, z), color, intensity, ..PointRecord::default() });
+            scan_of.push(index.min(usize::from(u16::MAX)) as u16);
         }
     }
     if skipped > 0 {
@@ -52,15 +56,19 @@ fn decode(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     }
     let points = builder.len();
     let mut cloud = builder.finish();
-    // One scan's scanner position orients the normals towards it, where the scan is a
-    // scanner's (its points in spherical coordinates or on a row-and-column grid: a pose on
-    // Cartesian points alone may place no scanner); several scans' points are merged, and the
-    // spanning tree orients them.
-    if let [scan] = scans.as_slice()
-        && let Some(t) = scan.transform.as_ref().filter(|_| scan.has_spherical() || scan.has_row_column())
-    {
-        let position = DVec3::new(t.translation.x, t.translation.y, t.translation.z);
-        cloud.viewpoint = Some((position - cloud.origin).as_vec3());
+    // Each scan's scanner position orients its points' normals towards it, where every scan is
+    // a scanner's (its points in spherical coordinates or on a row-and-column grid: a pose on
+    // Cartesian points alone may place no scanner); otherwise the spanning tree orients them.
+    let scanners: Option<Vec<DVec3>> = scans
+        .iter()
+        .map(|scan| {
+            let t = scan.transform.as_ref().filter(|_| scan.has_spherical() || scan.has_row_column())?;
+            Some(DVec3::new(t.translation.x, t.translation.y, t.translation.z))
+        })
+        .collect();
+    if let Some(scanners) = scanners.filter(|s| !s.is_empty() && s.len() <= usize::from(u16::MAX)) {
+        cloud.viewpoints = scanners.iter().map(|p| (*p - cloud.origin).as_vec3()).collect();
+        cloud.viewpoint_of = (scanners.len() > 1).then_some(scan_of);
     }
     let mut properties = vec!["x".to_string(), "y".into(), "z".into()];
     if colors {

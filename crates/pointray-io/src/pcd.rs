@@ -252,7 +252,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     if channels.is_some() {
         crate::builder::scale_colors_to_unit(&mut cloud);
     }
-    cloud.viewpoint = header.viewpoint.map(|v| (glam::DVec3::from(v) - cloud.origin).as_vec3());
+    cloud.viewpoints = header.viewpoint.map(|v| (glam::DVec3::from(v) - cloud.origin).as_vec3()).into_iter().collect();
     Ok(LoadedCloud { cloud, info })
 }
 

@@ -1075,11 +1075,11 @@ fn an_organised_pcd_frame_keeps_its_viewpoint() {
         pcd_header("x y z", "4 4 4", "F F F", "1 1 1", 2, 2, "ascii").replace("VIEWPOINT 0 0 0", "VIEWPOINT 1 2 3");
     let cloud = read_cloud(&write_file(dir.path(), "frame.pcd", (frame + rows).as_bytes())).unwrap().cloud;
     let local = (DVec3::new(1.0, 2.0, 3.0) - cloud.origin).as_vec3();
-    assert_eq!(cloud.viewpoint, Some(local));
+    assert_eq!((cloud.viewpoints, cloud.viewpoint_of), (vec![local], None));
     let flat =
         pcd_header("x y z", "4 4 4", "F F F", "1 1 1", 4, 1, "ascii").replace("VIEWPOINT 0 0 0", "VIEWPOINT 1 2 3");
     let cloud = read_cloud(&write_file(dir.path(), "flat.pcd", (flat + rows).as_bytes())).unwrap().cloud;
-    assert_eq!(cloud.viewpoint, None);
+    assert!(cloud.viewpoints.is_empty());
 }
 
 #[test]
@@ -1327,8 +1327,59 @@ fn e57_scans_are_read_with_their_poses_and_invalid_points_left_out() {
     assert_close(world[3], DVec3::new(0.0, 3.0, 0.0), 1e-9);
     let colors = loaded.cloud.colors.unwrap();
     assert_eq!((colors[0], colors[1]), ([1.0, 0.0, 0.0], [0.0, 0.0, 0.0]));
-    // Two scanner positions: the spanning tree orients the normals, not a viewpoint.
-    assert_eq!(loaded.cloud.viewpoint, None);
+    // The Cartesian scan's pose places no scanner: the spanning tree orients the normals.
+    assert!(loaded.cloud.viewpoints.is_empty());
+}
+
+/// A thin wall (the plane x = 0, 1 cm thick) scanned from both sides: two spherical scans,
+/// their scanners posed at x = −5 and x = +5.
+fn e57_wall_from_both_sides() -> Vec<u8> {
+    use e57::{E57Writer, Quaternion, Record, RecordValue, Transform, Translation};
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    let mut writer = E57Writer::new(&mut bytes, "wall").unwrap();
+    for (side, x) in [(-5.0f64, 5.0f64), (5.0, -4.99)] {
+        let prototype =
+            vec![Record::SPHERICAL_RANGE_F64, Record::SPHERICAL_AZIMUTH_F64, Record::SPHERICAL_ELEVATION_F64];
+        let mut scan = writer.add_pointcloud(&format!("from {side}"), prototype).unwrap();
+        let identity = Quaternion { w: 1.0, x: 0.0, y: 0.0, z: 0.0 };
+        scan.set_transform(Some(Transform {
+            rotation: identity,
+            translation: Translation { x: side, y: 0.0, z: 0.0 },
+        }));
+        // The wall in the scanner's frame: x fixed, y and z on a 30 × 30 grid over 2 m.
+        for i in 0..900 {
+            let (y, z) = (f64::from(i % 30) / 15.0 - 1.0, f64::from(i / 30) / 15.0 - 1.0);
+            let range = (x * x + y * y + z * z).sqrt();
+            let d = RecordValue::Double;
+            scan.add_point(vec![d(range), d(y.atan2(x)), d((z / range).asin())]).unwrap();
+        }
+        scan.finalize().unwrap();
+    }
+    writer.finalize().unwrap();
+    drop(writer);
+    bytes.into_inner()
+}
+
+#[test]
+fn each_e57_scan_keeps_its_scanner_to_face() {
+    let dir = temp_dir();
+    let loaded = read_cloud(&write_file(dir.path(), "wall.e57", &e57_wall_from_both_sides())).unwrap();
+    let cloud = loaded.cloud;
+    let world: Vec<DVec3> = cloud.viewpoints.iter().map(|v| cloud.origin + v.as_dvec3()).collect();
+    assert_close(world[0], DVec3::new(-5.0, 0.0, 0.0), 1e-6);
+    assert_close(world[1], DVec3::new(5.0, 0.0, 0.0), 1e-6);
+    let of = cloud.viewpoint_of.as_ref().unwrap();
+    assert_eq!((of.len(), of[0], of[899], of[900]), (1800, 0, 0, 1));
+    // Each side faces its own scanner (scan 0's sheet at x = 0 faces −x, scan 1's at x = 0.01
+    // faces +x); a spanning tree over the two sheets gets one of them wrong.
+    let wrong_sides = |mut cloud: PointCloud| {
+        pointray::preprocess::preprocess(&mut cloud, &pointray::preprocess::PreprocessConfig::standard()).unwrap();
+        let origin_x = cloud.origin.x;
+        let facing = |(p, n): (&Vec3, &Vec3)| (n.x > 0.99) == (origin_x + f64::from(p.x) > 0.005);
+        cloud.positions.iter().zip(cloud.normals.as_ref().unwrap()).filter(|&pn| !facing(pn)).count()
+    };
+    let blind = PointCloud { viewpoints: Vec::new(), viewpoint_of: None, ..cloud.clone() };
+    assert_eq!((wrong_sides(cloud), wrong_sides(blind)), (0, 900));
 }
 
 #[test]

@@ -22,8 +22,11 @@ pub struct PointCloud {
     /// Offset subtracted from every input coordinate (see the type's doc).
     pub origin: DVec3,
     /// Where the scanner stood, in the same local coordinates as `positions`, where the file
-    /// says (an organised depth frame's PCD `VIEWPOINT`): computed normals are turned to face it.
-    pub viewpoint: Option<Vec3>,
+    /// says: a position per scan (an organised depth frame's PCD `VIEWPOINT`, each E57 scan's
+    /// pose). Computed normals are turned to face their point's scanner.
+    pub viewpoints: Vec<Vec3>,
+    /// Which of `viewpoints` saw each point (`None`: the first saw them all).
+    pub viewpoint_of: Option<Vec<u16>>,
     /// What the scanner recorded of each point beside position and colour.
     pub scan: ScanAttributes,
 }
@@ -137,6 +140,7 @@ impl PointCloud {
         permute_some(&mut self.normals, order);
         permute_some(&mut self.radii, order);
         permute_some(&mut self.colors, order);
+        permute_some(&mut self.viewpoint_of, order);
         self.scan.permute(order);
     }
 
@@ -150,6 +154,12 @@ impl PointCloud {
         check("normals", self.normals.as_ref().map(Vec::len))?;
         check("radii", self.radii.as_ref().map(Vec::len))?;
         check("colors", self.colors.as_ref().map(Vec::len))?;
+        check("viewpoint_of", self.viewpoint_of.as_ref().map(Vec::len))?;
+        if let Some(&last) =
+            self.viewpoint_of.iter().flatten().max().filter(|&&v| usize::from(v) >= self.viewpoints.len())
+        {
+            return Err(format!("viewpoint_of names viewpoint {last} of {}", self.viewpoints.len()));
+        }
         self.scan.lengths().into_iter().try_for_each(|(name, len)| check(name, len))
     }
 }

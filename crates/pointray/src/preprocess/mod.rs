@@ -5,7 +5,7 @@
 //! Input normals and radii are trusted where valid; invalid entries (non-finite, zero-length
 //! normals; non-finite or non-positive radii) are treated as missing for that point only and
 //! recomputed. Computed normals are oriented to agree with any given ones, or to face the
-//! scanner where the cloud knows where it stood (`PointCloud::viewpoint`).
+//! scanner where the cloud knows where it stood (`PointCloud::viewpoints`).
 //!
 //! Bad input has defined outcomes, each counted in [`PreprocessStats`] for the caller to
 //! report: points with a non-finite coordinate are dropped, so are repeats of an earlier
@@ -151,7 +151,7 @@ pub struct PreprocessStats {
     /// direction was used, see [`normals::pca_normal`]).
     pub degenerate_normals: usize,
     /// Connected components oriented by a spanning tree each; 0 where the normals were turned
-    /// to face the scanner's viewpoint instead (`PointCloud::viewpoint`).
+    /// to face the scanners' viewpoints instead (`PointCloud::viewpoints`).
     pub orientation_components: usize,
     /// The given normals pointed into the shape and were turned outward
     /// (`orient::turn_given_outward`).
@@ -494,8 +494,9 @@ fn fill_normals(
 
     stage("orient");
     let start = Instant::now();
-    if let Some(viewpoint) = cloud.viewpoint {
-        stats.flipped_normals = orient::face_viewpoint(positions, normals, missing, viewpoint);
+    if !cloud.viewpoints.is_empty() {
+        let of = cloud.viewpoint_of.as_deref();
+        stats.flipped_normals = orient::face_viewpoints(positions, normals, missing, &cloud.viewpoints, of);
     } else {
         let fixed: Vec<bool> = missing.iter().map(|m| !m).collect();
         let some_given = fixed.contains(&true);
@@ -641,7 +642,7 @@ mod tests {
         // spanning tree would have seeded the plane's normals upwards.
         let mut cloud =
             PointCloud::from_positions((0..100).map(|i| Vec3::new((i % 10) as f32, (i / 10) as f32, 0.0)).collect());
-        cloud.viewpoint = Some(Vec3::new(4.5, 4.5, -5.0));
+        cloud.viewpoints = vec![Vec3::new(4.5, 4.5, -5.0)];
         let stats = preprocess(&mut cloud, &PreprocessConfig { sort: false, ..cfg }).unwrap();
         assert!(cloud.normals.unwrap().iter().all(|n| *n == -Vec3::Z));
         assert_eq!((stats.orientation_components, stats.flipped_normals), (0, 100));

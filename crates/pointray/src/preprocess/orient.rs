@@ -78,12 +78,20 @@ fn given_sums(given: &[bool], term: impl Fn(usize) -> [f64; 4] + Sync) -> [f64; 
 /// the Autzen terrain and the PCL mug 0.00–0.02, the Armadillo's own normals −0.59.
 const INWARD: f64 = -0.2;
 
-/// Turns the normals `which` marks to face `viewpoint` (n·(v − p) ≥ 0), as a scanner saw
-/// them: a single view's surfaces all face the sensor, thin parts and separate pieces alike.
-/// Returns how many it turned.
-pub fn face_viewpoint(points: &[Vec3], normals: &mut [Vec3], which: &[bool], viewpoint: Vec3) -> usize {
+/// Turns the normals `which` marks to face their point's viewpoint (n·(v − p) ≥ 0): point `i`
+/// was seen from `viewpoints[of[i]]` (from `viewpoints[0]` without `of`), as a scanner saw
+/// them: a view's surfaces all face its sensor, thin parts and separate pieces alike; a wall
+/// scanned from both sides gets the side each scan saw. Returns how many it turned.
+pub fn face_viewpoints(
+    points: &[Vec3],
+    normals: &mut [Vec3],
+    which: &[bool],
+    viewpoints: &[Vec3],
+    of: Option<&[u16]>,
+) -> usize {
     let mut turned = 0;
-    for ((n, p), _) in normals.iter_mut().zip(points).zip(which).filter(|(_, w)| **w) {
+    for (i, (n, p)) in normals.iter_mut().zip(points).enumerate().filter(|(i, _)| which[*i]) {
+        let viewpoint = viewpoints[of.map_or(0, |of| usize::from(of[i]))];
         if n.dot(viewpoint - *p) < 0.0 {
             *n = -*n;
             turned += 1;
