@@ -64,7 +64,8 @@ struct Header {
     fields: Vec<Field>,
     points: usize,
     /// The sensor's position (`VIEWPOINT`'s translation), for an organised frame (`HEIGHT` > 1)
-    /// only: PCL writes `VIEWPOINT 0 0 0 1 0 0 0` into every file, frames or not.
+    /// only: PCL writes `VIEWPOINT 0 0 0 1 0 0 0` into every file, frames or not. (Its rotation
+    /// is not read: PCL's own mug frame says 180° about x, which its points do not have.)
     viewpoint: Option<[f64; 3]>,
     data: String,
     /// Byte offset of the body.
@@ -246,7 +247,8 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
             .collect(),
         comments: (dropped > 0).then(|| format!("{dropped} NaN points dropped")).into_iter().collect(),
         file_bytes: bytes.len() as u64,
-        up: None,
+        // A frame is in its sensor's optical frame (PCL's: x right, y down, z ahead).
+        up: header.viewpoint.map(|_| [0.0, -1.0, 0.0]),
     };
     let mut cloud = builder.finish();
     if channels.is_some() {

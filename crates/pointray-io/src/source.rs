@@ -52,7 +52,7 @@ pub fn load(
         return load_scene(path, preprocess, stage);
     }
     let p = read_prepared(path, preprocess, read, stage)?;
-    let parts = SceneParts { up: p.up, ..SceneParts::from(p.cloud) };
+    let parts = SceneParts { up: p.up, view: sensor_view(&p.cloud), ..SceneParts::from(p.cloud) };
     Ok(Source {
         parts,
         settings: None,
@@ -60,6 +60,16 @@ pub fn load(
         preprocess: p.preprocess,
         load_seconds: p.read_seconds,
     })
+}
+
+/// Where the default camera stands for a cloud one sensor saw from outside it (an organised
+/// depth frame's): at the sensor, looking at the cloud's centre. A scanner inside the cloud (a
+/// terrestrial scan's) leaves the default view.
+fn sensor_view(cloud: &PointCloud) -> Option<(Vec3, f32)> {
+    let ([sensor], bounds) = (cloud.viewpoints.as_slice(), cloud.bounds()) else { return None };
+    let outside = sensor.cmplt(bounds.min).any() || sensor.cmpgt(bounds.max).any();
+    let offset = *sensor - bounds.center();
+    (outside && bounds.diagonal() > 0.0).then(|| (offset.normalize(), offset.length() / bounds.diagonal()))
 }
 
 /// A cloud file, read and preprocessed.

@@ -1076,10 +1076,18 @@ fn an_organised_pcd_frame_keeps_its_viewpoint() {
     let cloud = read_cloud(&write_file(dir.path(), "frame.pcd", (frame + rows).as_bytes())).unwrap().cloud;
     let local = (DVec3::new(1.0, 2.0, 3.0) - cloud.origin).as_vec3();
     assert_eq!((cloud.viewpoints, cloud.viewpoint_of), (vec![local], None));
+    // The frame's own up (its sensor's y is down), and the default camera at the sensor.
+    let path = dir.path().join("frame.pcd");
+    assert_eq!(read_cloud(&path).unwrap().info.up, Some([0.0, -1.0, 0.0]));
+    let parts = pointray_io::source::load(&path, &Default::default(), &Default::default(), &|_| {}).unwrap().parts;
+    let (view, distance) = parts.view.expect("the sensor's view");
+    let bounds = parts.cloud.bounds();
+    let eye = parts.cloud.origin + (bounds.center() + view * distance * bounds.diagonal()).as_dvec3();
+    assert_close(eye, DVec3::new(1.0, 2.0, 3.0), 1e-4);
     let flat =
         pcd_header("x y z", "4 4 4", "F F F", "1 1 1", 4, 1, "ascii").replace("VIEWPOINT 0 0 0", "VIEWPOINT 1 2 3");
-    let cloud = read_cloud(&write_file(dir.path(), "flat.pcd", (flat + rows).as_bytes())).unwrap().cloud;
-    assert!(cloud.viewpoints.is_empty());
+    let flat = read_cloud(&write_file(dir.path(), "flat.pcd", (flat + rows).as_bytes())).unwrap();
+    assert!(flat.cloud.viewpoints.is_empty() && flat.info.up.is_none());
 }
 
 #[test]
