@@ -281,6 +281,13 @@ pub struct RenderArgs {
     /// Leave out the points of these classes (e.g. 7,18: noise).
     #[arg(long, value_delimiter = ',', num_args = 1..)]
     pub exclude_classes: Vec<u8>,
+    /// Keep only the points inside this box, in the file's coordinates: X0,Y0,Z0,X1,Y1,Z1.
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_clip_box)]
+    pub clip_box: Option<pointray::clip::ClipBox>,
+    /// A section: keep only the points with NX·x + NY·y + NZ·z <= D (file coordinates; the
+    /// normal points to the side cut away): NX,NY,NZ,D. May be given several times.
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_clip_plane)]
+    pub clip_plane: Vec<pointray::clip::ClipPlane>,
 
     /// Level of detail: a subtree narrower than this many pixels (its bounding sphere's
     /// radius against the ray's footprint) is drawn as its representative splat; 0 is full
@@ -377,6 +384,8 @@ impl RenderArgs {
             color_by: self.color_by,
             classes: self.classes.clone(),
             exclude_classes: self.exclude_classes.clone(),
+            clip_box: self.clip_box,
+            clip_planes: self.clip_plane.clone(),
             integrator: self.integrator,
             ao_distance: self.ao_distance,
             diffuse_spread: self.diffuse_spread,
@@ -554,6 +563,16 @@ fn parse_vec3(s: &str) -> Result<glam::Vec3, String> {
 /// A position in the file's coordinates: kept in f64 until the cloud's origin is subtracted.
 fn parse_dvec3(s: &str) -> Result<glam::DVec3, String> {
     parse_floats::<3>(s).map(glam::DVec3::from)
+}
+
+fn parse_clip_box(s: &str) -> Result<pointray::clip::ClipBox, String> {
+    let [x0, y0, z0, x1, y1, z1] = parse_floats::<6>(s)?;
+    Ok(pointray::clip::ClipBox { min: glam::DVec3::new(x0, y0, z0), max: glam::DVec3::new(x1, y1, z1) })
+}
+
+fn parse_clip_plane(s: &str) -> Result<pointray::clip::ClipPlane, String> {
+    let [x, y, z, offset] = parse_floats::<4>(s)?;
+    Ok(pointray::clip::ClipPlane { normal: glam::DVec3::new(x, y, z), offset })
 }
 
 fn parse_region(s: &str) -> Result<pointray::camera::Region, String> {

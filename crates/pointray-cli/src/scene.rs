@@ -129,6 +129,8 @@ mod tests {
             "color_by",
             "classes",
             "exclude_classes",
+            "clip_box",
+            "clip_plane",
             "aov",
             "transparent",
             "stats",

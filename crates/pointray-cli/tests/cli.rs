@@ -848,6 +848,28 @@ fn colour_and_class_flags_the_cloud_cannot_serve_are_refused() {
 }
 
 #[test]
+fn clip_boxes_and_planes_keep_their_part() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let points = |flags: &[&str]| {
+        let args = [&["sphere.ply", "-o", "x.png", "--stats", "x.json"], flags].concat();
+        render_in(dir.path(), &args).assert_success();
+        stat_u64(&read_stats(&dir.path().join("x.json")), "points")
+    };
+    let expect = |keep: &dyn Fn([f32; 3]) -> bool| sphere_points(3000).into_iter().filter(|p| keep(*p)).count() as u64;
+    assert_eq!(points(&["--clip-plane", "0,0,1,0.25"]), expect(&|p| p[2] <= 0.25));
+    assert_eq!(
+        points(&["--clip-plane", "0,0,1,0.25", "--clip-plane", "-1,0,0,0"]),
+        expect(&|p| p[2] <= 0.25 && p[0] >= 0.0)
+    );
+    assert_eq!(points(&["--clip-box", "-2,-2,-0.5,2,2,0.5"]), expect(&|p| p[2].abs() <= 0.5));
+    render_in(dir.path(), &["sphere.ply", "-o", "y.png", "--clip-box", "5,5,5,6,6,6"])
+        .assert_failure(1)
+        .assert_stderr_contains("--clip-box leaves no points");
+    assert!(!dir.path().join("y.png").exists());
+}
+
+#[test]
 fn columns_name_a_text_layout_the_first_line_cannot_tell() {
     let dir = temp_dir();
     // x y z r g b intensity: seven columns, which by themselves read as x y z intensity r g b.

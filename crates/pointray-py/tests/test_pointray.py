@@ -79,6 +79,10 @@ def test_scan_attributes_round_trip_and_colour_the_points(sphere_file):
     image = pointray.render(cloud, width=64, height=48, color_by="classification", classes=[9])
     lit = image.max(axis=2) > 0.02
     assert lit.sum() > 100 and (image[lit][:, 2] > image[lit][:, 0]).mean() > 0.95, "water alone: blue"
+    lower = pointray.prepare(cloud, clip_planes=[{"normal": (0, 1, 0), "offset": 20.0}])
+    assert len(lower) == int((points[:, 1] <= 20.0).sum())
+    boxed = pointray.prepare(cloud, clip_box={"min": (9, 19, 29), "max": (11, 21, 30)})
+    assert len(boxed) == int((points[:, 2] <= 30.0).sum())
     with pytest.raises(ValueError, match="color_by rgb: the cloud has no colours"):
         pointray.render(cloud, width=8, height=8, color_by="rgb")
     with pytest.raises(ValueError, match="classification: 2 values for 3000 points"):

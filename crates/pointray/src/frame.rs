@@ -196,6 +196,9 @@ pub struct FrameReport {
     pub color_by: crate::color_by::ColorBy,
     pub classes: Option<Vec<u8>>,
     pub exclude_classes: Vec<u8>,
+    /// The clip: the box and half-spaces kept (file coordinates).
+    pub clip_box: Option<crate::clip::ClipBox>,
+    pub clip_planes: Vec<crate::clip::ClipPlane>,
     pub samples_per_pixel: u32,
     pub rays: u64,
     pub primary_rays: u64,

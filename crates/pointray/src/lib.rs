@@ -12,6 +12,7 @@
 
 pub mod accel;
 pub mod camera;
+pub mod clip;
 pub mod cloud;
 pub mod color;
 pub mod color_by;

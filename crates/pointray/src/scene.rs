@@ -27,6 +27,7 @@ use rayon::prelude::*;
 use crate::PointCloud;
 use crate::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds};
 use crate::camera::{Camera, Region};
+use crate::clip::{ClipBox, ClipPlane};
 use crate::color::srgb_to_linear;
 use crate::color_by::{self, ColorBy};
 use crate::culling::backfacing_fraction;
@@ -118,7 +119,7 @@ macro_rules! on_accel {
 }
 
 /// How a scene was built: what settings it can render with.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq)]
 struct Build {
     accel: AccelKind,
     node_bounds: NodeBounds,
@@ -126,6 +127,8 @@ struct Build {
     color_by: ColorBy,
     classes: Option<Vec<u8>>,
     exclude_classes: Vec<u8>,
+    clip_box: Option<ClipBox>,
+    clip_planes: Vec<ClipPlane>,
 }
 
 impl Build {
@@ -139,6 +142,8 @@ impl Build {
             color_by: settings.color_by,
             classes: settings.classes.clone(),
             exclude_classes: settings.exclude_classes.clone(),
+            clip_box: settings.clip_box,
+            clip_planes: settings.clip_planes.clone(),
         }
     }
 }
@@ -181,10 +186,11 @@ impl Scene {
     /// Builds the accelerator the settings name (`accel`, `sphere_from_level`, and the disks
     /// `surface` tests) over the parts' cloud, which it consumes: the splats hold all the rest
     /// needs of the points, and the cloud is freed before the build's peak. The points are
-    /// those of the settings' `classes` (less `exclude_classes`), coloured by `color_by`.
+    /// those of the settings' `classes` (less `exclude_classes`) inside their clip, coloured by
+    /// `color_by`.
     pub fn build(parts: SceneParts, settings: &Settings) -> Result<Scene, SceneError> {
         let SceneParts { mut cloud, mut point_materials, content, view, light, up } = parts;
-        let kept = color_by::filter_classes(&mut cloud, settings.classes.as_deref(), &settings.exclude_classes)?;
+        let kept = select_points(&mut cloud, settings)?;
         if let (Some(kept), Some(materials)) = (&kept, &mut point_materials) {
             *materials = kept.iter().map(|&i| materials[i as usize]).collect();
         }
@@ -377,6 +383,9 @@ impl Scene {
         }
         if (&built.classes, &built.exclude_classes) != (&asked.classes, &asked.exclude_classes) {
             return Err(SettingsError::new("classes", problem("the classes it holds")));
+        }
+        if (&built.clip_box, &built.clip_planes) != (&asked.clip_box, &asked.clip_planes) {
+            return Err(SettingsError::new("clip_box", problem("the part its clip keeps")));
         }
         Ok(())
     }
@@ -583,6 +592,8 @@ impl RenderJob<'_> {
             color_by: scene.build.color_by,
             classes: scene.build.classes.clone(),
             exclude_classes: scene.build.exclude_classes.clone(),
+            clip_box: scene.build.clip_box,
+            clip_planes: scene.build.clip_planes.clone(),
             samples_per_pixel: s.spp,
             rays: stats.rays,
             primary_rays: stats.primary_rays,
@@ -622,6 +633,17 @@ impl RenderJob<'_> {
             counters: *stats,
         }
     }
+}
+
+/// Leaves in `cloud` the points the settings draw (their `classes`, inside their clip); returns
+/// the kept points' indices in the cloud as it came (`None`: all kept).
+fn select_points(cloud: &mut PointCloud, settings: &Settings) -> Result<Option<Vec<u32>>, SettingsError> {
+    let by_class = color_by::filter_classes(cloud, settings.classes.as_deref(), &settings.exclude_classes)?;
+    let clipped = crate::clip::clip(cloud, settings.clip_box.as_ref(), &settings.clip_planes)?;
+    Ok(match (by_class, clipped) {
+        (Some(first), Some(then)) => Some(then.iter().map(|&i| first[i as usize]).collect()),
+        (first, then) => first.or(then),
+    })
 }
 
 /// Renders `scene` with `settings`: the one call a program needs.
