@@ -311,6 +311,10 @@ pub struct RenderArgs {
     /// flat background's share taken out), to composite over anything; an EXR gets an A layer.
     #[arg(long)]
     pub transparent: bool,
+    /// Bits a channel of the PNG: 8, or 16 for grading and compositing without banding (the
+    /// AOVs' PNGs stay 8-bit; an EXR is float).
+    #[arg(long, default_value_t = 8, value_parser = parse_bit_depth)]
+    pub bit_depth: u8,
     /// Extra images beside the output, OUTPUT.KIND.png (comma-separated or repeated).
     #[arg(long, value_enum, value_delimiter = ',')]
     pub aov: Vec<Aov>,
@@ -563,6 +567,14 @@ fn parse_vec3(s: &str) -> Result<glam::Vec3, String> {
 /// A position in the file's coordinates: kept in f64 until the cloud's origin is subtracted.
 fn parse_dvec3(s: &str) -> Result<glam::DVec3, String> {
     parse_floats::<3>(s).map(glam::DVec3::from)
+}
+
+fn parse_bit_depth(s: &str) -> Result<u8, String> {
+    match s {
+        "8" => Ok(8),
+        "16" => Ok(16),
+        _ => Err(format!("{s:?}: a PNG has 8 or 16 bits a channel")),
+    }
 }
 
 fn parse_clip_box(s: &str) -> Result<pointray::clip::ClipBox, String> {

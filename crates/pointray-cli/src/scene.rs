@@ -133,6 +133,7 @@ mod tests {
             "clip_plane",
             "aov",
             "transparent",
+            "bit_depth",
             "stats",
             "bench_frames",
             "bench_builds",

@@ -847,6 +847,44 @@ fn colour_and_class_flags_the_cloud_cannot_serve_are_refused() {
         .assert_stderr_contains("--classes leaves no points (the cloud's classes: 6, 9)");
 }
 
+/// A 16-bit PNG's samples and its colour type.
+fn read_png16(path: &std::path::Path) -> (Vec<u16>, png::ColorType) {
+    let decoder = png::Decoder::new(std::io::Cursor::new(std::fs::read(path).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    assert_eq!(info.bit_depth, png::BitDepth::Sixteen);
+    (buf[..info.buffer_size()].chunks_exact(2).map(|b| u16::from_be_bytes([b[0], b[1]])).collect(), info.color_type)
+}
+
+#[test]
+fn a_16_bit_png_holds_the_8_bit_image_and_more() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    for (flags, color) in [(&[][..], png::ColorType::Rgb), (&["--transparent"][..], png::ColorType::Rgba)] {
+        render_in(dir.path(), &[&["sphere.ply", "-o", "a.png"], flags].concat()).assert_success();
+        render_in(dir.path(), &[&["sphere.ply", "-o", "b.png", "--bit-depth", "16"], flags].concat()).assert_success();
+        let eight = png_samples(&dir.path().join("a.png"));
+        let (sixteen, color_type) = read_png16(&dir.path().join("b.png"));
+        assert_eq!((color_type, sixteen.len()), (color, eight.len()));
+        // The same image: each 16-bit sample rounds to the 8-bit one, give or take the 8-bit
+        // table's rounding; and finer steps than 8 bits have.
+        assert!(sixteen.iter().zip(&eight).all(|(&s, &e)| (f64::from(s) / 257.0 - f64::from(e)).abs() <= 0.51));
+        assert!(sixteen.iter().any(|&s| s % 257 != 0), "more than 256 levels");
+    }
+    render_in(dir.path(), &["sphere.ply", "-o", "c.exr", "--bit-depth", "16"]).assert_failure(2);
+}
+
+/// Any 8-bit PNG's samples.
+fn png_samples(path: &std::path::Path) -> Vec<u8> {
+    let decoder = png::Decoder::new(std::io::Cursor::new(std::fs::read(path).unwrap()));
+    let mut reader = decoder.read_info().unwrap();
+    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
+    let info = reader.next_frame(&mut buf).unwrap();
+    buf.truncate(info.buffer_size());
+    buf
+}
+
 #[test]
 fn clip_boxes_and_planes_keep_their_part() {
     let dir = temp_dir();

@@ -119,6 +119,12 @@ impl ToneMap {
         self.encoder()(linear)
     }
 
+    /// One linear channel as the 16-bit sRGB of a 16-bit PNG, for many channels.
+    pub fn encoder16(&self) -> impl Fn(f32) -> u16 + use<> {
+        let (scale, curve) = (self.exposure.exp2(), self.curve);
+        move |linear| (crate::color::linear_to_srgb(curve.apply(linear * scale)) * 65535.0 + 0.5) as u16
+    }
+
     /// [`Self::srgb8`] for many channels: the exposure's scale computed once.
     pub fn encoder(&self) -> impl Fn(f32) -> u8 + use<> {
         let (scale, curve, table) = (self.exposure.exp2(), self.curve, crate::color::srgb8_table());

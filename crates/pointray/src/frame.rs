@@ -89,17 +89,38 @@ impl Frame {
     /// # Panics
     /// If the render did not record the first hits (`Settings::aovs` with `Aov::Alpha`).
     pub fn srgba8(&self, tone: ToneMap) -> Vec<u8> {
-        let (srgb8, coverage) = (tone.encoder(), &self.first_hits().coverage);
+        self.srgba(tone.encoder(), |alpha| (alpha * 255.0 + 0.5) as u8)
+    }
+
+    /// [`Self::srgb8`] at 16 bits a channel (a 16-bit PNG's samples).
+    pub fn srgb16(&self, tone: ToneMap) -> Vec<u16> {
+        let encode = tone.encoder16();
+        let (rgb, background) = (&self.film.rgb, self.background.map(&encode));
+        self.whole(background, |i| rgb[i].map(&encode)).into_iter().flatten().collect()
+    }
+
+    /// [`Self::srgba8`] at 16 bits a channel.
+    ///
+    /// # Panics
+    /// As [`Self::srgba8`].
+    pub fn srgba16(&self, tone: ToneMap) -> Vec<u16> {
+        self.srgba(tone.encoder16(), |alpha| (alpha * 65535.0 + 0.5) as u16)
+    }
+
+    /// RGBA with the colour un-composited from the background (see [`Self::srgba8`]), each
+    /// colour channel by `encode`, the coverage (clamped to [0, 1]) by `alpha`.
+    fn srgba<T: Copy + Default>(&self, encode: impl Fn(f32) -> T, alpha_of: impl Fn(f32) -> T) -> Vec<T> {
+        let coverage = &self.first_hits().coverage;
         let pixel = |i: usize| {
             let alpha = coverage[i];
             if alpha <= 0.0 {
-                return [0; 4];
+                return [T::default(); 4];
             }
             let [r, g, b] =
-                std::array::from_fn(|c| srgb8((self.film.rgb[i][c] - (1.0 - alpha) * self.background[c]) / alpha));
-            [r, g, b, (alpha.clamp(0.0, 1.0) * 255.0 + 0.5) as u8]
+                std::array::from_fn(|c| encode((self.film.rgb[i][c] - (1.0 - alpha) * self.background[c]) / alpha));
+            [r, g, b, alpha_of(alpha.clamp(0.0, 1.0))]
         };
-        self.whole([0; 4], pixel).into_iter().flatten().collect()
+        self.whole([T::default(); 4], pixel).into_iter().flatten().collect()
     }
 
     /// Most nodes visited by one pixel (the top of the node heat map's scale).

@@ -71,6 +71,9 @@ fn check_outputs(a: &RenderArgs) -> anyhow::Result<()> {
         return Err(failure::usage(e));
     }
     super::check_output_path(&a.output)?;
+    if a.bit_depth != 8 && is_exr(&a.output) {
+        return Err(failure::usage(anyhow::anyhow!("--bit-depth is the PNG's; an EXR holds floats")));
+    }
     if let Some(stats) = &a.stats {
         super::check_output_path(stats)?;
     }
@@ -209,11 +212,14 @@ fn write_images(a: &RenderArgs, settings: &Settings, frame: &Frame) -> anyhow::R
         let channels = frame.float_channels(&settings.aovs);
         return pointray_io::write_exr(&a.output, w, h, channels).map_err(failure::output);
     }
-    if a.transparent {
-        pointray_io::write_png_rgba(&a.output, w, h, &frame.srgba8(settings.tone_map())).map_err(failure::output)?;
-    } else {
-        pointray_io::image::write_png(&a.output, w, h, &frame.srgb8(settings.tone_map())).map_err(failure::output)?;
+    let (out, tone) = (&a.output, settings.tone_map());
+    match (a.transparent, a.bit_depth) {
+        (true, 16) => pointray_io::write_png16_rgba(out, w, h, &frame.srgba16(tone)),
+        (true, _) => pointray_io::write_png_rgba(out, w, h, &frame.srgba8(tone)),
+        (false, 16) => pointray_io::write_png16(out, w, h, &frame.srgb16(tone)),
+        (false, _) => pointray_io::write_png(out, w, h, &frame.srgb8(tone)),
     }
+    .map_err(failure::output)?;
     // The AOVs asked for (not the alpha that --transparent records for itself).
     let mut written = Vec::new();
     for &aov in &a.aov {
