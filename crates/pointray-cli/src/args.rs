@@ -205,6 +205,10 @@ pub struct RenderArgs {
     /// the demo has its own].
     #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, conflicts_with = "eye")]
     pub view_dir: Option<glam::Vec3>,
+    /// A named framing, turned with the data's up axis: top (a plan), front, side (elevations)
+    /// or iso; with --projection orthographic, to scale.
+    #[arg(long, value_enum, conflicts_with_all = ["eye", "view_dir"])]
+    pub view: Option<pointray::settings::ViewPreset>,
     /// Camera distance from the model's centre, in bounding-box diagonals, when no --eye
     /// [default: 1; the demo has its own].
     #[arg(long, conflicts_with = "eye")]
@@ -374,6 +378,7 @@ impl RenderArgs {
             lens_radius: self.lens_radius,
             focus_distance: self.focus_distance,
             view_dir: self.view_dir,
+            view: self.view,
             distance: self.distance,
             region: self.region,
             crop_to_model: self.crop_to_model,

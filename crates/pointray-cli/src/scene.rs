@@ -10,7 +10,7 @@ use crate::failure;
 
 /// Flags that mean nothing beside a scene file, whose camera, lights, materials, sky and clouds'
 /// files are its own: given, they are refused rather than silently ignored.
-const SCENE_OWNS: [&str; 19] = [
+const SCENE_OWNS: [&str; 20] = [
     "eye",
     "look_at",
     "up",
@@ -18,6 +18,7 @@ const SCENE_OWNS: [&str; 19] = [
     "lens_radius",
     "focus_distance",
     "view_dir",
+    "view",
     "distance",
     "crop_to_model",
     "light_dir",

@@ -66,8 +66,8 @@ impl Camera {
         let mut up_hint = up.normalize();
         if forward.dot(up_hint).abs() > 0.999 {
             // Looking along `up`: +y up the image where it is not the view (north, in a plan
-            // of a z-up survey), else +z.
-            up_hint = if forward.y.abs() < 0.9 { Vec3::Y } else { Vec3::Z };
+            // of a z-up survey), else −z (a y-up model's front, +z, at the foot of its plan).
+            up_hint = if forward.y.abs() < 0.9 { Vec3::Y } else { Vec3::NEG_Z };
         }
         let right = forward.cross(up_hint).normalize();
         let up = right.cross(forward);

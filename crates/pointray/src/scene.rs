@@ -401,13 +401,16 @@ impl Scene {
         s.up.unwrap_or(self.up)
     }
 
-    /// The view direction and distance without an eye: the scene's own view, else (0.4, 0.3, 1)
-    /// at one diagonal, turned with the up axis (+y to +z: from the south, raised, for a survey).
+    /// The view direction and distance without an eye: a named view, else the scene's own,
+    /// else (0.4, 0.3, 1) at one diagonal; the named and the default turned with the up axis
+    /// (+y to +z: from the south, raised, for a survey).
     fn default_view(&self, s: &Settings) -> (Vec3, f32) {
-        self.view.unwrap_or_else(|| {
-            let turn = glam::Quat::from_rotation_arc(Vec3::Y, self.up(s).normalize());
-            (turn * Vec3::new(0.4, 0.3, 1.0), 1.0)
-        })
+        let turn = glam::Quat::from_rotation_arc(Vec3::Y, self.up(s).normalize());
+        match (s.view, self.view) {
+            (Some(preset), own) => (turn * preset.direction_for_y_up(), own.map_or(1.0, |(_, d)| d)),
+            (None, Some(own)) => own,
+            (None, None) => (turn * Vec3::new(0.4, 0.3, 1.0), 1.0),
+        }
     }
 
     fn camera(&self, s: &Settings) -> Camera {
@@ -767,6 +770,32 @@ mod tests {
         assert_eq!(job.report(&job.render(&|_| {})).up, [0.0, 0.0, 1.0]);
         let told = Settings { up: Some(Vec3::Y), ..s };
         assert_eq!(scene.job(&told).unwrap().report(&job.render(&|_| {})).up, [0.0, 1.0, 0.0]);
+    }
+
+    #[test]
+    fn named_views_turn_with_the_up_axis() {
+        use crate::settings::ViewPreset;
+        let mut cloud = crate::demo::demo_cloud(3000, 1);
+        crate::preprocess::preprocess(&mut cloud, &crate::preprocess::PreprocessConfig::standard()).unwrap();
+        let s = Settings { width: 16, height: 16, ..Settings::default() };
+        let z_up = Scene::build(SceneParts { up: Some(Vec3::Z), ..cloud.clone().into() }, &s).unwrap();
+        let y_up = Scene::build(cloud.into(), &s).unwrap();
+        let from = |scene: &Scene, view| {
+            let job = scene.job(&Settings { view: Some(view), ..s.clone() }).unwrap();
+            ((job.camera.eye - scene.bounds().center()).normalize(), job.camera.up())
+        };
+        let close = |a: Vec3, b: Vec3| (a - b).length() < 1e-5;
+        // A survey: the front from the south, the side from the east, the plan with north up.
+        assert!(close(from(&z_up, ViewPreset::Front).0, Vec3::NEG_Y));
+        assert!(close(from(&z_up, ViewPreset::Side).0, Vec3::X));
+        let (top, up) = from(&z_up, ViewPreset::Top);
+        assert!(close(top, Vec3::Z) && close(up, Vec3::Y), "{top} {up}");
+        // A y-up model: its front (+z) at the foot of its plan.
+        let (top, up) = from(&y_up, ViewPreset::Top);
+        assert!(close(top, Vec3::Y) && close(up, Vec3::NEG_Z), "{top} {up}");
+        assert!(close(from(&y_up, ViewPreset::Iso).0, Vec3::ONE.normalize()));
+        let both = Settings { view: Some(ViewPreset::Top), view_dir: Some(Vec3::X), ..s };
+        assert_eq!(y_up.job(&both).err().map(|e| e.option), Some("view"));
     }
 
     #[test]

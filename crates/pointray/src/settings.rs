@@ -57,6 +57,34 @@ pub enum Projection {
     Orthographic,
 }
 
+/// A framing by name, turned with the data's up axis (a z-up survey's front is seen from the
+/// south, its side from the east, its top with north up).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+#[serde(rename_all = "kebab-case")]
+pub enum ViewPreset {
+    /// Looking down the up axis: a plan (with `projection` orthographic, to scale).
+    Top,
+    /// Square on to the front: an elevation.
+    Front,
+    /// Square on to the right side.
+    Side,
+    /// From the front, the right and above alike.
+    Iso,
+}
+
+impl ViewPreset {
+    /// The direction from the model's centre to the camera for +y up (+z the front).
+    pub fn direction_for_y_up(self) -> Vec3 {
+        match self {
+            ViewPreset::Top => Vec3::Y,
+            ViewPreset::Front => Vec3::Z,
+            ViewPreset::Side => Vec3::X,
+            ViewPreset::Iso => Vec3::ONE.normalize(),
+        }
+    }
+}
+
 /// What the points of a lone cloud are made of (a scene file names its own materials).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
@@ -124,6 +152,8 @@ pub struct Settings {
     /// Without `eye`: the direction from the model's centre to the camera (default: the
     /// scene's view)
     pub view_dir: Option<Vec3>,
+    /// A named framing instead of `view_dir` (turned with the up axis).
+    pub view: Option<ViewPreset>,
     /// and the distance, in bounding-box diagonals.
     pub distance: Option<f32>,
     /// Only this rectangle of the frame.
@@ -194,6 +224,7 @@ impl Default for Settings {
             lens_radius: 0.0,
             focus_distance: None,
             view_dir: None,
+            view: None,
             distance: None,
             region: None,
             crop_to_model: false,
@@ -290,6 +321,8 @@ impl Settings {
         check(direction(self.view_dir), "view_dir", "must not be the zero vector")?;
         check(direction(self.light_dir), "light_dir", "must not be the zero vector")?;
         check(self.light_dir.is_none() || self.light_pos.is_none(), "light_dir", "and light_pos exclude each other")?;
+        check(self.view.is_none() || self.view_dir.is_none(), "view", "and view_dir exclude each other")?;
+        check(self.view.is_none() || self.eye.is_none(), "view", "and eye exclude each other")?;
         match (self.eye, self.look_at) {
             (Some(eye), Some(target)) => check(eye != target, "eye", "and look_at must differ")?,
             (None, None) => {}
