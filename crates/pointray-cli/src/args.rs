@@ -285,6 +285,11 @@ pub struct RenderArgs {
     /// Leave out the points of these classes (e.g. 7,18: noise).
     #[arg(long, value_delimiter = ',', num_args = 1..)]
     pub exclude_classes: Vec<u8>,
+    /// Eye-dome lighting, the depth cue of Potree and CloudCompare: a pixel darkens where its
+    /// neighbours are nearer, outlining silhouettes and creases; the strength (1 is Potree's
+    /// default), 0 off.
+    #[arg(long, default_value_t = D.edl)]
+    pub edl: f32,
     /// Keep only the points inside this box, in the file's coordinates: X0,Y0,Z0,X1,Y1,Z1.
     #[arg(long, allow_hyphen_values = true, value_parser = parse_clip_box)]
     pub clip_box: Option<pointray::clip::ClipBox>,
@@ -393,6 +398,7 @@ impl RenderArgs {
             color_by: self.color_by,
             classes: self.classes.clone(),
             exclude_classes: self.exclude_classes.clone(),
+            edl: self.edl,
             clip_box: self.clip_box,
             clip_planes: self.clip_plane.clone(),
             integrator: self.integrator,

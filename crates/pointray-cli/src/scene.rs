@@ -130,6 +130,7 @@ mod tests {
             "color_by",
             "classes",
             "exclude_classes",
+            "edl",
             "clip_box",
             "clip_plane",
             "aov",

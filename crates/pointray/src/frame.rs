@@ -217,6 +217,8 @@ pub struct FrameReport {
     pub color_by: crate::color_by::ColorBy,
     pub classes: Option<Vec<u8>>,
     pub exclude_classes: Vec<u8>,
+    /// Eye-dome lighting's strength; 0 off.
+    pub edl: f32,
     /// The clip: the box and half-spaces kept (file coordinates).
     pub clip_box: Option<crate::clip::ClipBox>,
     pub clip_planes: Vec<crate::clip::ClipPlane>,

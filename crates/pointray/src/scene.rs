@@ -538,8 +538,22 @@ impl RenderJob<'_> {
         let mut film = self.film();
         let (camera, config) = (&self.camera, &self.config);
         let stats = on_accel!(&self.scene.accel, a => crate::render::render_into_until(a, camera, config, &mut film, progress, cancel));
+        self.shade_eye_dome(&mut film);
         let (width, height) = (self.settings.width, self.settings.height);
         (!cancel.load(Ordering::Relaxed)).then(|| Frame { film, stats, width, height, background: self.background() })
+    }
+
+    /// Eye-dome lighting over the film's pixels, where the settings ask for it.
+    fn shade_eye_dome(&self, film: &mut Film) {
+        let strength = self.settings.edl;
+        if strength <= 0.0 {
+            return;
+        }
+        let (camera, config) = (&self.camera, &self.config);
+        let shades = on_accel!(&self.scene.accel, a => crate::eye_dome::shades(a, camera, &config.scheme, config.lod_threshold, config.region, strength));
+        for (rgb, shade) in film.rgb.iter_mut().zip(shades) {
+            *rgb = rgb.map(|c| c * shade);
+        }
     }
 
     /// The same job counting no work (for timed frames whose statistics nobody reads).
@@ -558,7 +572,9 @@ impl RenderJob<'_> {
     /// frame, its pages faulted in anew, cost 7 % of a frame of the dragon at 1024²).
     pub fn render_into(&self, film: &mut Film, progress: &(dyn Fn(u64) + Sync)) -> RenderStats {
         let (camera, config, never) = (&self.camera, &self.config, AtomicBool::new(false));
-        on_accel!(&self.scene.accel, a => crate::render::render_into_until(a, camera, config, film, progress, &never))
+        let stats = on_accel!(&self.scene.accel, a => crate::render::render_into_until(a, camera, config, film, progress, &never));
+        self.shade_eye_dome(film);
+        stats
     }
 
     /// The camera's ray (without its lens) through the centre of pixel (`x`, `y`): its origin in
@@ -595,6 +611,7 @@ impl RenderJob<'_> {
             color_by: scene.build.color_by,
             classes: scene.build.classes.clone(),
             exclude_classes: scene.build.exclude_classes.clone(),
+            edl: s.edl,
             clip_box: scene.build.clip_box,
             clip_planes: scene.build.clip_planes.clone(),
             samples_per_pixel: s.spp,
@@ -698,6 +715,29 @@ mod tests {
             let other = Settings { color_by: ColorBy::Auto, ..s };
             assert_eq!(render(&scene, &other).unwrap_err().option, "color_by");
         }
+    }
+
+    #[test]
+    fn eye_dome_lighting_darkens_behind_silhouettes_alike_in_any_region() {
+        let s = Settings { width: 256, height: 192, ..Settings::default() };
+        let scene = sphere_scene(&s);
+        let plain = render(&scene, &s).unwrap();
+        let edl = Settings { edl: 1.0, ..s.clone() };
+        let shaded = render(&scene, &edl).unwrap();
+        let lit = plain.film.rgb.iter().zip(&shaded.film.rgb).filter(|(p, _)| p[1] > 0.05);
+        let ratios: Vec<f32> = lit.map(|(p, q)| q[1] / p[1]).collect();
+        assert!(ratios.iter().all(|&r| r <= 1.0 + 1e-6), "eye-dome lighting only darkens");
+        let (dark, kept) = (ratios.iter().filter(|&&r| r < 0.5).count(), ratios.iter().filter(|&&r| r > 0.99).count());
+        assert!(dark > 20 && kept > ratios.len() / 2, "{dark} outlined, {kept} of {} kept", ratios.len());
+        // A tile's shading is the frame's: its margin's depths are traced too.
+        let region = Region { x0: 100, y0: 70, x1: 160, y1: 130 };
+        let tile = render(&scene, &Settings { region: Some(region), ..edl }).unwrap();
+        let frame = shaded.linear_rgb();
+        let crop: Vec<[f32; 3]> = (region.y0..region.y1)
+            .flat_map(|y| (region.x0..region.x1).map(move |x| (x, y)))
+            .map(|(x, y)| frame[(y * 256 + x) as usize])
+            .collect();
+        assert_eq!(tile.film.rgb, crop);
     }
 
     #[test]

@@ -175,6 +175,9 @@ pub struct Settings {
     pub classes: Option<Vec<u8>>,
     /// Leave out the points of these classes (a scene is built with it).
     pub exclude_classes: Vec<u8>,
+    /// Eye-dome lighting's strength ([`crate::eye_dome`]): darkens where neighbours are nearer,
+    /// Potree's depth cue; 1 is Potree's default, 0 off.
+    pub edl: f32,
     /// Keep only the points inside this box (file coordinates; a scene is built with it).
     pub clip_box: Option<ClipBox>,
     /// Keep only the points on the kept side of each plane (a scene is built with them).
@@ -239,6 +242,7 @@ impl Default for Settings {
             color_by: ColorBy::Auto,
             classes: None,
             exclude_classes: Vec::new(),
+            edl: 0.0,
             clip_box: None,
             clip_planes: Vec::new(),
             integrator: Integrator::Whitted,
@@ -312,6 +316,7 @@ impl Settings {
         check(self.max_depth <= 64, "max_depth", "must be at most 64")?;
         check(self.classes.as_ref().is_none_or(|c| !c.is_empty()), "classes", "must name at least one class")?;
         crate::clip::check(self.clip_box.as_ref(), &self.clip_planes)?;
+        check(self.edl >= 0.0 && finite(self.edl), "edl", "must be a non-negative strength (0: off)")?;
         let most = ToneMap::MAX_EXPOSURE;
         if self.exposure.is_nan() || self.exposure.abs() > most {
             return Err(SettingsError::new("exposure", format!("must be between -{most} and {most} stops")));
