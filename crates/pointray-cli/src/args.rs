@@ -124,8 +124,8 @@ pub struct RenderArgs {
     /// content), or a scene file (.toml: several clouds, materials, lights; see
     /// scenes/README.md); none renders the built-in demo scene.
     pub input: Option<PathBuf>,
-    /// Output image, written atomically: NAME.png (8-bit sRGB, tone-mapped) or NAME.exr
-    /// (linear 32-bit float, with the --aov layers).
+    /// Output image, written atomically: NAME.png (sRGB, tone-mapped, 8 or --bit-depth 16 bits)
+    /// or NAME.exr (linear 32-bit float, with the --aov layers).
     #[arg(short, long)]
     pub output: PathBuf,
     /// Image width in pixels.
@@ -280,14 +280,14 @@ pub struct RenderArgs {
     pub color_by: ColorBy,
     /// Draw only the points of these ASPRS classes (comma-separated codes: 2 ground, 6
     /// building, 3-5 vegetation, 9 water, 7 and 18 noise).
-    #[arg(long, value_delimiter = ',', num_args = 1..)]
+    #[arg(long, value_delimiter = ',')]
     pub classes: Option<Vec<u8>>,
     /// Leave out the points of these classes (e.g. 7,18: noise).
-    #[arg(long, value_delimiter = ',', num_args = 1..)]
+    #[arg(long, value_delimiter = ',')]
     pub exclude_classes: Vec<u8>,
     /// Eye-dome lighting, the depth cue of Potree and CloudCompare: a pixel darkens where its
-    /// neighbours are nearer, outlining silhouettes and creases; the strength (1 is Potree's
-    /// default), 0 off.
+    /// neighbours are nearer, outlining the edges of nearer surfaces over farther ones, and
+    /// creases; the strength (1 is Potree's default), 0 off.
     #[arg(long, default_value_t = D.edl)]
     pub edl: f32,
     /// Keep only the points inside this box, in the file's coordinates: X0,Y0,Z0,X1,Y1,Z1.

@@ -48,7 +48,7 @@ fn decode(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
             let color = point.color.map_or([0.5; 3], |c| [c.red, c.green, c.blue]);
             let intensity = point.intensity.unwrap_or(0.0);
             builder.push(&PointRecord { position: DVec3::new(x, y, z), color, intensity, ..PointRecord::default() });
-            scan_of.push(index.min(usize::from(u16::MAX)) as u16);
+            scan_of.push(index as u16); // (wraps past 65,535 scans, whose viewpoints are not kept)
         }
     }
     if skipped > 0 {
@@ -62,8 +62,10 @@ fn decode(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     let scanners: Option<Vec<DVec3>> = scans
         .iter()
         .map(|scan| {
-            let t = scan.transform.as_ref().filter(|_| scan.has_spherical() || scan.has_row_column())?;
-            Some(DVec3::new(t.translation.x, t.translation.y, t.translation.z))
+            // A scanner's scan without a pose stands at the origin.
+            let scanner = scan.has_spherical() || scan.has_row_column();
+            let t = scan.transform.as_ref().map(|t| &t.translation);
+            scanner.then(|| t.map_or(DVec3::ZERO, |t| DVec3::new(t.x, t.y, t.z)))
         })
         .collect();
     if let Some(scanners) = scanners.filter(|s| !s.is_empty() && s.len() <= usize::from(u16::MAX)) {

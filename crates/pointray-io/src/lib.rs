@@ -79,7 +79,12 @@ pub fn read_cloud(path: &Path) -> Result<LoadedCloud, IoError> {
 /// [`read_cloud`] told what the file does not say ([`ReadOptions`]).
 pub fn read_cloud_with(path: &Path, options: &ReadOptions) -> Result<LoadedCloud, IoError> {
     if let Some(columns) = &options.columns {
-        return xyz::parse(path, &read_file(path, false)?, Some(columns));
+        let bytes = read_file(path, false)?;
+        let binary = bytes.starts_with(b"ply") || las::looks_like_las(&bytes) || pcd::looks_like_pcd(&bytes);
+        if binary || e57::looks_like_e57(&bytes) {
+            return Err(IoError::invalid(path, "text columns were named, but this is a PLY, LAS/LAZ, PCD or E57 file"));
+        }
+        return xyz::parse(path, &bytes, Some(columns));
     }
     read_any(path, true)
 }

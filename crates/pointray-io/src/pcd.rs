@@ -252,6 +252,8 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     };
     let mut cloud = builder.finish();
     if channels.is_some() {
+        // By the values, not the fields' types: as in LAS, writers put 8-bit values in 16-bit
+        // fields (PDAL's own autzen-utm.pcd: 16-bit channels holding 8-bit values).
         crate::builder::scale_colors_to_unit(&mut cloud);
     }
     cloud.viewpoints = header.viewpoint.map(|v| (glam::DVec3::from(v) - cloud.origin).as_vec3()).into_iter().collect();

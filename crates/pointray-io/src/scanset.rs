@@ -107,5 +107,13 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         file_bytes: bytes.len() as u64 + loaded.iter().map(|l| l.info.file_bytes).sum::<u64>(),
         up: None,
     };
-    Ok(LoadedCloud { cloud: builder.finish(), info })
+    let mut cloud = builder.finish();
+    // The scans' attributes, one after another (zeros for a scan without one another has).
+    let mut len = 0;
+    for l in loaded {
+        let n = l.cloud.len();
+        cloud.scan.append(len, l.cloud.scan, n);
+        len += n;
+    }
+    Ok(LoadedCloud { cloud, info })
 }

@@ -8,7 +8,7 @@
 //!   and is skipped;
 //! - the first data line fixes the column count for the whole file: 3 = position,
 //!   9 = position + normal + colour, 6 = position + colour if each of its last three values
-//!   is an integer literal in `0..=255` and the triple is not unit length, else
+//!   is a whole number in `0..=255` (`117` or `117.0`) and the triple is not unit length, else
 //!   position + normal; 4 = position + intensity, 7 = position + intensity + colour (PTS; the
 //!   intensity is kept as a scan attribute), except that 7 columns whose last four are whole
 //!   numbers in `0..=255` (`117` or `117.0`) ending in an opaque 255, in a file that is not
@@ -44,13 +44,13 @@ pub enum Column {
     Red,
     Green,
     Blue,
-    /// Read and not kept (splats are opaque).
+    /// Not kept (splats are opaque), nor parsed.
     Alpha,
     Intensity,
     Classification,
     ReturnNumber,
     GpsTime,
-    /// Read and not kept.
+    /// Not kept, nor parsed.
     Skip,
 }
 
@@ -65,11 +65,12 @@ impl std::str::FromStr for TextColumns {
     type Err = String;
 
     fn from_str(names: &str) -> Result<Self, String> {
-        let columns = names.split(',').map(|name| column_named(name.trim())).collect::<Result<Vec<_>, _>>()?;
+        let names: Vec<&str> = names.split(',').map(str::trim).collect();
+        let columns = names.iter().map(|name| column_named(name)).collect::<Result<Vec<_>, _>>()?;
         let count = |c: Column| columns.iter().filter(|&&k| k == c).count();
-        for c in columns.iter().filter(|&&c| c != Column::Skip) {
+        for (c, name) in columns.iter().zip(&names).filter(|(c, _)| **c != Column::Skip) {
             if count(*c) > 1 {
-                return Err(format!("{c:?} is named twice"));
+                return Err(format!("'{name}' is named twice"));
             }
         }
         for (group, what) in [
@@ -215,7 +216,7 @@ fn byte_value(token: &str) -> Option<u8> {
 }
 
 fn looks_like_rgb(tokens: &[&str]) -> bool {
-    let channels: Option<Vec<u8>> = tokens.iter().map(|t| t.parse::<u8>().ok()).collect();
+    let channels: Option<Vec<u8>> = tokens.iter().map(|t| byte_value(t)).collect();
     match channels {
         Some(channels) => channels.iter().map(|&c| f64::from(c).powi(2)).sum::<f64>() != 1.0,
         None => false,
@@ -299,6 +300,8 @@ mod tests {
         let layout = |names: &str| Ok(TextColumns::of(names));
         assert_eq!(detect(&["0", "0", "0", "255", "128", "0"]), layout("x,y,z,r,g,b"));
         assert_eq!(detect(&["0", "0", "0", "0", "0", "1"]), layout("x,y,z,nx,ny,nz"));
+        assert_eq!(detect(&["0", "0", "0", "117.0", "73.0", "49.0"]), layout("x,y,z,r,g,b"));
+        assert_eq!(detect(&["0", "0", "0", "0.0", "1.0", "0.0"]), layout("x,y,z,nx,ny,nz"));
         assert_eq!(detect(&["0", "0", "0", "0.5", "0.5", "0.7"]), layout("x,y,z,nx,ny,nz"));
         assert_eq!(detect(&["0", "0", "0", "256", "0", "0"]), layout("x,y,z,nx,ny,nz"));
         assert_eq!(detect(&["0", "0", "0", "1"]), layout("x,y,z,i"));
@@ -316,7 +319,7 @@ mod tests {
             ("x,y", "x, y and z are needed"),
             ("x,y,z,r,g", "r, g and b go together"),
             ("x,y,z,nx", "nx, ny and nz go together"),
-            ("x,y,z,x", "X is named twice"),
+            ("x,y,z,x", "'x' is named twice"),
             ("x,y,z,w", "unknown column 'w'"),
         ] {
             let e = bad.parse::<TextColumns>().unwrap_err();

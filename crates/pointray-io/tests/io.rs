@@ -665,6 +665,9 @@ fn xyz_errors_name_the_line() {
     let path = write_file(dir.path(), "five.pts", b"2\n1 2 3 4 5\n6 7 8 9 2\n");
     let cloud = pointray_io::read_cloud_with(&path, &options).unwrap().cloud;
     assert_eq!((cloud.len(), cloud.scan.classification), (2, Some(vec![5, 2])));
+    let ply = write_file(dir.path(), "cloud.ply", &ascii_ply(&[(DVec3::ZERO, DVec3::Z)]));
+    let e = pointray_io::read_cloud_with(&ply, &options).unwrap_err().to_string();
+    assert!(e.ends_with("text columns were named, but this is a PLY, LAS/LAZ, PCD or E57 file"), "{e}");
 }
 
 // ---------------------------------------------------------------- atomic writes and PNG
@@ -866,6 +869,23 @@ fn a_scan_set_merges_its_scans_registered() {
         assert_close(*p, world[i].0, 1e-5);
         assert_close(normals[i].as_dvec3(), world[i].1, 1e-5);
     }
+}
+
+#[test]
+fn a_scan_set_keeps_its_scans_attributes() {
+    let dir = temp_dir();
+    let scan = |intensity: [u8; 2]| {
+        format!(
+            "ply\nformat ascii 1.0\nelement vertex 2\nproperty float x\nproperty float y\nproperty float z\n\
+             property uchar intensity\nend_header\n0 0 0 {}\n1 0 0 {}\n",
+            intensity[0], intensity[1]
+        )
+    };
+    write_file(dir.path(), "a.ply", scan([1, 2]).as_bytes());
+    write_file(dir.path(), "b.ply", scan([3, 4]).as_bytes());
+    let conf = "bmesh a.ply 0 0 0 0 0 0 1\nbmesh b.ply 0 0 1 0 0 0 1\n";
+    let cloud = read_cloud(&write_file(dir.path(), "set.conf", conf.as_bytes())).unwrap().cloud;
+    assert_eq!(cloud.scan.intensity, Some(vec![1.0, 2.0, 3.0, 4.0]));
 }
 
 #[test]

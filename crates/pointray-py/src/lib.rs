@@ -23,7 +23,7 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 /// A point cloud: positions (N×3, float64, in the file's coordinates), and where known the
-/// normals (N×3), colours (N×3, linear, 0 to 1) and splat radii (N), float32; and the scan
+/// normals (N×3), colours (N×3, sRGB-encoded as files store them, 0 to 1) and splat radii (N), float32; and the scan
 /// attributes: intensity (float32), classification and return number (uint8), GPS time
 /// (float64), N each.
 #[pyclass(module = "pointray", name = "Cloud", frozen)]

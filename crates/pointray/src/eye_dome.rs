@@ -1,8 +1,10 @@
 //! Eye-dome lighting (after Boucheny 2009), the depth cue Potree and CloudCompare show point
 //! clouds with: a pixel darkens where its neighbours lie nearer than it, in log depth, so that
-//! silhouettes and creases stand out whatever the lighting. The depths are those of the pixel
-//! centres' camera rays, traced for the region and a margin around it: a tile's shading is the
-//! whole frame's there (region renders, tiles on several machines).
+//! the edges of nearer surfaces over farther ones, and creases, stand out whatever the lighting
+//! (the background counts as far: the model's outline against it is not drawn). The depths are
+//! those of the pixel centres' camera rays, traced (uncounted in the statistics) for the region
+//! and a margin around it: a tile's shading is the whole frame's there (region renders, tiles
+//! on several machines).
 //!
 //! Potree sums each neighbour's nearness, max(0, log₂ d − log₂ dₙ); its splats are flat
 //! squares of one depth each, so that only their edges respond. Ray-traced disks make a smooth
@@ -29,12 +31,12 @@ const AXES: [(i64, i64); 4] = [(1, 0), (0, 1), (1, 1), (1, -1)];
 /// The factor, in (0, 1], each pixel of `region` (row-major) is shaded by at this `strength`:
 /// exp(−strength · 300 · mean over the four axes of max(0, log₂ d − mean of the pair's log₂
 /// depths)). A pixel whose centre ray meets nothing keeps its colour; a neighbour that meets
-/// nothing counts as far away. `tau` is the frame's level-of-detail threshold.
+/// nothing counts as far away. `rays` sets the frame's level of detail and culling.
 pub fn shades<A: Accel>(
     accel: &A,
     camera: &Camera,
     scheme: &SurfaceScheme,
-    tau: f32,
+    rays: DepthRays,
     region: Region,
     strength: f32,
 ) -> Vec<f32> {
@@ -45,7 +47,7 @@ pub fn shades<A: Accel>(
         x1: (region.x1 + r).min(camera.width),
         y1: (region.y1 + r).min(camera.height),
     };
-    let log_depths = log_depths(accel, camera, scheme, tau, grown);
+    let log_depths = log_depths(accel, camera, scheme, rays, grown);
     let at = |x: i64, y: i64| {
         let inside =
             x >= i64::from(grown.x0) && x < i64::from(grown.x1) && y >= i64::from(grown.y0) && y < i64::from(grown.y1);
@@ -69,15 +71,31 @@ pub fn shades<A: Accel>(
         .collect()
 }
 
+/// The frame's level-of-detail threshold and back-face culling, which the depth rays take too.
+#[derive(Clone, Copy, Debug)]
+pub struct DepthRays {
+    pub lod_threshold: f32,
+    pub cull_backfaces: bool,
+}
+
 /// log₂ of the distance to the first surface along each pixel centre's camera ray (infinite
 /// where it meets none), row-major over `region`.
-fn log_depths<A: Accel>(accel: &A, camera: &Camera, scheme: &SurfaceScheme, tau: f32, region: Region) -> Vec<f32> {
+fn log_depths<A: Accel>(
+    accel: &A,
+    camera: &Camera,
+    scheme: &SurfaceScheme,
+    rays: DepthRays,
+    region: Region,
+) -> Vec<f32> {
     let width = region.width() as usize;
     (0..region.pixel_count() as usize)
         .into_par_iter()
         .map(|i| {
             let (x, y) = (region.x0 + (i % width) as u32, region.y0 + (i / width) as u32);
-            let ray = camera.ray(x as f32 + 0.5, y as f32 + 0.5).with_lod_threshold(tau);
+            let ray = camera
+                .ray(x as f32 + 0.5, y as f32 + 0.5)
+                .with_lod_threshold(rays.lod_threshold)
+                .with_backface_culling(rays.cull_backfaces);
             let hit = intersect(accel, &ray, scheme, &mut TraversalStats::uncounted());
             hit.map_or(f32::INFINITY, |h| h.t.max(f32::MIN_POSITIVE).log2())
         })

@@ -255,8 +255,11 @@ pub struct FrameReport {
     pub mean_radius: f64,
     pub bounds_diagonal: f32,
     pub camera_distance: Option<f32>,
-    /// The camera's up: the settings', else the data's (+z for LAS and LAZ), else +y.
+    /// The camera's up: the settings', else the data's (+z for LAS, LAZ and E57, −y for an
+    /// organised depth frame, a prepared PLY's own), else +y.
     pub up: [f32; 3],
+    /// The named framing, if one was asked for.
+    pub view: Option<crate::settings::ViewPreset>,
     /// The instruction-set path the kernels ran on (`pointray::accel::isa`).
     pub isa: crate::accel::isa::Isa,
     pub counters: RenderStats,

@@ -95,6 +95,8 @@ pub enum SceneError {
     Empty,
     #[error("the points' material indices are not one a point")]
     MaterialCount,
+    #[error("the cloud is inconsistent: {0}")]
+    Inconsistent(String),
     /// A colour or class filter the cloud cannot give (no such attribute, no point left).
     #[error(transparent)]
     Settings(#[from] SettingsError),
@@ -129,6 +131,9 @@ struct Build {
     exclude_classes: Vec<u8>,
     clip_box: Option<ClipBox>,
     clip_planes: Vec<ClipPlane>,
+    /// The axis the elevation colours follow (with `color_by` elevation): the settings' `up`,
+    /// else the data's (`Build::of` leaves the data's to the builder).
+    elevation_up: Option<Vec3>,
 }
 
 impl Build {
@@ -144,6 +149,7 @@ impl Build {
             exclude_classes: settings.exclude_classes.clone(),
             clip_box: settings.clip_box,
             clip_planes: settings.clip_planes.clone(),
+            elevation_up: (settings.color_by == ColorBy::Elevation).then_some(settings.up.unwrap_or(Vec3::ZERO)),
         }
     }
 }
@@ -190,11 +196,16 @@ impl Scene {
     /// `color_by`.
     pub fn build(parts: SceneParts, settings: &Settings) -> Result<Scene, SceneError> {
         let SceneParts { mut cloud, mut point_materials, content, view, light, up } = parts;
+        cloud.check_lengths().map_err(SceneError::Inconsistent)?;
+        if point_materials.as_ref().is_some_and(|m| m.len() != cloud.len()) {
+            return Err(SceneError::MaterialCount);
+        }
         let kept = select_points(&mut cloud, settings)?;
         if let (Some(kept), Some(materials)) = (&kept, &mut point_materials) {
             *materials = kept.iter().map(|&i| materials[i as usize]).collect();
         }
         let up = up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y);
+        // (The elevation colours' axis: the one `Self::up` gives the camera.)
         color_by::apply(&mut cloud, settings.color_by, settings.up.unwrap_or(up))?;
         if cloud.is_empty() {
             return Err(SceneError::Empty);
@@ -206,9 +217,6 @@ impl Scene {
         if !prepared(cloud.normals.as_ref().map(Vec::len)) || !prepared(cloud.radii.as_ref().map(Vec::len)) {
             return Err(SceneError::NotPrepared);
         }
-        if point_materials.as_ref().is_some_and(|m| m.len() != cloud.len()) {
-            return Err(SceneError::MaterialCount);
-        }
         let mut splats = splats_from_cloud(&cloud);
         if let Some(materials) = &point_materials {
             splats.iter_mut().zip(materials).for_each(|(s, &m)| s.set_material(m));
@@ -216,7 +224,8 @@ impl Scene {
         let mean_radius = splats.iter().map(|s| f64::from(s.radius)).sum::<f64>() / splats.len() as f64;
         let (origin, points, bounds) = (cloud.origin, cloud.len(), cloud.bounds());
         drop(cloud);
-        let build = Build::of(settings);
+        let mut build = Build::of(settings);
+        build.elevation_up = build.elevation_up.map(|_| settings.up.unwrap_or(up));
         let start = std::time::Instant::now();
         // The kd-tree and brute force keep the splats' order; the BVH says where each went.
         let mut ids = None;
@@ -236,7 +245,10 @@ impl Scene {
         let build_seconds = start.elapsed().as_secs_f64();
         // Ids name the points as they came, before the class filter.
         let ids = match (ids, kept) {
-            (Some(slots), Some(kept)) => Some(slots.iter().map(|&s| kept.get(s as usize).map_or(s, |&i| i)).collect()),
+            // (u32::MAX marks a block's empty slot.)
+            (Some(slots), Some(kept)) => {
+                Some(slots.iter().map(|&s| if s == u32::MAX { s } else { kept[s as usize] }).collect())
+            }
             (ids, kept) => ids.or(kept),
         };
         // The camera frames the points' bounds (the Embree bench's convention); a cloud of one
@@ -381,11 +393,20 @@ impl Scene {
         if built.color_by != asked.color_by {
             return Err(SettingsError::new("color_by", problem("its splats' colours")));
         }
-        if (&built.classes, &built.exclude_classes) != (&asked.classes, &asked.exclude_classes) {
+        if built.classes != asked.classes {
             return Err(SettingsError::new("classes", problem("the classes it holds")));
         }
-        if (&built.clip_box, &built.clip_planes) != (&asked.clip_box, &asked.clip_planes) {
-            return Err(SettingsError::new("clip_box", problem("the part its clip keeps")));
+        if built.exclude_classes != asked.exclude_classes {
+            return Err(SettingsError::new("exclude_classes", problem("the classes it leaves out")));
+        }
+        if built.clip_box != asked.clip_box {
+            return Err(SettingsError::new("clip_box", problem("the box its clip keeps")));
+        }
+        if built.clip_planes != asked.clip_planes {
+            return Err(SettingsError::new("clip_planes", problem("the planes it is cut by")));
+        }
+        if built.elevation_up != asked.elevation_up.map(|_| self.up(settings)) {
+            return Err(SettingsError::new("up", problem("the axis its elevation colours follow")));
         }
         Ok(())
     }
@@ -405,7 +426,7 @@ impl Scene {
     /// else (0.4, 0.3, 1) at one diagonal; the named and the default turned with the up axis
     /// (+y to +z: from the south, raised, for a survey).
     fn default_view(&self, s: &Settings) -> (Vec3, f32) {
-        let turn = glam::Quat::from_rotation_arc(Vec3::Y, self.up(s).normalize());
+        let turn = turn_from_y(self.up(s).normalize());
         match (s.view, self.view) {
             (Some(preset), own) => (turn * preset.direction_for_y_up(), own.map_or(1.0, |(_, d)| d)),
             (None, Some(own)) => own,
@@ -538,9 +559,12 @@ impl RenderJob<'_> {
         let mut film = self.film();
         let (camera, config) = (&self.camera, &self.config);
         let stats = on_accel!(&self.scene.accel, a => crate::render::render_into_until(a, camera, config, &mut film, progress, cancel));
+        if cancel.load(Ordering::Relaxed) {
+            return None;
+        }
         self.shade_eye_dome(&mut film);
         let (width, height) = (self.settings.width, self.settings.height);
-        (!cancel.load(Ordering::Relaxed)).then(|| Frame { film, stats, width, height, background: self.background() })
+        Some(Frame { film, stats, width, height, background: self.background() })
     }
 
     /// Eye-dome lighting over the film's pixels, where the settings ask for it.
@@ -550,7 +574,11 @@ impl RenderJob<'_> {
             return;
         }
         let (camera, config) = (&self.camera, &self.config);
-        let shades = on_accel!(&self.scene.accel, a => crate::eye_dome::shades(a, camera, &config.scheme, config.lod_threshold, config.region, strength));
+        let rays = crate::eye_dome::DepthRays {
+            lod_threshold: config.lod_threshold,
+            cull_backfaces: config.cull_backfaces && config.scheme.kind.shape() == DiskShape::Oriented,
+        };
+        let shades = on_accel!(&self.scene.accel, a => crate::eye_dome::shades(a, camera, &config.scheme, rays, config.region, strength));
         for (rgb, shade) in film.rgb.iter_mut().zip(shades) {
             *rgb = rgb.map(|c| c * shade);
         }
@@ -649,9 +677,21 @@ impl RenderJob<'_> {
                 .is_none()
                 .then(|| s.distance.unwrap_or(scene.default_view(s).1) * scene.bounds.diagonal()),
             up: scene.up(s).to_array(),
+            view: s.view,
             isa: crate::accel::isa::active(),
             counters: *stats,
         }
+    }
+}
+
+/// The turn taking +y to unit `up`. +y to −y is a half turn about x, which keeps a depth
+/// frame's front (+z, its sensor's side −z) where it is seen from: glam's arc picks another
+/// axis, which turned it to the back.
+fn turn_from_y(up: Vec3) -> glam::Quat {
+    if up.dot(Vec3::Y) < -0.9999 {
+        glam::Quat::from_rotation_x(std::f32::consts::PI)
+    } else {
+        glam::Quat::from_rotation_arc(Vec3::Y, up)
     }
 }
 
@@ -819,6 +859,7 @@ mod tests {
         crate::preprocess::preprocess(&mut cloud, &crate::preprocess::PreprocessConfig::standard()).unwrap();
         let s = Settings { width: 16, height: 16, ..Settings::default() };
         let z_up = Scene::build(SceneParts { up: Some(Vec3::Z), ..cloud.clone().into() }, &s).unwrap();
+        let y_down = Scene::build(SceneParts { up: Some(Vec3::NEG_Y), ..cloud.clone().into() }, &s).unwrap();
         let y_up = Scene::build(cloud.into(), &s).unwrap();
         let from = |scene: &Scene, view| {
             let job = scene.job(&Settings { view: Some(view), ..s.clone() }).unwrap();
@@ -834,6 +875,8 @@ mod tests {
         let (top, up) = from(&y_up, ViewPreset::Top);
         assert!(close(top, Vec3::Y) && close(up, Vec3::NEG_Z), "{top} {up}");
         assert!(close(from(&y_up, ViewPreset::Iso).0, Vec3::ONE.normalize()));
+        // A depth frame (y down, its sensor at −z): its front is seen from the sensor's side.
+        assert!(close(from(&y_down, ViewPreset::Front).0, Vec3::NEG_Z));
         let both = Settings { view: Some(ViewPreset::Top), view_dir: Some(Vec3::X), ..s };
         assert_eq!(y_up.job(&both).err().map(|e| e.option), Some("view"));
     }

@@ -60,7 +60,13 @@ pub fn run(a: &RenderArgs, quiet: bool) -> anyhow::Result<()> {
 
 /// A setting out of range, named by its flag.
 pub fn flag_error(e: SettingsError) -> anyhow::Error {
-    anyhow::anyhow!("--{} {}", e.option.replace('_', "-"), e.problem)
+    // Lists are repeated flags of one item each.
+    let flag = match e.option {
+        "clip_planes" => "clip-plane".to_string(),
+        "aovs" => "aov".to_string(),
+        option => option.replace('_', "-"),
+    };
+    anyhow::anyhow!("--{flag} {}", e.problem)
 }
 
 /// Refuses, before any work, an output that cannot be written or whose format is unknown.

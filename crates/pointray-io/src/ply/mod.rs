@@ -133,14 +133,7 @@ pub fn write_ply_with_up(path: &Path, cloud: &PointCloud, up: Option<[f32; 3]>) 
         .check_lengths()
         .map_err(|message| IoError::invalid(path, format!("cannot write an inconsistent cloud: {message}")))?;
     let world_doubles = cloud.origin.abs().max_element() > f64::from(cloud.bounds().diagonal());
-    let mut header = write_header(cloud, world_doubles);
-    if let Some([x, y, z]) = up {
-        header = header.replacen(
-            "comment written by pointray-io\n",
-            &format!("comment written by pointray-io\ncomment up {x} {y} {z}\n"),
-            1,
-        );
-    }
+    let header = write_header(cloud, world_doubles, up);
     atomic_write(path, |out| {
         out.write_all(header.as_bytes())?;
         let mut record = Vec::with_capacity(64);
@@ -153,8 +146,11 @@ pub fn write_ply_with_up(path: &Path, cloud: &PointCloud, up: Option<[f32; 3]>) 
     })
 }
 
-fn write_header(cloud: &PointCloud, world_doubles: bool) -> String {
+fn write_header(cloud: &PointCloud, world_doubles: bool, up: Option<[f32; 3]>) -> String {
     let mut header = String::from("ply\nformat binary_little_endian 1.0\ncomment written by pointray-io\n");
+    if let Some([x, y, z]) = up {
+        header += &format!("comment up {x} {y} {z}\n");
+    }
     header += &format!("element vertex {}\n", cloud.len());
     let coordinate_type = if world_doubles { "double" } else { "float" };
     for axis in ["x", "y", "z"] {

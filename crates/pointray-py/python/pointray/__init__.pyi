@@ -12,7 +12,7 @@ Source = Union[str, "os.PathLike[str]", "Cloud", "Scene"]
 
 class Cloud:
     """A point cloud: positions (N x 3, float64, the file's coordinates) and, where known,
-    normals (N x 3), colours (N x 3, linear, 0 to 1) and radii (N), float32; and the scan
+    normals (N x 3), colours (N x 3, sRGB-encoded as files store them, 0 to 1) and radii (N), float32; and the scan
     attributes: intensity (float32), classification and return number (uint8), GPS time
     (float64), N each."""
 
@@ -73,7 +73,9 @@ def read_cloud(path: Union[str, "os.PathLike[str]"], *, columns: Optional[str] =
 
 def prepare(source: Source, **options: Any) -> Scene:
     """Normals, orientation and radii where missing (k_normals, k_radius, radius_scale,
-    recompute), then the accelerator (accel, sphere_from_level, surface)."""
+    recompute, strays, outlier_std; a text file's columns), the points drawn (classes,
+    exclude_classes, clip_box, clip_planes) and their colours (color_by), then the accelerator
+    (accel, sphere_from_level, surface)."""
 
 def render(source: Source, **options: Any) -> npt.NDArray[np.float32]:
     """The linear RGB image, H x W x 3 float32. Besides the render options: ``threads`` (default

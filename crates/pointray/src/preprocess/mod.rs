@@ -365,7 +365,7 @@ pub fn preprocess_with_progress(
         debug!(seconds = stats.seconds.radii, "radii");
     }
     info!(
-        points = n,
+        points = cloud.len(),
         dropped = stats.dropped_non_finite,
         degenerate = stats.degenerate_normals,
         flipped = stats.flipped_normals,
