@@ -72,6 +72,8 @@ pub fn settings(path: &Path, scene: &Settings, a: &RenderArgs) -> anyhow::Result
         "tonemap" => tonemap;
         "exposure" => exposure;
         "no_shadows" => shadows;
+        "color_by" => color_by;
+        "edl" => edl;
     }
     // `lod_threshold = 0` is full detail, as `--lod off` is; `--lod` and `--lod-threshold`
     // each override their own half.
@@ -110,6 +112,8 @@ mod tests {
             "tonemap",
             "exposure",
             "no_shadows",
+            "color_by",
+            "edl",
             "lod_threshold",
             "lod",
         ];
@@ -127,10 +131,8 @@ mod tests {
             "diffuse_spread",
             "cull",
             "sphere_from_level",
-            "color_by",
             "classes",
             "exclude_classes",
-            "edl",
             "clip_box",
             "clip_plane",
             "aov",

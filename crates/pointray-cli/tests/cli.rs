@@ -418,6 +418,15 @@ fn flags_override_a_scenes_render_settings_and_may_not_contradict_the_rest() {
     run_in(dir.path(), &["-q", "render", "tau.toml", "-o", "t.png", "--lod", "on", "--stats", "t.json"])
         .assert_success();
     assert_eq!(read_stats(&dir.path().join("t.json"))["lod_threshold"], 0.3);
+    // Colours and eye-dome lighting from the scene, unless a flag says otherwise.
+    let shaded = two_sphere_scene(1).replace("spp = 1", "spp = 1\ncolor_by = \"normal\"\nedl = 0.5");
+    write_file(dir.path(), "shaded.toml", shaded);
+    run_in(dir.path(), &["-q", "render", "shaded.toml", "-o", "s.png", "--stats", "s.json"]).assert_success();
+    let s = read_stats(&dir.path().join("s.json"));
+    assert_eq!((&s["color_by"], &s["edl"]), (&serde_json::json!("normal"), &serde_json::json!(0.5)));
+    run_in(dir.path(), &["-q", "render", "shaded.toml", "-o", "s.png", "--edl", "0", "--stats", "s.json"])
+        .assert_success();
+    assert_eq!(read_stats(&dir.path().join("s.json"))["edl"], 0.0);
     // The camera, lights, materials and sky are the scene's: such a flag is refused.
     for flag in [&["--fov", "30"][..], &["--light-dir", "0,1,0"], &["--material", "glass"], &["--sky"], &["--ground"]] {
         let run = run_in(dir.path(), &[&["-q", "render", "two.toml", "-o", "x.png"][..], flag].concat());

@@ -41,6 +41,7 @@ impl SceneFile {
         ensure(r.width > 0 && r.height > 0, "[render] width and height: must be positive")?;
         ensure(r.spp >= 1, "[render] spp: must be at least 1")?;
         ensure(r.max_depth <= 64, "[render] max_depth: must be at most 64")?;
+        ensure(r.edl >= 0.0 && r.edl.is_finite(), "[render] edl: must be a non-negative strength")?;
         let pixels = u64::from(r.width) * u64::from(r.height);
         ensure(pixels <= MAX_PIXELS, &format!("[render] width and height: at most {MAX_PIXELS} pixels"))?;
         let most = ToneMap::MAX_EXPOSURE;
@@ -223,6 +224,10 @@ pub struct RenderSpec {
     pub ao_distance: Option<f32>,
     pub lod_threshold: f32,
     pub shadows: bool,
+    /// What the points' colours show (`auto`, `rgb`, `intensity`, `classification`, ...).
+    pub color_by: pointray::color_by::ColorBy,
+    /// Eye-dome lighting's strength (0 off).
+    pub edl: f32,
 }
 
 impl Default for RenderSpec {
@@ -242,6 +247,8 @@ impl Default for RenderSpec {
             ao_distance: None,
             lod_threshold: 0.5,
             shadows: true,
+            color_by: pointray::color_by::ColorBy::Auto,
+            edl: 0.0,
         }
     }
 }

@@ -198,6 +198,8 @@ fn scene_settings(spec: &SceneFile) -> Settings {
         exposure: r.exposure,
         shadows: r.shadows,
         lod_threshold: r.lod_threshold,
+        color_by: r.color_by,
+        edl: r.edl,
         ..Settings::default()
     }
 }

@@ -74,7 +74,8 @@ impl ScanAttributes {
     }
 
     /// Appends `other`'s values after this one's `len` points; an attribute only one side has
-    /// is filled with zeros on the other.
+    /// is filled with zeros on the other. Values are kept in their files' units: a LAS file's
+    /// raw intensity and an E57 file's normalised one end up on one scale.
     pub fn append(&mut self, len: usize, other: ScanAttributes, other_len: usize) {
         append_some(&mut self.intensity, len, other.intensity, other_len);
         append_some(&mut self.classification, len, other.classification, other_len);
