@@ -194,12 +194,13 @@ impl Scene {
         directions: PyArrayLike2<'py, f32, AllowTypeChange>,
         options: Option<&Bound<'py, PyDict>>,
     ) -> PyResult<Hits<'py>> {
-        let settings = with_options(&self.settings, options)?;
+        let (pool, options) = RunOptions::pool_only(options, "intersect")?;
+        let settings = with_options(&self.settings, options.as_ref())?;
         let origins = rows::<f64>("origins", &origins, None)?;
         let directions = rows::<f32>("directions", &directions, Some(origins.len()))?;
         let rays: Vec<(DVec3, Vec3)> =
             origins.into_iter().zip(directions).map(|(o, d)| (DVec3::from(o), Vec3::from(d))).collect();
-        let hits = py.detach(|| self.inner.intersect(&rays, &settings)).map_err(value_error)?;
+        let hits = py.detach(|| pool.install(|| self.inner.intersect(&rays, &settings))).map_err(value_error)?;
         let t = hits.iter().map(|h| h.map_or(f32::INFINITY, |h| h.t)).collect::<Vec<_>>();
         let ids = hits.iter().map(|h| h.map_or(-1, |h| i64::from(h.splat))).collect::<Vec<_>>();
         let normals = table(hits.iter().map(|h| h.map_or([f32::NAN; 3], |h| h.normal.to_array())));
@@ -299,25 +300,28 @@ fn read_options(columns: Option<String>) -> PyResult<pointray_io::ReadOptions> {
 /// `recompute`, `strays`, `outlier_std`; a text file's `columns`), points filtered by class
 /// (`classes`, `exclude_classes`) and coloured (`color_by`), and the accelerator built
 /// (`accel`, `sphere_from_level`, and the disks `surface` tests). The other options become
-/// the scene's defaults for `render`.
+/// the scene's defaults for `render`; `threads` (default all cores) for the work.
 #[pyfunction]
 #[pyo3(signature = (source, **options))]
 fn prepare(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Bound<'_, PyDict>>) -> PyResult<Scene> {
-    let (preprocess, read, options) = split_preprocess(options)?;
+    let (pool, options) = RunOptions::pool_only(options, "prepare")?;
+    let (preprocess, read, options) = split_preprocess(options.as_ref())?;
     let (parts, base) = if let Ok(cloud) = source.cast::<Cloud>() {
         let mut cloud = cloud.get().inner.clone();
-        py.detach(|| pointray_io::source::prepare(&mut cloud, &preprocess, "cloud", &|_| {}))
+        py.detach(|| pool.install(|| pointray_io::source::prepare(&mut cloud, &preprocess, "cloud", &|_| {})))
             .map_err(|e| PyValueError::new_err(format!("cloud: {e}")))?;
         (SceneParts::from(cloud), Settings::default())
     } else {
         let path: PathBuf = source
             .extract()
             .map_err(|_| pyo3::exceptions::PyTypeError::new_err("source: expected a path, a Cloud or a Scene"))?;
-        let loaded = py.detach(|| pointray_io::source::load(&path, &preprocess, &read, &|_| {})).map_err(io_error)?;
+        let loaded = py
+            .detach(|| pool.install(|| pointray_io::source::load(&path, &preprocess, &read, &|_| {})))
+            .map_err(io_error)?;
         (loaded.parts, loaded.settings.unwrap_or_default())
     };
     let settings = with_options(&base, options.as_ref())?;
-    let inner = py.detach(|| pointray::Scene::build(parts, &settings)).map_err(value_error)?;
+    let inner = py.detach(|| pool.install(|| pointray::Scene::build(parts, &settings))).map_err(value_error)?;
     Ok(Scene { inner, settings })
 }
 
@@ -463,6 +467,19 @@ impl RunOptions {
             run.progress = Some(progress.unbind());
         }
         Ok((run, Some(rest)))
+    }
+
+    /// The pool of a call that takes `threads` but reports no progress (`what` names it), and
+    /// the other options.
+    fn pool_only<'py>(
+        options: Option<&Bound<'py, PyDict>>,
+        what: &str,
+    ) -> PyResult<(rayon::ThreadPool, Option<Bound<'py, PyDict>>)> {
+        let (run, rest) = Self::take(options)?;
+        if run.progress.is_some() {
+            return Err(PyValueError::new_err(format!("progress: {what} reports none (renders do)")));
+        }
+        Ok((run.pool()?, rest))
     }
 
     /// A pool of `threads` threads (all cores without).

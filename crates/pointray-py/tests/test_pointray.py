@@ -136,6 +136,17 @@ def test_intersect_agrees_with_the_brute_force_oracle(sphere_file):
             assert np.array_equal(a, b, equal_nan=a.dtype.kind == "f")
 
 
+def test_intersect_and_prepare_take_threads(sphere_file):
+    scene = pointray.prepare(str(sphere_file), threads=1)
+    origins, directions = scene.camera_rays(width=24, height=16)
+    o, d = origins.reshape(-1, 3), directions.reshape(-1, 3)
+    one = scene.intersect(o, d, threads=1)
+    every = scene.intersect(o, d)
+    assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(one, every))
+    with pytest.raises(ValueError, match="threads must be between 1 and 1024"):
+        scene.intersect(o, d, threads=0)
+
+
 def test_statistics_are_a_dict(sphere_file):
     frame = pointray.render_frame(str(sphere_file), width=32, height=32, count_work=True)
     stats = frame.stats

@@ -54,7 +54,7 @@ class Scene:
         self, origins: npt.ArrayLike, directions: npt.ArrayLike, **options: Any
     ) -> Tuple[npt.NDArray[np.float32], npt.NDArray[np.int64], npt.NDArray[np.float32]]:
         """(t, splat_id, normal) of the first surface point along each ray, at full detail;
-        inf, -1 and NaN for a miss."""
+        inf, -1 and NaN for a miss. ``threads`` (default all cores)."""
     def camera_rays(self, **options: Any) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float32]]:
         """Origins and directions (H x W x 3) of the camera's rays through the pixel centres."""
 
@@ -75,7 +75,7 @@ def prepare(source: Source, **options: Any) -> Scene:
     """Normals, orientation and radii where missing (k_normals, k_radius, radius_scale,
     recompute, strays, outlier_std; a text file's columns), the points drawn (classes,
     exclude_classes, clip_box, clip_planes) and their colours (color_by), then the accelerator
-    (accel, sphere_from_level, surface)."""
+    (accel, sphere_from_level, surface); ``threads`` (default all cores)."""
 
 def render(source: Source, **options: Any) -> npt.NDArray[np.float32]:
     """The linear RGB image, H x W x 3 float32. Besides the render options: ``threads`` (default
