@@ -331,6 +331,10 @@ pub struct RenderArgs {
     /// Write statistics (timings, rays, traversal work, memory) as JSON.
     #[arg(long)]
     pub stats: Option<PathBuf>,
+    /// A turntable: N frames with the camera turned about the up axis by 360/N degrees each,
+    /// written as OUT_0000.png, OUT_0001.png, … (frame 0 is the view the other flags give).
+    #[arg(long, default_value_t = 0, conflicts_with_all = ["stats", "aov", "bench_frames"])]
+    pub turntable: u32,
     /// Timed frames after one untimed warm-up frame (benchmarking; median and min reported).
     #[arg(long, default_value_t = 0)]
     pub bench_frames: u32,

@@ -138,6 +138,7 @@ mod tests {
             "aov",
             "transparent",
             "bit_depth",
+            "turntable",
             "stats",
             "bench_frames",
             "bench_builds",

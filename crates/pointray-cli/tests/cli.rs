@@ -895,6 +895,22 @@ fn png_samples(path: &std::path::Path) -> Vec<u8> {
 }
 
 #[test]
+fn a_turntable_writes_its_frames_the_first_the_plain_view() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    render_in(dir.path(), &["sphere.ply", "-o", "plain.png", "--ground"]).assert_success();
+    render_in(dir.path(), &["sphere.ply", "-o", "turn.png", "--ground", "--turntable", "3"]).assert_success();
+    assert_dir_contains_exactly(
+        dir.path(),
+        &["sphere.ply", "plain.png", "turn_0000.png", "turn_0001.png", "turn_0002.png"],
+    );
+    let [plain, first, second] = ["plain.png", "turn_0000.png", "turn_0001.png"].map(|f| read_png(&dir.path().join(f)));
+    assert_eq!(plain.rgb, first.rgb);
+    assert_ne!(first.rgb, second.rgb, "the floor's checks turn with the camera");
+    render_in(dir.path(), &["sphere.ply", "-o", "x.png", "--turntable", "2", "--stats", "x.json"]).assert_failure(2);
+}
+
+#[test]
 fn clip_boxes_and_planes_keep_their_part() {
     let dir = temp_dir();
     write_sphere(dir.path());

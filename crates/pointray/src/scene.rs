@@ -411,6 +411,28 @@ impl Scene {
         Ok(())
     }
 
+    /// A turntable: the settings of `frames` views, the camera turned about the up axis by
+    /// 360°·k/frames, k = 0, 1, … (frame 0 is the settings' own view): an eye and look-at turn
+    /// about the look-at point, a view direction about the model's centre.
+    pub fn turntable(&self, settings: &Settings, frames: u32) -> Vec<Settings> {
+        let up = self.up(settings).normalize().as_dvec3();
+        let (view, _) = self.default_view(settings);
+        let view = settings.view_dir.unwrap_or(view);
+        (0..frames)
+            .map(|k| {
+                let turn = glam::DQuat::from_axis_angle(up, std::f64::consts::TAU * f64::from(k) / f64::from(frames));
+                match (settings.eye, settings.look_at) {
+                    (Some(eye), Some(target)) => {
+                        Settings { eye: Some(target + turn * (eye - target)), ..settings.clone() }
+                    }
+                    _ => {
+                        Settings { view_dir: Some((turn * view.as_dvec3()).as_vec3()), view: None, ..settings.clone() }
+                    }
+                }
+            })
+            .collect()
+    }
+
     /// Positions the settings give are in the file's coordinates; the scene stores them
     /// relative to its origin.
     fn local(&self, p: DVec3) -> Vec3 {
@@ -879,6 +901,23 @@ mod tests {
         assert!(close(from(&y_down, ViewPreset::Front).0, Vec3::NEG_Z));
         let both = Settings { view: Some(ViewPreset::Top), view_dir: Some(Vec3::X), ..s };
         assert_eq!(y_up.job(&both).err().map(|e| e.option), Some("view"));
+    }
+
+    #[test]
+    fn a_turntable_turns_the_camera_about_the_up_axis() {
+        let s = Settings { width: 16, height: 16, ..Settings::default() };
+        let scene = sphere_scene(&s);
+        let eyes: Vec<Vec3> =
+            scene.turntable(&s, 4).iter().map(|t| scene.job(t).unwrap().camera.eye - scene.bounds().center()).collect();
+        assert_eq!(eyes[0], scene.job(&s).unwrap().camera.eye - scene.bounds().center(), "frame 0 is the view");
+        for (k, eye) in eyes.iter().enumerate() {
+            // A quarter turn about +y each frame: the height and the distance stay.
+            let expected = glam::Quat::from_rotation_y(std::f32::consts::FRAC_PI_2 * k as f32) * eyes[0];
+            assert!((*eye - expected).length() < 1e-4 * eyes[0].length(), "{k}: {eye} {expected}");
+        }
+        let fixed = Settings { eye: Some(DVec3::new(0.0, 1.0, 4.0)), look_at: Some(DVec3::new(0.0, 1.0, 0.0)), ..s };
+        let turned = scene.turntable(&fixed, 2);
+        assert!((turned[1].eye.unwrap() - DVec3::new(0.0, 1.0, -4.0)).length() < 1e-9);
     }
 
     #[test]

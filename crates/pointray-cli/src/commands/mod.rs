@@ -3,6 +3,7 @@ pub mod info;
 pub mod prepare;
 pub mod render;
 pub mod sample;
+pub mod turntable;
 
 use std::path::Path;
 use std::time::Instant;

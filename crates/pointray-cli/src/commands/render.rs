@@ -99,11 +99,12 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     let (points_read, preprocess, load_seconds) = (source.points_read, source.preprocess.clone(), source.load_seconds);
     let (scene, builds) = build(source.parts, &settings, a.bench_builds, quiet).context(input_name.clone())?;
     tracing::info!("built {} over {} splats in {:.3} s", scene.accel_name(), scene.points(), builds[0]);
-    let in_input = |e: SettingsError| failure::usage(flag_error(e).context(input_name.clone()));
-    let job = scene.job(&settings).map_err(in_input)?;
-
+    if a.turntable > 0 {
+        return super::turntable::run(a, &scene, &settings, quiet);
+    }
+    let job = scene.job(&settings).map_err(|e| failure::usage(flag_error(e).context(input_name.clone())))?;
     let (frame, render_seconds, render_seconds_min) = render_frames(&job, a.bench_frames, quiet);
-    write_images(a, &settings, &frame)?;
+    write_images(a, &a.output, &settings, &frame)?;
     let stats = &frame.stats;
     let mrays = stats.rays as f64 / render_seconds / 1e6;
     if !quiet {
@@ -211,14 +212,14 @@ fn render_frames(job: &RenderJob, timed: u32, quiet: bool) -> (Frame, f64, f64) 
     }
 }
 
-/// The PNG and the AOVs beside it as PNGs, or the EXR with the AOVs as layers.
-fn write_images(a: &RenderArgs, settings: &Settings, frame: &Frame) -> anyhow::Result<()> {
+/// The PNG at `out` and the AOVs beside it as PNGs, or the EXR with the AOVs as layers.
+pub(super) fn write_images(a: &RenderArgs, out: &Path, settings: &Settings, frame: &Frame) -> anyhow::Result<()> {
     let (w, h) = (frame.width, frame.height);
-    if is_exr(&a.output) {
+    if is_exr(out) {
         let channels = frame.float_channels(&settings.aovs);
-        return pointray_io::write_exr(&a.output, w, h, channels).map_err(failure::output);
+        return pointray_io::write_exr(out, w, h, channels).map_err(failure::output);
     }
-    let (out, tone) = (&a.output, settings.tone_map());
+    let tone = settings.tone_map();
     match (a.transparent, a.bit_depth) {
         (true, 16) => pointray_io::write_png16_rgba(out, w, h, &frame.srgba16(tone)),
         (true, _) => pointray_io::write_png_rgba(out, w, h, &frame.srgba8(tone)),
@@ -230,7 +231,7 @@ fn write_images(a: &RenderArgs, settings: &Settings, frame: &Frame) -> anyhow::R
     let mut written = Vec::new();
     for &aov in &a.aov {
         if !written.contains(&aov) {
-            let path = aov_path(&a.output, aov.name());
+            let path = aov_path(out, aov.name());
             pointray_io::image::write_png(&path, w, h, &frame.aov_rgb8(aov)).map_err(failure::output)?;
             written.push(aov);
         }
