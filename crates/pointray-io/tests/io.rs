@@ -1562,9 +1562,13 @@ fn ply_keeps_scan_attributes_and_the_up_axis() {
     assert_eq!(read.classification, truth.classification);
     assert_eq!(read.return_number, truth.return_number);
     assert_eq!(read.gps_time, truth.gps_time, "GPS time keeps its microseconds (double)");
-    // Without an up axis, none comes back.
+    // Without an up axis, none comes back; a sensor's position comes back as it went.
+    cloud.viewpoints = vec![Vec3::new(0.5, -2.0, 3.0)];
     write_ply(&path, &cloud).unwrap();
-    assert_eq!(read_cloud(&path).unwrap().info.up, None);
+    let loaded = read_cloud(&path).unwrap();
+    assert_eq!(loaded.info.up, None);
+    let sensor = loaded.cloud.origin + loaded.cloud.viewpoints[0].as_dvec3();
+    assert_close(sensor, cloud.origin + DVec3::new(0.5, -2.0, 3.0), 1e-6);
 }
 
 #[test]

@@ -40,7 +40,12 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     let (builder, _) = read_vertex_element(path, bytes, &header, vertex_index)?;
     tracing::debug!(path = %path.display(), points = builder.len(), format = %header.format_name(), "read PLY");
     let info = file_info(&header, vertex_index, bytes.len());
-    Ok(LoadedCloud { cloud: builder.finish(), info })
+    let mut cloud = builder.finish();
+    // A sensor's position, as `write_ply` keeps a depth frame's.
+    if let Some(v) = header.comments.iter().find_map(|c| triple_comment(c, "viewpoint ")) {
+        cloud.viewpoints = vec![(glam::DVec3::from(v) - cloud.origin).as_vec3()];
+    }
+    Ok(LoadedCloud { cloud, info })
 }
 
 fn vertex_element(path: &Path, header: &Header) -> Result<usize, IoError> {
@@ -108,14 +113,21 @@ fn file_info(header: &Header, vertex_index: usize, file_bytes: usize) -> FileInf
 
 /// The axis of a `comment up X Y Z` line ([`write_ply_with_up`]), if it is one and a direction.
 fn up_comment(comment: &str) -> Option<[f32; 3]> {
-    let values: Vec<f32> =
-        comment.strip_prefix("up ")?.split_whitespace().map(str::parse).collect::<Result<_, _>>().ok()?;
-    let up: [f32; 3] = values.try_into().ok()?;
+    let up = triple_comment(comment, "up ")?.map(|v| v as f32);
     (up.iter().all(|v| v.is_finite()) && up != [0.0; 3]).then_some(up)
 }
 
+/// The three finite numbers of a `comment KEY X Y Z` line (`key` with its space).
+fn triple_comment(comment: &str, key: &str) -> Option<[f64; 3]> {
+    let values: Vec<f64> =
+        comment.strip_prefix(key)?.split_whitespace().map(str::parse).collect::<Result<_, _>>().ok()?;
+    let values: [f64; 3] = values.try_into().ok()?;
+    values.iter().all(|v| v.is_finite()).then_some(values)
+}
+
 /// Writes a binary little-endian PLY with `x y z`, then `nx ny nz`, `radius` and
-/// `red green blue` (uchar) when the cloud has them.
+/// `red green blue` (uchar) and the scan attributes when the cloud has them, and a single
+/// sensor's position as `comment viewpoint X Y Z`.
 ///
 /// Coordinates are world coordinates (`origin + position`): `double` when the origin lies
 /// farther from zero than the cloud is wide (a survey's: a `float` would keep fewer bits of a
@@ -150,6 +162,11 @@ fn write_header(cloud: &PointCloud, world_doubles: bool, up: Option<[f32; 3]>) -
     let mut header = String::from("ply\nformat binary_little_endian 1.0\ncomment written by pointray-io\n");
     if let Some([x, y, z]) = up {
         header += &format!("comment up {x} {y} {z}\n");
+    }
+    // One sensor's position (a depth frame's; a cloud of several scans keeps none).
+    if let ([v], None) = (cloud.viewpoints.as_slice(), &cloud.viewpoint_of) {
+        let [x, y, z] = (cloud.origin + v.as_dvec3()).to_array();
+        header += &format!("comment viewpoint {x} {y} {z}\n");
     }
     header += &format!("element vertex {}\n", cloud.len());
     let coordinate_type = if world_doubles { "double" } else { "float" };
