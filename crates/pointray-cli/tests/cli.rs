@@ -858,12 +858,9 @@ fn colour_and_class_flags_the_cloud_cannot_serve_are_refused() {
 
 /// A 16-bit PNG's samples and its colour type.
 fn read_png16(path: &std::path::Path) -> (Vec<u16>, png::ColorType) {
-    let decoder = png::Decoder::new(std::io::Cursor::new(std::fs::read(path).unwrap()));
-    let mut reader = decoder.read_info().unwrap();
-    let mut buf = vec![0; reader.output_buffer_size().unwrap()];
-    let info = reader.next_frame(&mut buf).unwrap();
+    let (bytes, info) = png_bytes(path);
     assert_eq!(info.bit_depth, png::BitDepth::Sixteen);
-    (buf[..info.buffer_size()].chunks_exact(2).map(|b| u16::from_be_bytes([b[0], b[1]])).collect(), info.color_type)
+    (bytes.chunks_exact(2).map(|b| u16::from_be_bytes([b[0], b[1]])).collect(), info.color_type)
 }
 
 #[test]
@@ -886,12 +883,19 @@ fn a_16_bit_png_holds_the_8_bit_image_and_more() {
 
 /// Any 8-bit PNG's samples.
 fn png_samples(path: &std::path::Path) -> Vec<u8> {
+    let (bytes, info) = png_bytes(path);
+    assert_eq!(info.bit_depth, png::BitDepth::Eight);
+    bytes
+}
+
+/// A PNG's image bytes, whatever its colour type and depth, and what it is.
+fn png_bytes(path: &std::path::Path) -> (Vec<u8>, png::OutputInfo) {
     let decoder = png::Decoder::new(std::io::Cursor::new(std::fs::read(path).unwrap()));
     let mut reader = decoder.read_info().unwrap();
     let mut buf = vec![0; reader.output_buffer_size().unwrap()];
     let info = reader.next_frame(&mut buf).unwrap();
     buf.truncate(info.buffer_size());
-    buf
+    (buf, info)
 }
 
 #[test]
