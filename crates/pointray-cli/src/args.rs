@@ -286,8 +286,8 @@ pub struct RenderArgs {
     #[arg(long, value_delimiter = ',')]
     pub exclude_classes: Vec<u8>,
     /// Eye-dome lighting, the depth cue of Potree and CloudCompare: a pixel darkens where its
-    /// neighbours are nearer, outlining the edges of nearer surfaces over farther ones, and
-    /// creases; the strength (1 is Potree's default), 0 off.
+    /// neighbours are nearer, outlining the edges of nearer surfaces over farther ones, the
+    /// model against the background, and creases; the strength (1 is Potree's default), 0 off.
     #[arg(long, default_value_t = D.edl)]
     pub edl: f32,
     /// Keep only the points inside this box, in the file's coordinates: X0,Y0,Z0,X1,Y1,Z1.

@@ -1,7 +1,7 @@
 //! Eye-dome lighting (after Boucheny 2009), the depth cue Potree and CloudCompare show point
 //! clouds with: a pixel darkens where its neighbours lie nearer than it, in log depth, so that
-//! the edges of nearer surfaces over farther ones, and creases, stand out whatever the lighting
-//! (the background counts as far: the model's outline against it is not drawn). The depths are
+//! the edges of nearer surfaces over farther ones, the model's outline and creases stand out
+//! whatever the lighting (the background stands at a depth beyond the model). The depths are
 //! those of the pixel centres' camera rays, traced (uncounted in the statistics) for the region
 //! and a margin around it: a tile's shading is the whole frame's there (region renders, tiles
 //! on several machines).
@@ -30,8 +30,9 @@ const AXES: [(i64, i64); 4] = [(1, 0), (0, 1), (1, 1), (1, -1)];
 
 /// The factor, in (0, 1], each pixel of `region` (row-major) is shaded by at this `strength`:
 /// exp(−strength · 300 · mean over the four axes of max(0, log₂ d − mean of the pair's log₂
-/// depths)). A pixel whose centre ray meets nothing keeps its colour; a neighbour that meets
-/// nothing counts as far away. `rays` sets the frame's level of detail and culling.
+/// depths)). A pixel whose centre ray meets nothing, or one beyond the frame, stands at the
+/// background's depth, so that the model's outline darkens the background next to it. `rays`
+/// sets the frame's level of detail, culling and background depth.
 pub fn shades<A: Accel>(
     accel: &A,
     camera: &Camera,
@@ -48,11 +49,12 @@ pub fn shades<A: Accel>(
         y1: (region.y1 + r).min(camera.height),
     };
     let log_depths = log_depths(accel, camera, scheme, rays, grown);
+    let far = rays.background_depth.log2();
     let at = |x: i64, y: i64| {
         let inside =
             x >= i64::from(grown.x0) && x < i64::from(grown.x1) && y >= i64::from(grown.y0) && y < i64::from(grown.y1);
         let index = || ((y - i64::from(grown.y0)) * i64::from(grown.width()) + x - i64::from(grown.x0)) as usize;
-        if inside { log_depths[index()] } else { f32::INFINITY }
+        if inside { log_depths[index()].min(far) } else { far }
     };
     let width = region.width() as usize;
     (0..region.pixel_count() as usize)
@@ -60,9 +62,6 @@ pub fn shades<A: Accel>(
         .map(|i| {
             let (x, y) = (i64::from(region.x0) + (i % width) as i64, i64::from(region.y0) + (i / width) as i64);
             let d = at(x, y);
-            if !d.is_finite() {
-                return 1.0;
-            }
             let r = i64::from(r);
             let pair = |(dx, dy): (i64, i64)| 0.5 * (at(x - r * dx, y - r * dy) + at(x + r * dx, y + r * dy));
             let nearer: f32 = AXES.iter().map(|&axis| (d - pair(axis)).max(0.0)).sum();
@@ -71,11 +70,13 @@ pub fn shades<A: Accel>(
         .collect()
 }
 
-/// The frame's level-of-detail threshold and back-face culling, which the depth rays take too.
+/// The frame's level-of-detail threshold and back-face culling, which the depth rays take too,
+/// and the distance the background stands at (beyond the model).
 #[derive(Clone, Copy, Debug)]
 pub struct DepthRays {
     pub lod_threshold: f32,
     pub cull_backfaces: bool,
+    pub background_depth: f32,
 }
 
 /// log₂ of the distance to the first surface along each pixel centre's camera ray (infinite

@@ -596,9 +596,13 @@ impl RenderJob<'_> {
             return;
         }
         let (camera, config) = (&self.camera, &self.config);
+        // Twice as far as the model's farthest corner can be.
+        let bounds = &self.scene.bounds;
+        let background_depth = 2.0 * (camera.eye.distance(bounds.center()) + bounds.diagonal());
         let rays = crate::eye_dome::DepthRays {
             lod_threshold: config.lod_threshold,
             cull_backfaces: config.cull_backfaces && config.scheme.kind.shape() == DiskShape::Oriented,
+            background_depth,
         };
         let shades = on_accel!(&self.scene.accel, a => crate::eye_dome::shades(a, camera, &config.scheme, rays, config.region, strength));
         for (rgb, shade) in film.rgb.iter_mut().zip(shades) {
@@ -791,6 +795,11 @@ mod tests {
         assert!(ratios.iter().all(|&r| r <= 1.0 + 1e-6), "eye-dome lighting only darkens");
         let (dark, kept) = (ratios.iter().filter(|&&r| r < 0.5).count(), ratios.iter().filter(|&&r| r > 0.99).count());
         assert!(dark > 20 && kept > ratios.len() / 2, "{dark} outlined, {kept} of {} kept", ratios.len());
+        // The model's outline, drawn on the background next to it.
+        let background = plain.background;
+        let outline =
+            plain.film.rgb.iter().zip(&shaded.film.rgb).filter(|(p, q)| **p == background && q[2] < 0.5 * p[2]);
+        assert!(outline.count() > 50);
         // A tile's shading is the frame's: its margin's depths are traced too.
         let region = Region { x0: 100, y0: 70, x1: 160, y1: 130 };
         let tile = render(&scene, &Settings { region: Some(region), ..edl }).unwrap();
