@@ -42,10 +42,16 @@ const SCAN_KEYS: [&str; 4] = ["intensity", "classification", "returnnumber", "gp
 /// number, 3 GPS time): our names (`return_number`, `gps_time`), CloudCompare's scalar fields
 /// (`scalar_Intensity`, `scalar_Return_Number`, `scalar_GpsTime`) and PDAL's (`Intensity`,
 /// `Classification`, `ReturnNumber`, `GpsTime`): case, underscores and `scalar_` aside.
-pub(crate) fn scan_column(name: &str) -> Option<usize> {
+fn scan_column(name: &str) -> Option<usize> {
     let lower = name.to_ascii_lowercase();
     let key = lower.strip_prefix("scalar_").unwrap_or(&lower).replace('_', "");
     SCAN_KEYS.iter().position(|k| *k == key)
+}
+
+/// The index among `names` of the first column holding each scan attribute (in
+/// [`scan_column`]'s order), where one does.
+pub(crate) fn scan_columns<'a>(names: impl Iterator<Item = &'a str> + Clone) -> [Option<usize>; 4] {
+    std::array::from_fn(|k| names.clone().position(|name| scan_column(name) == Some(k)))
 }
 
 impl ScanFields {

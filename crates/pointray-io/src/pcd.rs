@@ -11,7 +11,7 @@ use std::path::Path;
 
 use glam::{DVec3, Vec3};
 
-use crate::builder::{Attributes, CloudBuilder, PointRecord, ScanFields, scan_column};
+use crate::builder::{Attributes, CloudBuilder, PointRecord, ScanFields, scan_columns};
 use crate::text::{Lines, as_text, split_values};
 use crate::{FileInfo, IoError, LoadedCloud};
 
@@ -150,8 +150,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
     // PDAL's separate channels, where there is no packed colour.
     let channels = find("red").zip(find("green")).zip(find("blue")).map(|((r, g), b)| [r, g, b]);
     let channels = channels.filter(|_| color.is_none());
-    let scan: [Option<usize>; 4] =
-        std::array::from_fn(|k| header.fields.iter().position(|f| scan_column(&f.name) == Some(k)));
+    let scan = scan_columns(header.fields.iter().map(|f| f.name.as_str()));
     let record = header.fields.iter().try_fold(0usize, |sum, f| sum.checked_add(f.bytes()));
     let record = record.ok_or_else(|| IoError::invalid(path, "the PCD fields' sizes overflow"))?;
     let body = &bytes[header.body..];

@@ -132,7 +132,7 @@ struct Build {
     clip_box: Option<ClipBox>,
     clip_planes: Vec<ClipPlane>,
     /// The axis the elevation colours follow (with `color_by` elevation): the settings' `up`,
-    /// else the data's (`Build::of` leaves the data's to the builder).
+    /// else the data's, which only `Scene::build` knows (`Build::of` leaves it `None`).
     elevation_up: Option<Vec3>,
 }
 
@@ -149,7 +149,7 @@ impl Build {
             exclude_classes: settings.exclude_classes.clone(),
             clip_box: settings.clip_box,
             clip_planes: settings.clip_planes.clone(),
-            elevation_up: (settings.color_by == ColorBy::Elevation).then_some(settings.up.unwrap_or(Vec3::ZERO)),
+            elevation_up: None,
         }
     }
 }
@@ -225,7 +225,7 @@ impl Scene {
         let (origin, points, bounds) = (cloud.origin, cloud.len(), cloud.bounds());
         drop(cloud);
         let mut build = Build::of(settings);
-        build.elevation_up = build.elevation_up.map(|_| settings.up.unwrap_or(up));
+        build.elevation_up = (settings.color_by == ColorBy::Elevation).then(|| settings.up.unwrap_or(up));
         let start = std::time::Instant::now();
         // The kd-tree and brute force keep the splats' order; the BVH says where each went.
         let mut ids = None;
@@ -381,34 +381,26 @@ impl Scene {
         let (built, asked) = (&self.build, Build::of(settings));
         let problem =
             |what: &str| format!("differs from the scene's build ({what}): prepare the scene with these settings");
-        if built.accel != asked.accel {
-            return Err(SettingsError::new("accel", problem(self.accel_name())));
+        // (Does it differ, the option, what of the build it changes.)
+        let checks = [
+            (built.accel != asked.accel, "accel", self.accel_name()),
+            (built.node_bounds != asked.node_bounds, "sphere_from_level", "its bounding volumes"),
+            (built.shape != asked.shape, "surface", "the disks its bounds hold"),
+            (built.color_by != asked.color_by, "color_by", "its splats' colours"),
+            (built.classes != asked.classes, "classes", "the classes it holds"),
+            (built.exclude_classes != asked.exclude_classes, "exclude_classes", "the classes it leaves out"),
+            (built.clip_box != asked.clip_box, "clip_box", "the box its clip keeps"),
+            (built.clip_planes != asked.clip_planes, "clip_planes", "the planes it is cut by"),
+            (
+                built.elevation_up.is_some_and(|axis| axis != self.up(settings)),
+                "up",
+                "the axis its elevation colours follow",
+            ),
+        ];
+        match checks.into_iter().find(|(differs, ..)| *differs) {
+            Some((_, option, what)) => Err(SettingsError::new(option, problem(what))),
+            None => Ok(()),
         }
-        if built.node_bounds != asked.node_bounds {
-            return Err(SettingsError::new("sphere_from_level", problem("its bounding volumes")));
-        }
-        if built.shape != asked.shape {
-            return Err(SettingsError::new("surface", problem("the disks its bounds hold")));
-        }
-        if built.color_by != asked.color_by {
-            return Err(SettingsError::new("color_by", problem("its splats' colours")));
-        }
-        if built.classes != asked.classes {
-            return Err(SettingsError::new("classes", problem("the classes it holds")));
-        }
-        if built.exclude_classes != asked.exclude_classes {
-            return Err(SettingsError::new("exclude_classes", problem("the classes it leaves out")));
-        }
-        if built.clip_box != asked.clip_box {
-            return Err(SettingsError::new("clip_box", problem("the box its clip keeps")));
-        }
-        if built.clip_planes != asked.clip_planes {
-            return Err(SettingsError::new("clip_planes", problem("the planes it is cut by")));
-        }
-        if built.elevation_up != asked.elevation_up.map(|_| self.up(settings)) {
-            return Err(SettingsError::new("up", problem("the axis its elevation colours follow")));
-        }
-        Ok(())
     }
 
     /// A turntable: the settings of `frames` views, the camera turned about the up axis by
@@ -809,6 +801,14 @@ mod tests {
             .map(|(x, y)| frame[(y * 256 + x) as usize])
             .collect();
         assert_eq!(tile.film.rgb, crop);
+    }
+
+    #[test]
+    fn elevation_colours_refuse_another_up_axis() {
+        let s = Settings { width: 8, height: 8, color_by: ColorBy::Elevation, ..Settings::default() };
+        let scene = sphere_scene(&s);
+        assert!(render(&scene, &Settings { up: Some(Vec3::Y), ..s.clone() }).is_ok(), "the data's up, named");
+        assert_eq!(render(&scene, &Settings { up: Some(Vec3::Z), ..s }).unwrap_err().option, "up");
     }
 
     #[test]

@@ -7,7 +7,7 @@ use glam::{DVec3, Vec3};
 
 use super::header::{Element, PropertyKind, Scalar};
 use crate::IoError;
-use crate::builder::{Attributes, PointRecord, ScanFields, scan_column};
+use crate::builder::{Attributes, PointRecord, ScanFields, scan_columns};
 
 const NORMAL_NAMES: [[&str; 3]; 2] = [["nx", "ny", "nz"], ["normal_x", "normal_y", "normal_z"]];
 /// Full names first; the short `r g b` only count when all three are present, since a lone
@@ -29,7 +29,7 @@ pub(crate) struct VertexLayout {
     pub radius: Option<Field>,
     pub color: Option<[Field; 3]>,
     /// Intensity, classification, return number and GPS time, in that order
-    /// ([`scan_column`]'s names).
+    /// ([`scan_columns`]' names).
     pub scan: [Option<Field>; 4],
 }
 
@@ -45,10 +45,9 @@ impl VertexLayout {
             None => find_triple(vertex, SHORT_COLOR_NAMES).unwrap_or(None),
         };
         let radius = find_field(vertex, "radius").map_err(invalid)?;
-        let scan = std::array::from_fn(|k| {
-            let found = vertex.properties.iter().enumerate().find(|(_, p)| scan_column(&p.name) == Some(k));
-            // A list of that name is not a scan attribute: left alone.
-            found.and_then(|(index, p)| match p.kind {
+        // A list of a scan attribute's name is not one: left alone.
+        let scan = scan_columns(vertex.properties.iter().map(|p| p.name.as_str())).map(|index| {
+            index.and_then(|index| match vertex.properties[index].kind {
                 PropertyKind::Scalar(scalar) => Some(Field { index, scalar }),
                 PropertyKind::List { .. } => None,
             })
