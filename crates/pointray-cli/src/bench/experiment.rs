@@ -38,6 +38,9 @@ pub struct Experiment {
     /// The surface scheme of the reference image every point is also compared with (full
     /// detail); its points' own full-detail image is always the first comparison.
     pub reference: Option<SurfaceKind>,
+    /// Samples a pixel of the converged image: when given, every image is also compared with
+    /// its scheme's full-detail image at this many samples a pixel (the quality experiments).
+    pub converged_spp: Option<u32>,
     /// Embree's point bench (`shared/bench/embree`), run beside each model in the same session.
     pub embree: Option<PathBuf>,
     #[serde(rename = "model")]
@@ -122,6 +125,13 @@ pub struct Matrix {
     /// Level-of-detail thresholds in pixels; 0 is full detail.
     pub lod_threshold: Vec<f32>,
     pub distance: Vec<f32>,
+    /// Samples a pixel (default: one).
+    #[serde(default = "one_sample")]
+    pub spp: Vec<u32>,
+}
+
+fn one_sample() -> Vec<u32> {
+    vec![1]
 }
 
 /// An accelerator and the variant of its bounding volumes: `bvh` (boxes), `bvh-spheres`
@@ -194,6 +204,7 @@ pub struct Point {
     pub surface: SurfaceKind,
     pub distance: f32,
     pub lod_threshold: f32,
+    pub spp: u32,
 }
 
 /// Reads and checks the experiment at `path`; errors name it.
@@ -203,6 +214,9 @@ pub fn load(path: &Path) -> anyhow::Result<Experiment> {
     check(&e).with_context(|| format!("{}", path.display()))?;
     Ok(e)
 }
+
+/// Samples a pixel at most, for a point or the converged image.
+const MAX_SPP: u32 = 1 << 16;
 
 fn check(e: &Experiment) -> anyhow::Result<()> {
     ensure!(
@@ -237,14 +251,16 @@ fn check(e: &Experiment) -> anyhow::Result<()> {
         );
         ensure!(m.lod_threshold.iter().all(|t| *t >= 0.0 && t.is_finite()), "{}: thresholds must be ≥ 0", which());
         ensure!(m.distance.iter().all(|d| *d > 0.0 && d.is_finite()), "{}: distances must be positive", which());
+        ensure!(m.spp.iter().all(|n| (1..=MAX_SPP).contains(n)), "{}: spp must be 1 to {MAX_SPP}", which());
     }
+    ensure!(e.converged_spp.is_none_or(|n| (1..=MAX_SPP).contains(&n)), "converged_spp must be 1 to {MAX_SPP}");
     Ok(())
 }
 
 impl Experiment {
     /// The points of every matrix that covers `model`, each once, in the order they are
     /// measured: by accelerator and the disks its bounds hold (one build each), distance,
-    /// scheme, then threshold.
+    /// scheme, threshold, then samples a pixel.
     pub fn points(&self, model: &str) -> Vec<Point> {
         let mut points = Vec::new();
         for m in self.matrices.iter().filter(|m| m.models.as_ref().is_none_or(|ms| ms.iter().any(|n| n == model))) {
@@ -252,9 +268,11 @@ impl Experiment {
                 for &distance in &m.distance {
                     for &surface in &m.surface {
                         for &lod_threshold in &m.lod_threshold {
-                            let p = Point { accel, surface, distance, lod_threshold };
-                            if !points.contains(&p) {
-                                points.push(p);
+                            for &spp in &m.spp {
+                                let p = Point { accel, surface, distance, lod_threshold, spp };
+                                if !points.contains(&p) {
+                                    points.push(p);
+                                }
                             }
                         }
                     }
@@ -262,8 +280,8 @@ impl Experiment {
             }
         }
         points.sort_by(|a, b| {
-            (a.accel, a.surface.shape(), a.distance, a.surface, a.lod_threshold)
-                .partial_cmp(&(b.accel, b.surface.shape(), b.distance, b.surface, b.lod_threshold))
+            (a.accel, a.surface.shape(), a.distance, a.surface, a.lod_threshold, a.spp)
+                .partial_cmp(&(b.accel, b.surface.shape(), b.distance, b.surface, b.lod_threshold, b.spp))
                 .expect("finite")
         });
         points
@@ -294,6 +312,7 @@ accel = ["bvh-mixed-3", "bvh"]
 surface = ["rfd", "sj"]
 lod_threshold = [0]
 distance = [1]
+spp = [1, 4]
 "#;
 
     #[test]
@@ -301,9 +320,11 @@ distance = [1]
         let e: Experiment = toml::from_str(SMALL).unwrap();
         check(&e).unwrap();
         assert_eq!(e.points("a").len(), 2 * 2 * 2);
-        // b adds bvh-mixed-3 × {rfd, sj} and bvh × rfd; bvh × sj × 0 × 1 it has already.
+        // b adds bvh-mixed-3 × {rfd, sj} × {1, 4} spp and bvh × (rfd × {1, 4} + sj × 4); bvh ×
+        // sj × 0 × 1 × 1 spp it has already.
         let b = e.points("b");
-        assert_eq!(b.len(), 8 + 3, "{b:?}");
+        assert_eq!(b.len(), 8 + 7, "{b:?}");
+        assert_eq!(b.iter().filter(|p| p.spp == 4).count(), 4);
         assert_eq!(b[0].accel, AccelVariant::Bvh(NodeBounds::Boxes));
         assert!(b.iter().any(|p| p.accel.name() == "bvh-mixed-3" && p.surface == SurfaceKind::Rfd));
         assert!(matches!(e.models[1].source(Path::new("x")).unwrap(), Source::Mesh { points: 1000, .. }));
@@ -325,5 +346,7 @@ distance = [1]
         fails(&SMALL.replace("points = 1000", "points = 1_000_000_000"), "model b: at most");
         fails(&SMALL.replace("lod_threshold = [0]", "lod_threshold = []"), "at least one value");
         fails(&format!("reference = \"rfd\"\n{SMALL}"), "the reference must be sj, pss or first-hit");
+        fails(&SMALL.replace("spp = [1, 4]", "spp = [0]"), "spp must be 1 to 65536");
+        fails(&format!("converged_spp = 0\n{SMALL}"), "converged_spp must be 1 to 65536");
     }
 }

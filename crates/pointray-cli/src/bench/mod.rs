@@ -14,6 +14,7 @@ mod plot;
 pub mod report;
 
 use std::collections::BTreeMap;
+use std::collections::btree_map::Entry;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -54,6 +55,8 @@ pub struct Header {
     pub crop_to_model: bool,
     pub fov: f32,
     pub reference: Option<SurfaceKind>,
+    #[serde(default)]
+    pub converged_spp: Option<u32>,
     /// The Embree bench's file name, if one ran.
     pub embree: Option<String>,
 }
@@ -82,6 +85,9 @@ pub struct PointRecord {
     pub surface: SurfaceKind,
     pub lod_threshold: f32,
     pub distance: f32,
+    /// Samples a pixel (runs before the key have one).
+    #[serde(default = "one_sample")]
+    pub spp: u32,
     /// Pixels traced (the model's projected box, when cropped).
     pub pixels: u64,
     pub rays: u64,
@@ -107,6 +113,12 @@ pub struct PointRecord {
     /// The same against the reference scheme's full-detail image, if one is named.
     pub psnr_reference_db: Option<f64>,
     pub flip_reference: Option<f64>,
+    /// The same against the scheme's converged image (full detail, the experiment's
+    /// `converged_spp` samples a pixel), if the experiment asks for one.
+    #[serde(default)]
+    pub psnr_converged_db: Option<f64>,
+    #[serde(default)]
+    pub flip_converged: Option<f64>,
     /// Cores other processes kept busy during the kept attempt's timed frames.
     pub other_load_cores: Option<f64>,
     pub attempts: u32,
@@ -123,6 +135,10 @@ pub struct PointRecord {
     #[serde(default)]
     pub embree_version: Option<String>,
     pub image: Option<String>,
+}
+
+fn one_sample() -> u32 {
+    1
 }
 
 pub fn run(a: &BenchArgs, quiet: bool) -> anyhow::Result<()> {
@@ -146,7 +162,8 @@ fn run_experiment(a: &BenchArgs, e: &Experiment, threads: usize, quiet: bool) ->
         for m in &models {
             for p in e.points(&m.name) {
                 let (accel, surface) = (p.accel.name(), p.surface.name());
-                println!("{} {accel} {surface} lod {} distance {}", m.name, p.lod_threshold, p.distance);
+                let (lod, distance, spp) = (p.lod_threshold, p.distance, p.spp);
+                println!("{} {accel} {surface} lod {lod} distance {distance} spp {spp}", m.name);
             }
         }
         println!("{planned} points");
@@ -181,6 +198,7 @@ fn run_experiment(a: &BenchArgs, e: &Experiment, threads: usize, quiet: bool) ->
         crop_to_model: e.camera.crop_to_model,
         fov: e.camera.fov,
         reference: e.reference,
+        converged_spp: e.converged_spp,
         embree: embree.as_ref().and_then(|b| b.file_name()).map(|n| n.to_string_lossy().into_owned()),
     };
     let mut line = |record: &dyn erased::Line| -> anyhow::Result<()> {
@@ -310,16 +328,17 @@ fn load_model(spec: &ModelSpec, e: &Experiment, folder: &Path, a: &BenchArgs, qu
     })
 }
 
-/// The settings of a point of the matrix, seen through `surface`: the experiment's camera and
-/// frame, Whitted shading under a headlight, one sample a pixel, the work counted.
-fn settings(e: &Experiment, model: &Model, p: &Point, surface: SurfaceKind, lod_threshold: f32) -> Settings {
+/// The settings of a point of the matrix: the experiment's camera and frame, Whitted shading
+/// under a headlight, the work counted.
+fn settings(e: &Experiment, model: &Model, p: &Point) -> Settings {
     Settings {
         width: e.width,
         height: e.height,
         accel: p.accel.kind(),
         sphere_from_level: p.accel.node_bounds(),
-        surface,
-        lod_threshold,
+        surface: p.surface,
+        lod_threshold: p.lod_threshold,
+        spp: p.spp,
         view_dir: Some(model.view_dir),
         up: Some(model.up),
         distance: Some(p.distance),
@@ -345,30 +364,50 @@ struct Built {
     seconds: f64,
 }
 
+/// The full-detail images a point is compared with, shared by every accelerator (they agree
+/// there), each of the frame's region as sRGB8.
+#[derive(Default)]
+struct FullDetail {
+    /// By (distance, scheme, samples a pixel).
+    own: BTreeMap<(u32, SurfaceKind, u32), Vec<u8>>,
+    /// The converged images, by (distance, scheme).
+    converged: BTreeMap<(u32, SurfaceKind), Vec<u8>>,
+}
+
+impl FullDetail {
+    /// Renders what `p` is compared with and has not been rendered yet: its scheme's full
+    /// detail at its samples a pixel, the reference scheme's, and the converged images.
+    fn render_for(&mut self, e: &Experiment, model: &Model, p: &Point, scene: &Scene) -> anyhow::Result<()> {
+        let full = |surface, spp| Point { surface, spp, lod_threshold: 0.0, ..*p };
+        let distance = p.distance.to_bits();
+        // The reference scheme's disks are oriented (`experiment::check`), which every
+        // accelerator's bounds hold.
+        for q in std::iter::once(full(p.surface, p.spp)).chain(e.reference.map(|r| full(r, p.spp))) {
+            if let Entry::Vacant(entry) = self.own.entry((distance, q.surface, q.spp)) {
+                entry.insert(region_srgb8(&render(scene, &settings(e, model, &q))?.film));
+            }
+        }
+        if let (Some(spp), Entry::Vacant(entry)) = (e.converged_spp, self.converged.entry((distance, p.surface))) {
+            entry.insert(region_srgb8(&render(scene, &settings(e, model, &full(p.surface, spp)))?.film));
+        }
+        Ok(())
+    }
+}
+
 fn measure_model(e: &Experiment, model: &Model, out: &Path, tick: &dyn Fn()) -> anyhow::Result<Vec<PointRecord>> {
     let mut built: Option<((AccelVariant, DiskShape), Built)> = None;
-    // Full-detail images by (distance, scheme), shared by every accelerator (they agree there).
-    let mut full_detail: BTreeMap<(u32, SurfaceKind), Vec<u8>> = BTreeMap::new();
+    let mut full_detail = FullDetail::default();
     let mut records = Vec::new();
     for p in e.points(&model.name) {
         let key = (p.accel, p.surface.shape());
         if built.as_ref().is_none_or(|(k, _)| *k != key) {
             // One accelerator in memory at a time: the next replaces it.
             drop(built.take());
-            let scene = Scene::build(model.cloud.clone().into(), &settings(e, model, &p, p.surface, 0.0))?;
+            let scene = Scene::build(model.cloud.clone().into(), &settings(e, model, &p))?;
             built = Some((key, Built { seconds: scene.build_seconds(), scene }));
         }
         let (_, built) = built.as_ref().expect("built above");
-        // The reference scheme's disks are oriented (`experiment::check`), which every
-        // accelerator's bounds hold.
-        for surface in std::iter::once(p.surface).chain(e.reference) {
-            if let std::collections::btree_map::Entry::Vacant(entry) =
-                full_detail.entry((p.distance.to_bits(), surface))
-            {
-                let frame = render(&built.scene, &settings(e, model, &p, surface, 0.0))?;
-                entry.insert(region_srgb8(&frame.film));
-            }
-        }
+        full_detail.render_for(e, model, &p, &built.scene)?;
         records.push(measure_point(e, model, &p, built, &full_detail, out)?);
         tick();
     }
@@ -381,22 +420,24 @@ fn measure_point(
     model: &Model,
     p: &Point,
     built: &Built,
-    full_detail: &BTreeMap<(u32, SurfaceKind), Vec<u8>>,
+    full_detail: &FullDetail,
     out: &Path,
 ) -> anyhow::Result<PointRecord> {
-    let job = built.scene.job(&settings(e, model, p, p.surface, p.lod_threshold))?;
+    let job = built.scene.job(&settings(e, model, p))?;
     let region = job.config.region;
     let t = Instant::now();
     let Frame { film, stats, .. } = job.render(&|_| {});
     let first_seconds = t.elapsed().as_secs_f64();
     let image = region_srgb8(&film);
     let (w, h) = (region.width(), region.height());
-    let own_full = &full_detail[&(p.distance.to_bits(), p.surface)];
+    let distance = p.distance.to_bits();
+    let own_full = &full_detail.own[&(distance, p.surface, p.spp)];
     let own = compare_rgb8(&image, own_full);
     let flip = crate::perceptual::flip_mean(own_full, &image, w, h);
-    let reference = e.reference.and_then(|r| full_detail.get(&(p.distance.to_bits(), r))).map(|reference| {
-        (compare_rgb8(&image, reference).psnr_db, crate::perceptual::flip_mean(reference, &image, w, h))
-    });
+    let against =
+        |other: &[u8]| (compare_rgb8(&image, other).psnr_db, crate::perceptual::flip_mean(other, &image, w, h));
+    let reference = e.reference.and_then(|r| full_detail.own.get(&(distance, r, p.spp))).map(|r| against(r));
+    let converged = full_detail.converged.get(&(distance, p.surface)).map(|c| against(c));
     let frames = e.repeats.max((e.min_seconds / first_seconds.max(1e-6)).ceil().min(1000.0) as u32);
     // The counts are the first frame's; the timed frames count nothing.
     let timed = job.uncounted();
@@ -426,8 +467,9 @@ fn measure_point(
     times.sort_by(f64::total_cmp);
     let seconds = pointray::stats::median(&times);
 
-    let image_name =
-        format!("{}_{}_{}_d{}_t{}.png", model.name, p.accel.name(), p.surface.name(), p.distance, p.lod_threshold);
+    let (accel, surface) = (p.accel.name(), p.surface.name());
+    let samples = if p.spp == 1 { String::new() } else { format!("_spp{}", p.spp) };
+    let image_name = format!("{}_{accel}_{surface}_d{}_t{}{samples}.png", model.name, p.distance, p.lod_threshold);
     pointray_io::write_png(&out.join("images").join(&image_name), w, h, &image)?;
     let per_ray = |n: u64| n as f64 / stats.rays.max(1) as f64;
     Ok(PointRecord {
@@ -438,6 +480,7 @@ fn measure_point(
         surface: p.surface,
         lod_threshold: p.lod_threshold,
         distance: p.distance,
+        spp: p.spp,
         pixels: region.pixel_count(),
         rays: stats.rays,
         frames,
@@ -458,6 +501,8 @@ fn measure_point(
         flip,
         psnr_reference_db: reference.and_then(|r| r.0),
         flip_reference: reference.map(|r| r.1),
+        psnr_converged_db: converged.and_then(|c| c.0),
+        flip_converged: converged.map(|c| c.1),
         other_load_cores,
         attempts,
         embree_mrays_per_second: None,

@@ -60,6 +60,7 @@ pub fn write_report(results: &Path, report: &Path, figures: &Path, command: &str
     improvement_table(&mut md, &run, figures, &link)?;
     bounding_volumes(&mut md, &run);
     schemes(&mut md, &run);
+    converged_quality(&mut md, &run);
     image_pairs(&mut md, &run, results, figures, &link)?;
     let kept = std::fs::read_to_string(report)
         .ok()
@@ -158,9 +159,11 @@ fn models(md: &mut String, run: &Run) {
     md.push('\n');
 }
 
-/// The points of one model, accelerator and scheme.
+/// The points of one model, accelerator and scheme at one sample a pixel (the thesis's
+/// experiments; more samples are the quality experiments').
 fn select<'a>(run: &'a Run, model: &str, accel: &str, surface: SurfaceKind) -> Vec<&'a PointRecord> {
-    run.points.iter().filter(|p| p.model == model && p.accel == accel && p.surface == surface).collect()
+    let of = |p: &&PointRecord| p.model == model && p.accel == accel && p.surface == surface && p.spp == 1;
+    run.points.iter().filter(of).collect()
 }
 
 fn sorted_set(values: impl Iterator<Item = f32>) -> Vec<f32> {
@@ -450,7 +453,7 @@ fn bounding_volumes(md: &mut String, run: &Run) {
         let points: Vec<&PointRecord> = run
             .points
             .iter()
-            .filter(|p| p.model == m.model && p.surface == SurfaceKind::Sj && p.accel.starts_with("bvh"))
+            .filter(|p| p.model == m.model && p.surface == SurfaceKind::Sj && p.accel.starts_with("bvh") && p.spp == 1)
             .collect();
         let accels: BTreeSet<&str> = points.iter().map(|p| p.accel.as_str()).collect();
         if accels.len() < 2 {
@@ -501,7 +504,8 @@ fn embree_seconds(p: &PointRecord) -> Option<f64> {
 
 /// Thesis ch. 2 and 4: SJ against RFD and PSS, at full detail.
 fn schemes(md: &mut String, run: &Run) {
-    let points: Vec<&PointRecord> = run.points.iter().filter(|p| p.accel == "bvh" && p.lod_threshold == 0.0).collect();
+    let points: Vec<&PointRecord> =
+        run.points.iter().filter(|p| p.accel == "bvh" && p.lod_threshold == 0.0 && p.spp == 1).collect();
     let kinds: BTreeSet<SurfaceKind> = points.iter().map(|p| p.surface).collect();
     if kinds.len() < 2 {
         return;
@@ -547,6 +551,67 @@ fn schemes(md: &mut String, run: &Run) {
     md.push('\n');
 }
 
+/// Issue 21's equal quality: each image against its scheme's converged image (full detail at
+/// many samples a pixel), full detail at each number of samples beside level of detail at one,
+/// per model, scheme and distance; and each one's frame time.
+fn converged_quality(md: &mut String, run: &Run) {
+    let Some(converged) = run.header.converged_spp else { return };
+    let _ = writeln!(
+        md,
+        "## Quality against the converged image
+"
+    );
+    let _ = writeln!(
+        md,
+        "Each image against full detail at {converged} samples a pixel of the same scheme and view, over the \
+         traced pixels: PSNR dB and, in brackets, FLIP (0 for the same image); then the median frame in ms. Full \
+         detail at 1, 2, 4, … samples a pixel beside level of detail at one: level of detail as prefiltering is \
+         as good as the full-detail column it matches, at its own cost.\n"
+    );
+    for m in &run.models {
+        let points: Vec<&PointRecord> =
+            run.points.iter().filter(|p| p.model == m.model && p.psnr_converged_db.is_some()).collect();
+        let mut columns: Vec<(String, SurfaceKind, f32, u32)> = Vec::new();
+        for p in &points {
+            let column = (p.accel.clone(), p.surface, p.lod_threshold, p.spp);
+            if !columns.contains(&column) {
+                columns.push(column);
+            }
+        }
+        columns.sort_by(|a, b| (&a.0, a.1, a.2, a.3).partial_cmp(&(&b.0, b.1, b.2, b.3)).expect("finite"));
+        if columns.is_empty() {
+            continue;
+        }
+        let _ = writeln!(md, "### {} ({} points)\n", m.model, thousands(m.points as u64));
+        let mut head = "| distance | pixels |".to_string();
+        for (accel, surface, lod, spp) in &columns {
+            let detail = if *lod == 0.0 { "full detail".to_string() } else { format!("τ = {lod}") };
+            head += &format!(" {accel} {}, {detail}, {spp} spp |", surface.name());
+        }
+        let _ = writeln!(md, "{head}\n|---:|---:|{}", "---|".repeat(columns.len()));
+        for d in sorted_set(points.iter().map(|p| p.distance)) {
+            let mut row = String::new();
+            let mut pixels = 0;
+            for (accel, surface, lod, spp) in &columns {
+                let p = points.iter().find(|p| {
+                    p.distance == d
+                        && p.accel == *accel
+                        && p.surface == *surface
+                        && p.lod_threshold == *lod
+                        && p.spp == *spp
+                });
+                row += &p.map_or(" – |".into(), |p| {
+                    pixels = p.pixels;
+                    let flip = p.flip_converged.unwrap_or(f64::NAN);
+                    format!(" {} ({flip:.3}), {} ms |", psnr(p.psnr_converged_db), ms(p.render_seconds))
+                });
+            }
+            let _ = writeln!(md, "| {d} | {} |{row}", thousands(pixels));
+        }
+        md.push('\n');
+    }
+}
+
 /// What level of detail does to the picture: full detail beside the largest threshold, for
 /// each model at the farthest distance whose crop still has 64 × 64 pixels.
 fn image_pairs(
@@ -583,6 +648,7 @@ fn image_pairs(
                 p.model == m.model
                     && p.surface == SurfaceKind::Sj
                     && p.lod_threshold == 0.0
+                    && p.spp == 1
                     && p.distance == worst.distance
             })
             .and_then(|p| p.image.clone());

@@ -141,6 +141,67 @@ fn the_report_shows_every_experiment_with_figures_and_keeps_its_discussion() {
     assert!(again.contains("this file was written by `pointray report out -o doc/RESULTS.md`"));
 }
 
+/// The quality experiments: more samples a pixel, and every image against the converged one.
+const QUALITY: &str = r#"
+title = "sphere quality"
+width = 64
+height = 64
+repeats = 1
+min_seconds = 0
+converged_spp = 32
+
+[[model]]
+name = "sphere"
+file = "sphere.ply"
+
+[[matrix]]
+accel = ["bvh"]
+surface = ["sj"]
+lod_threshold = [0]
+spp = [1, 8]
+distance = [2]
+
+[[matrix]]
+accel = ["bvh"]
+surface = ["sj"]
+lod_threshold = [2]
+distance = [2]
+"#;
+
+#[test]
+fn more_samples_come_closer_to_the_converged_image_and_the_report_sets_them_side_by_side() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    write_file(dir.path(), "q.toml", QUALITY);
+    run_in(dir.path(), &["-q", "bench", "q.toml", "--out", "out", "--report", "doc/quality.md"]).assert_success();
+    let records = lines(&dir.path().join("out/results.jsonl"));
+    assert_eq!(records[0]["converged_spp"], 32);
+    let points: Vec<&serde_json::Value> = records.iter().filter(|r| r["kind"] == "point").collect();
+    assert_eq!(points.len(), 3);
+    let find = |lod: f64, spp: u64| points.iter().find(|p| p["lod_threshold"] == lod && p["spp"] == spp).unwrap();
+    let converged = |p: &serde_json::Value| p["psnr_converged_db"].as_f64().unwrap();
+    let (one, eight, lod) = (find(0.0, 1), find(0.0, 8), find(2.0, 1));
+    // Eight rays a pixel trace eight times the rays, and come closer to the converged image.
+    assert_eq!(eight["rays"].as_u64().unwrap(), 8 * one["rays"].as_u64().unwrap());
+    assert!(converged(eight) > converged(one) + 3.0, "{eight} against {one}");
+    assert!(eight["flip_converged"].as_f64() < one["flip_converged"].as_f64());
+    // Each is compared with full detail at its own samples a pixel too: itself.
+    assert!(eight["psnr_db"].is_null() && lod["psnr_db"].is_number(), "{eight} {lod}");
+    assert!(converged(lod) > 10.0, "{lod}");
+    assert!(eight["image"].as_str().unwrap().ends_with("_d2_t0_spp8.png"));
+
+    let report = std::fs::read_to_string(dir.path().join("doc/quality.md")).unwrap();
+    for cell in [
+        "## Quality against the converged image",
+        "full detail at 32 samples a pixel",
+        "| bvh sj, full detail, 1 spp | bvh sj, full detail, 8 spp | bvh sj, τ = 2, 1 spp |",
+    ] {
+        assert!(report.contains(cell), "no {cell:?} in\n{report}");
+    }
+    // The thesis's sections keep to one sample a pixel: the LoD table has full detail and τ = 2.
+    assert!(report.contains("| full detail ms | τ = 2 ms |"), "{report}");
+}
+
 #[test]
 fn bad_experiments_are_refused_with_the_file_and_the_problem() {
     let dir = temp_dir();
