@@ -22,7 +22,9 @@
 //! of the Euclidean MST to make it connected). Instead, every connected component gets its
 //! own seed: its highest point (largest z), whose normal is made to point +z, which is
 //! outward for a closed surface. Components without a common edge cannot be made
-//! consistent with each other anyway, except by such a global rule.
+//! consistent with each other anyway, except by such a global rule. Preprocessing seeds the
+//! trees first with the points that views round the model settle (`super::visibility`:
+//! the Buddha's 0.86 % → 0.53 %), and the highest points only where the views settled none.
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
@@ -107,6 +109,10 @@ pub struct OrientStats {
     pub flipped: usize,
     /// Connected components of the kNN graph, each oriented separately.
     pub components: usize,
+    /// Normals set by views round the model ([`super::visibility`]), which seeded the tree.
+    pub settled_by_views: usize,
+    /// Normals the views saw clearly but the tree turned away from them: doubtful.
+    pub against_views: usize,
 }
 
 /// Orients every normal consistently with its neighbours (see the module docs).
@@ -451,7 +457,7 @@ mod tests {
         let mut normals: Vec<Vec3> = outward.iter().map(|n| -*n).collect();
         let nbrs = k_nearest(&points, 8);
         let stats = orient_normals(&points, &mut normals, &nbrs);
-        assert_eq!(stats, OrientStats { flipped: points.len(), components: 2 });
+        assert_eq!(stats, OrientStats { flipped: points.len(), components: 2, ..Default::default() });
         assert_eq!(count_inward(&normals, &outward), 0);
     }
 
@@ -467,7 +473,7 @@ mod tests {
         fixed[lowest] = true;
         let nbrs = k_nearest(&points, 8);
         let stats = orient_normals_from(&points, &mut normals, &nbrs, Some(&fixed));
-        assert_eq!(stats, OrientStats { flipped: points.len() - 1, components: 1 });
+        assert_eq!(stats, OrientStats { flipped: points.len() - 1, components: 1, ..Default::default() });
         assert_eq!(count_inward(&normals, &outward), 0);
     }
 
