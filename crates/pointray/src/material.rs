@@ -62,12 +62,20 @@ impl Phong {
         if n_dot_l <= 0.0 {
             return Vec3::ZERO;
         }
-        let mut c = Vec3::from(hit.color) * (n_dot_l * irradiance * (1.0 - self.ambient));
-        if self.specular > 0.0 {
-            let h = (to_light + view).normalize_or_zero();
-            c += Vec3::splat(self.specular * irradiance * h.dot(hit.normal).max(0.0).powf(self.shininess));
+        Vec3::from(hit.color) * (n_dot_l * irradiance * (1.0 - self.ambient))
+            + self.glossy(hit.normal, view, to_light, irradiance)
+    }
+
+    /// The specular lobe alone (Blinn–Phong, white): what one light at `irradiance` along
+    /// `to_light` adds towards `view` on a surface facing `normal`. The path tracer adds the
+    /// same lobe to its light samples, so that a highlight has one place and one brightness
+    /// whichever integrator draws it.
+    pub fn glossy(&self, normal: Vec3, view: Vec3, to_light: Vec3, irradiance: f32) -> Vec3 {
+        if self.specular <= 0.0 || normal.dot(to_light) <= 0.0 {
+            return Vec3::ZERO;
         }
-        c
+        let h = (to_light + view).normalize_or_zero();
+        Vec3::splat(self.specular * irradiance * h.dot(normal).max(0.0).powf(self.shininess))
     }
 }
 

@@ -16,7 +16,7 @@ use crate::accel::{Accel, TraversalStats};
 use crate::camera::{Camera, Region};
 use crate::film::Film;
 use crate::ground::GroundPlane;
-use crate::material::{self, Material};
+use crate::material::{self, Material, Phong};
 use crate::math::{Ray, RayLanes};
 use crate::shading::{Environment, Light};
 use crate::splat::DiskShape;
@@ -492,7 +492,9 @@ impl<A: Accel> Tracer<'_, A> {
         }
         let bounce = |direction: Vec3| secondary(ray, &hit, direction, config);
         match material {
-            Material::Phong(_) if config.integrator == Integrator::Path => self.diffuse(ray, &hit, depth, inside),
+            Material::Phong(phong) if config.integrator == Integrator::Path => {
+                self.diffuse(ray, &hit, &phong, depth, inside)
+            }
             Material::Phong(_) if config.integrator == Integrator::Ao => {
                 let direction = cosine_direction(hit.normal, [self.rng.get().random(), self.rng.get().random()]);
                 let probe = secondary(ray, &hit, direction, config);
@@ -589,13 +591,15 @@ impl<A: Accel> Tracer<'_, A> {
 
     /// The path tracer at a diffuse hit: each light's direct light (albedo × irradiance ×
     /// cos θ if the shadow ray is free, which is the albedo/π BRDF under the light's
-    /// radiometric irradiance, π times its scale; see [`Light`]), plus the light one
-    /// cosine-distributed bounce brings, which for that distribution weighs exactly the albedo.
-    fn diffuse(&mut self, ray: &Ray, hit: &scheme::SurfaceHit, depth: u32, inside: bool) -> Vec3 {
+    /// radiometric irradiance, π times its scale; see [`Light`]) and its highlight (`phong`'s
+    /// lobe, as Whitted draws it), plus the light one cosine-distributed bounce brings, which
+    /// for that distribution weighs exactly the albedo.
+    fn diffuse(&mut self, ray: &Ray, hit: &scheme::SurfaceHit, phong: &Phong, depth: u32, inside: bool) -> Vec3 {
         let albedo = Vec3::from(hit.color);
         let mut color = Vec3::ZERO;
         self.visible_lights(ray, hit, |to_light, irradiance| {
             color += albedo * (irradiance * hit.normal.dot(to_light));
+            color += phong.glossy(hit.normal, -ray.dir, to_light, irradiance);
         });
         if depth >= self.config.max_depth {
             return color;

@@ -63,8 +63,10 @@ fn a_white_torus_in_a_white_furnace_disappears() {
 
 /// Mean of the green channel over a plane of splats (z = 0, normal +z, albedo from sRGB
 /// 188) seen from straight above, filling the frame, path traced with `lights` and `sky`.
+/// The path tracer's mean over a Lambert plane (the standard material's highlight left out).
 fn plane_mean(lights: Vec<Light>, sky: Environment, samples: u32) -> (f32, f32) {
-    plane_mean_with(Integrator::Path, Material::standard(), lights, sky, samples)
+    let lambert = Material::Phong(Phong { specular: 0.0, ..Phong::standard() });
+    plane_mean_with(Integrator::Path, lambert, lights, sky, samples)
 }
 
 fn plane_mean_with(
@@ -130,6 +132,44 @@ fn whitted_and_the_path_tracer_agree_on_direct_light() {
         eprintln!("{light:?}: Whitted {whitted:.5}, path tracer {path:.5}");
         assert!(whitted > 0.01 && (whitted - path).abs() < 1e-5 * whitted.max(1.0), "{whitted} against {path}");
     }
+}
+
+/// The brightest pixel of a 32 × 32 render of the plane and its value.
+fn highlight(integrator: Integrator, material: Material, light: Light) -> (usize, f32, f32) {
+    let mut splats = plane_splats(40_000, 53);
+    splats.iter_mut().for_each(|s| s.color = pack_color([188.0 / 255.0; 3]));
+    let bvh = Bvh::build(splats, &BvhParams::standard());
+    let cam = Camera::look_at(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Y, 30.0, 32, 32);
+    let config = RenderConfig {
+        integrator,
+        materials: vec![material],
+        lights: vec![light],
+        environment: Environment::Uniform { color: [0.0; 3] },
+        max_depth: 6,
+        seed: 4,
+        ..render_config(Region::full(32, 32), 1)
+    };
+    let (film, _) = render(&bvh, &cam, &config, &|_| {});
+    let green: Vec<f32> = film.rgb.iter().map(|c| c[1]).collect();
+    let (at, peak) = green.iter().enumerate().fold((0, 0.0f32), |m, (i, &g)| if g > m.1 { (i, g) } else { m });
+    (at, peak, green.iter().sum::<f32>() / green.len() as f32)
+}
+
+#[test]
+fn whitted_and_the_path_tracer_draw_one_highlight() {
+    // A glossy Lambert surface (no ambient) under a point light in the dark: the path tracer
+    // adds the same lobe to its light samples as Whitted adds to each light, so the highlight
+    // lies on the same pixel with the same brightness, and the frame's mean agrees.
+    let glossy = Material::Phong(Phong { ambient: 0.0, specular: 0.5, shininess: 40.0 });
+    let lambert = Material::Phong(Phong { ambient: 0.0, specular: 0.0, shininess: 1.0 });
+    let light = Light::Point { position: Vec3::new(0.4, 0.2, 1.5), intensity: 0.9 };
+    let (w_at, w_peak, w_mean) = highlight(Integrator::Whitted, glossy, light);
+    let (p_at, p_peak, p_mean) = highlight(Integrator::Path, glossy, light);
+    let (_, matte_peak, _) = highlight(Integrator::Path, lambert, light);
+    eprintln!("Whitted {w_at} {w_peak:.5} {w_mean:.5}, path {p_at} {p_peak:.5} {p_mean:.5}, matte {matte_peak:.5}");
+    assert!(w_peak > 1.5 * matte_peak, "no highlight: {w_peak} against {matte_peak}");
+    assert_eq!(w_at, p_at);
+    assert!((w_peak - p_peak).abs() < 1e-5 && (w_mean - p_mean).abs() < 1e-5, "{w_peak} {p_peak} {w_mean} {p_mean}");
 }
 
 #[test]
