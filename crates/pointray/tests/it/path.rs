@@ -61,14 +61,14 @@ fn a_white_torus_in_a_white_furnace_disappears() {
     assert!((mean - 1.0).abs() < 0.005, "mean {mean}");
 }
 
-/// Mean of the green channel over a plane of splats (z = 0, normal +z, albedo from sRGB
-/// 188) seen from straight above, filling the frame, path traced with `lights` and `sky`.
-/// The path tracer's mean over a Lambert plane (the standard material's highlight left out).
+/// The path tracer's mean over a Lambert plane (the standard material's highlight left out),
+/// and the plane's albedo; see [`plane_green`].
 fn plane_mean(lights: Vec<Light>, sky: Environment, samples: u32) -> (f32, f32) {
     let lambert = Material::Phong(Phong { specular: 0.0, ..Phong::standard() });
     plane_mean_with(Integrator::Path, lambert, lights, sky, samples)
 }
 
+/// The mean of [`plane_green`], and the plane's albedo.
 fn plane_mean_with(
     integrator: Integrator,
     material: Material,
@@ -76,6 +76,19 @@ fn plane_mean_with(
     sky: Environment,
     samples: u32,
 ) -> (f32, f32) {
+    let green = plane_green(integrator, material, lights, sky, samples);
+    (green.iter().sum::<f32>() / green.len() as f32, pointray::color::srgb_to_linear(188.0 / 255.0))
+}
+
+/// The green channel of a plane of splats (z = 0, normal +z, albedo from sRGB 188) seen from
+/// straight above, filling the 32 × 32 frame, rendered by `integrator` with `lights` and `sky`.
+fn plane_green(
+    integrator: Integrator,
+    material: Material,
+    lights: Vec<Light>,
+    sky: Environment,
+    samples: u32,
+) -> Vec<f32> {
     let mut splats = plane_splats(40_000, 53);
     splats.iter_mut().for_each(|s| s.color = pack_color([188.0 / 255.0; 3]));
     let bvh = Bvh::build(splats, &BvhParams::standard());
@@ -92,8 +105,7 @@ fn plane_mean_with(
     let (film, _) = render(&bvh, &cam, &config, &|_| {});
     let depth = &film.first_hits.as_ref().expect("first hits recorded").depth;
     assert!(depth.iter().all(|d| d.is_finite()), "the plane fills the frame");
-    let mean = film.rgb.iter().map(|c| c[1]).sum::<f32>() / film.rgb.len() as f32;
-    (mean, pointray::color::srgb_to_linear(188.0 / 255.0))
+    film.rgb.iter().map(|c| c[1]).collect()
 }
 
 #[test]
@@ -134,23 +146,9 @@ fn whitted_and_the_path_tracer_agree_on_direct_light() {
     }
 }
 
-/// The brightest pixel of a 32 × 32 render of the plane and its value.
+/// The brightest pixel of [`plane_green`] under `light` in the dark, its value, and the mean.
 fn highlight(integrator: Integrator, material: Material, light: Light) -> (usize, f32, f32) {
-    let mut splats = plane_splats(40_000, 53);
-    splats.iter_mut().for_each(|s| s.color = pack_color([188.0 / 255.0; 3]));
-    let bvh = Bvh::build(splats, &BvhParams::standard());
-    let cam = Camera::look_at(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, Vec3::Y, 30.0, 32, 32);
-    let config = RenderConfig {
-        integrator,
-        materials: vec![material],
-        lights: vec![light],
-        environment: Environment::Uniform { color: [0.0; 3] },
-        max_depth: 6,
-        seed: 4,
-        ..render_config(Region::full(32, 32), 1)
-    };
-    let (film, _) = render(&bvh, &cam, &config, &|_| {});
-    let green: Vec<f32> = film.rgb.iter().map(|c| c[1]).collect();
+    let green = plane_green(integrator, material, vec![light], Environment::Uniform { color: [0.0; 3] }, 1);
     let (at, peak) = green.iter().enumerate().fold((0, 0.0f32), |m, (i, &g)| if g > m.1 { (i, g) } else { m });
     (at, peak, green.iter().sum::<f32>() / green.len() as f32)
 }
