@@ -600,8 +600,7 @@ mod tests {
 
     /// Views round a closed cone settle nearly every point, each on the side it truly faces,
     /// whichever sign PCA gave it; preprocessing orients it from them with fewer normals
-    /// inward than the spanning tree alone (9 against 16, at the rim of the base and the
-    /// apex, where PCA's normals are across the edge).
+    /// inward than the spanning tree alone (measured: 9 against 16).
     #[test]
     fn views_settle_a_closed_cone_from_outside() {
         let (points, outward) = cone();
@@ -623,8 +622,8 @@ mod tests {
         assert!(stats.orientation_settled_by_views == settled.len() && !stats.orientation_doubtful());
     }
 
-    /// An open sheet is seen from both sides: the views settle little of it and leave its
-    /// orientation to the spanning tree.
+    /// An open sheet is seen from both sides: the views do not take it for a closed shape
+    /// and leave its orientation to the spanning tree.
     #[test]
     fn views_leave_an_open_sheet_to_the_tree() {
         let sheet: Vec<Vec3> = (0..100 * 100)

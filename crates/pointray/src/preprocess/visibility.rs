@@ -85,12 +85,13 @@ impl Vote {
 }
 
 /// The agreement from which the views set a normal (on the Buddha 0.8, 0.9 and 0.97 gave
-/// the same errors within 1 %; an open sheet's views cancel to near 0).
+/// the same errors within 3 %; an open sheet's views cancel to near 0).
 pub const SETTLED_AGREEMENT: f32 = 0.9;
 
 /// The views that must see a point to set its normal. A single view saw the inside of the
-/// Stanford bunny's shell through the holes in its base (24 normals turned wrongly, where 3
-/// views turned 3 and cost the Buddha 8 of its 100 corrections, in a Python model of this).
+/// Stanford bunny's shell through the holes in its base (in a Python model of this: 24
+/// normals turned wrongly with one view, 4 with two, 3 with three, where two cost the Buddha
+/// 2 of its corrections and three 18).
 pub const SETTLED_VIEWS: i32 = 2;
 
 /// Whether the views see a closed shape: most of the points they see, they settle. Closed
