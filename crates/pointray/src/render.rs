@@ -362,14 +362,14 @@ fn render_pixel<A: Accel>(
     } else {
         [0.0; 2]
     };
-    // Where in the pixel a sample looks: the centre, a point of the R2 sequence, or two numbers
-    // from the sample's own stream, which it then traces with (how many numbers a path draws,
-    // roulette, total internal reflection, which disks it meets, never shifts another
-    // sample's); filtered.
     // The numbers a sample's path draws (lens, lights, bounces) from a low-discrepancy
     // sequence too, with R2's pixel positions.
     let low_discrepancy =
         (samples > 1 && config.sampler == Sampler::R2).then(|| (sample_key(config.seed, x, y, u32::MAX), samples));
+    // Where in the pixel a sample looks: the centre, a point of the R2 sequence, or two numbers
+    // from the sample's own stream, which it then traces with (how many numbers a path draws,
+    // roulette, total internal reflection, which disks it meets, never shifts another
+    // sample's); filtered.
     let filtered = |u: [f32; 2]| match config.filter {
         Filter::Box => u,
         Filter::Tent => [0.5 + tent(u[0]), 0.5 + tent(u[1])],
