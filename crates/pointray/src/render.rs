@@ -356,7 +356,8 @@ fn render_pixel<A: Accel>(
     let mut first = FirstHits { samples, ..FirstHits::default() };
     // The pixel's own shift of the R2 sequence (Cranley–Patterson rotation), drawn only
     // where it is used: seeding a generator costs ~60 instructions.
-    let pixel_shift = if samples > 1 && config.sampler == Sampler::R2 {
+    let r2_samples = samples > 1 && config.sampler == Sampler::R2;
+    let pixel_shift = if r2_samples {
         let mut rng = sample_rng(config.seed, x, y, u32::MAX);
         [rng.random::<f32>(), rng.random::<f32>()]
     } else {
@@ -364,8 +365,7 @@ fn render_pixel<A: Accel>(
     };
     // The numbers a sample's path draws (lens, lights, bounces) from a low-discrepancy
     // sequence too, with R2's pixel positions.
-    let low_discrepancy =
-        (samples > 1 && config.sampler == Sampler::R2).then(|| (sample_key(config.seed, x, y, u32::MAX), samples));
+    let low_discrepancy = r2_samples.then(|| (sample_key(config.seed, x, y, u32::MAX), samples));
     // Where in the pixel a sample looks: the centre, a point of the R2 sequence, or two numbers
     // from the sample's own stream, which it then traces with (how many numbers a path draws,
     // roulette, total internal reflection, which disks it meets, never shifts another

@@ -205,8 +205,9 @@ impl Scene {
             *materials = kept.iter().map(|&i| materials[i as usize]).collect();
         }
         let up = up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y);
-        // (The elevation colours' axis: the one `Self::up` gives the camera.)
-        color_by::apply(&mut cloud, settings.color_by, settings.up.unwrap_or(up))?;
+        // The elevation colours' axis: the one `Self::up` gives the camera.
+        let elevation_axis = settings.up.unwrap_or(up);
+        color_by::apply(&mut cloud, settings.color_by, elevation_axis)?;
         if cloud.is_empty() {
             return Err(SceneError::Empty);
         }
@@ -225,7 +226,7 @@ impl Scene {
         let (origin, points, bounds) = (cloud.origin, cloud.len(), cloud.bounds());
         drop(cloud);
         let mut build = Build::of(settings);
-        build.elevation_up = (settings.color_by == ColorBy::Elevation).then(|| settings.up.unwrap_or(up));
+        build.elevation_up = (settings.color_by == ColorBy::Elevation).then_some(elevation_axis);
         let start = std::time::Instant::now();
         // The kd-tree and brute force keep the splats' order; the BVH says where each went.
         let mut ids = None;

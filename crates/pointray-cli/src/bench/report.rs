@@ -556,11 +556,7 @@ fn schemes(md: &mut String, run: &Run) {
 /// per model, scheme and distance; and each one's frame time.
 fn converged_quality(md: &mut String, run: &Run) {
     let Some(converged) = run.header.converged_spp else { return };
-    let _ = writeln!(
-        md,
-        "## Quality against the converged image
-"
-    );
+    let _ = writeln!(md, "## Quality against the converged image\n");
     let _ = writeln!(
         md,
         "Each image against full detail at {converged} samples a pixel of the same scheme and view, over the \
@@ -570,7 +566,8 @@ fn converged_quality(md: &mut String, run: &Run) {
     );
     for m in &run.models {
         let points: Vec<&PointRecord> =
-            run.points.iter().filter(|p| p.model == m.model && p.psnr_converged_db.is_some()).collect();
+            // (An image equal to the converged one has no PSNR, but a FLIP of 0.)
+            run.points.iter().filter(|p| p.model == m.model && p.flip_converged.is_some()).collect();
         let mut columns: Vec<(String, SurfaceKind, f32, u32)> = Vec::new();
         for p in &points {
             let column = (p.accel.clone(), p.surface, p.lod_threshold, p.spp);
@@ -602,7 +599,7 @@ fn converged_quality(md: &mut String, run: &Run) {
                 });
                 row += &p.map_or(" – |".into(), |p| {
                     pixels = p.pixels;
-                    let flip = p.flip_converged.unwrap_or(f64::NAN);
+                    let flip = p.flip_converged.expect("selected above");
                     format!(" {} ({flip:.3}), {} ms |", psnr(p.psnr_converged_db), ms(p.render_seconds))
                 });
             }

@@ -46,7 +46,7 @@ const MAX_SIDE: usize = 2048;
 /// Points that vote at most: a bigger cloud votes with every n-th point (n the smallest that
 /// fits), each standing for n points, √n times as wide. Its surfaces are sampled finely
 /// enough for that: the dragon (res2, 100k points) has the same 89 wrong normals with every
-/// 4th voting; the full dragon's 435k orient in 0.48 s (0.33 s without views).
+/// 4th voting; the full dragon's 435k orient in 0.46 s (0.29 s without views).
 const MAX_VOTERS: usize = 1 << 17;
 
 /// Votes are summed in 1/1024ths, as integers: the same sums whatever the threads' order.
@@ -86,13 +86,13 @@ impl Vote {
 
 /// The agreement from which the views set a normal (on the Buddha 0.8, 0.9 and 0.97 gave
 /// the same errors within 3 %; an open sheet's views cancel to near 0).
-pub const SETTLED_AGREEMENT: f32 = 0.9;
+const SETTLED_AGREEMENT: f32 = 0.9;
 
 /// The views that must see a point to set its normal. A single view saw the inside of the
 /// Stanford bunny's shell through the holes in its base (in a Python model of this: 24
 /// normals turned wrongly with one view, 4 with two, 3 with three, where two cost the Buddha
 /// 2 of its corrections and three 18).
-pub const SETTLED_VIEWS: i32 = 2;
+const SETTLED_VIEWS: i32 = 2;
 
 /// Whether the views see a closed shape: most of the points they see, they settle. Closed
 /// scans score 0.88–1.0 (the Stanford bunny, dragon, Buddha and scan set, the Igea); open ones
