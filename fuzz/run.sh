@@ -26,7 +26,9 @@ seed ply $'ply\n' "$fixtures"/*.ply
 seed pcd $'VERSION .7\n' "$fixtures"/*.pcd
 seed scan_set 'bmesh ' "$fixtures"/*.conf
 printf 'scan.ply 0 0 0 0 0 0 1\n' > corpus/scan_set/seed-one-scan.conf
-mkdir -p corpus/las corpus/mesh corpus/png corpus/scene
+mkdir -p corpus/las corpus/mesh corpus/png corpus/scene corpus/env_map
+printf '#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 1 +X 8\n\002\002\000\010\210\200\010\000\001\002\003\004\005\006\007\204\011\004\001\002\003\004\210\201' \
+  > corpus/env_map/seed-rle.hdr
 cp ../scenes/*.toml corpus/scene/ 2>/dev/null || true
 printf 'format ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\nproperty float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n4 1 3 2 0\n' \
   > corpus/mesh/seed-quad.ply
@@ -39,7 +41,7 @@ png = b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", struct.pack(">IIBBBBB", 4, 4, 8, 2, 
 png += chunk(b"IDAT", zlib.compress(raw)) + chunk(b"IEND", b"")
 open("corpus/png/seed-4x4.png", "wb").write(png)'
 
-for target in cloud ply las pcd xyz scan_set mesh png scene; do
+for target in cloud ply las pcd xyz scan_set mesh png scene env_map; do
   echo "== $target: $seconds s"
   cargo +nightly fuzz run "$target" "corpus/$target" -- \
     -max_total_time="$seconds" -max_len=65536 -rss_limit_mb=4096 -print_final_stats=1 2>&1 |

@@ -220,7 +220,8 @@ pub struct RenderArgs {
     #[arg(long)]
     pub crop_to_model: bool,
 
-    /// Directional light: direction towards the light (default: from the camera, raised).
+    /// Directional light: direction towards the light (default: from the camera, raised; a survey
+    /// (LAS, LAZ) has a sun from the north-west at 45°; an --env-map lights alone).
     #[arg(long, allow_hyphen_values = true, value_parser = parse_vec3, conflicts_with = "light_pos")]
     pub light_dir: Option<glam::Vec3>,
     /// Point light position instead, in the file's coordinates.
@@ -273,6 +274,15 @@ pub struct RenderArgs {
     /// background (what mirrors and glass show).
     #[arg(long)]
     pub sky: bool,
+    /// An HDR panorama around the model (equirectangular Radiance .hdr or OpenEXR .exr, linear
+    /// radiance): what rays that leave the scene see, and the light (the path tracer samples it;
+    /// Whitted's Phong takes its light as the ambient term), with no headlight unless
+    /// --light-dir or --light-pos adds a light. Row 0 is straight up (--up).
+    #[arg(long, value_name = "FILE")]
+    pub env_map: Option<PathBuf>,
+    /// Degrees the --env-map turns about the up axis, anticlockwise seen from above.
+    #[arg(long, default_value_t = D.env_rotation, allow_negative_numbers = true)]
+    pub env_rotation: f32,
     /// What the points' colours show: auto (the file's colours, else the material's), rgb,
     /// intensity (viridis), classification (the ASPRS class colours), elevation (viridis along
     /// --up) or normal.
@@ -398,6 +408,8 @@ impl RenderArgs {
             material: self.material,
             ior: self.ior,
             sky: self.sky,
+            env_map: self.env_map.clone(),
+            env_rotation: self.env_rotation,
             ground: self.ground,
             color_by: self.color_by,
             classes: self.classes.clone(),

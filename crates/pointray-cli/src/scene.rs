@@ -10,7 +10,7 @@ use crate::failure;
 
 /// Flags that mean nothing beside a scene file, whose camera, lights, materials, sky and clouds'
 /// files are its own: given, they are refused rather than silently ignored.
-const SCENE_OWNS: [&str; 20] = [
+const SCENE_OWNS: [&str; 22] = [
     "eye",
     "look_at",
     "up",
@@ -28,6 +28,8 @@ const SCENE_OWNS: [&str; 20] = [
     "material",
     "ior",
     "sky",
+    "env_map",
+    "env_rotation",
     "ground",
     "demo_points",
     "columns",

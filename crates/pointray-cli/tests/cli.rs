@@ -1776,3 +1776,42 @@ fn transparent_pngs_carry_the_coverage_as_alpha() {
     }
     assert!(covered > 200 && clear > 200 && edge > 10, "{covered} {clear} {edge}");
 }
+
+/// `--env-map`: a panorama read from a Radiance `.hdr` shows behind the model (a uniform one
+/// exactly its radiance), the same map from OpenEXR gives the same image, and a missing or
+/// damaged map fails before any work, naming the file; with `--sky` it is refused.
+#[test]
+fn an_environment_map_shows_behind_the_model_and_lights_it() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let (w, h) = (16, 8);
+    // Radiance 0.5 (sRGB 188), brighter towards the top rows.
+    let texels: Vec<[f32; 3]> = (0..w * h).map(|i| [0.5 + 0.25 * ((h - 1 - i / w) as f32); 3]).collect();
+    write_file(dir.path(), "sky.hdr", pointray_io::env_map::encode_rgbe(w, h, &texels));
+    let flat = vec![[0.5f32; 3]; w * h];
+    write_file(dir.path(), "grey.hdr", pointray_io::env_map::encode_rgbe(w, h, &flat));
+    let channel = |k: usize| texels.iter().map(|t| t[k]).collect::<Vec<f32>>();
+    let channels = vec![("R".to_string(), channel(0)), ("G".to_string(), channel(1)), ("B".to_string(), channel(2))];
+    pointray_io::write_exr(&dir.path().join("sky.exr"), w as u32, h as u32, channels).unwrap();
+    render_in(dir.path(), &["sphere.ply", "-o", "grey.png", "--env-map", "grey.hdr"]).assert_success();
+    assert_eq!(read_png(&dir.path().join("grey.png")).pixels().next().unwrap().2, [188; 3]);
+    render_in(dir.path(), &["sphere.ply", "-o", "hdr.png", "--env-map", "sky.hdr", "--integrator", "path"])
+        .assert_success();
+    render_in(dir.path(), &["sphere.ply", "-o", "exr.png", "--env-map", "sky.exr", "--integrator", "path"])
+        .assert_success();
+    let (hdr, exr) = (read_png(&dir.path().join("hdr.png")), read_png(&dir.path().join("exr.png")));
+    assert_eq!(hdr.rgb, exr.rgb, "the 8-bit mantissas of sky.hdr hold these values exactly");
+    assert_ne!(hdr.rgb, read_png(&dir.path().join("grey.png")).rgb);
+    render_in(dir.path(), &["sphere.ply", "-o", "x.png", "--env-map", "missing.hdr"])
+        .assert_failure(1)
+        .assert_stderr_contains("missing.hdr");
+    let bytes = std::fs::read(dir.path().join("sky.hdr")).unwrap();
+    write_file(dir.path(), "cut.hdr", &bytes[..bytes.len() - 10]);
+    render_in(dir.path(), &["sphere.ply", "-o", "x.png", "--env-map", "cut.hdr"])
+        .assert_failure(1)
+        .assert_stderr_contains("cut.hdr: byte");
+    render_in(dir.path(), &["sphere.ply", "-o", "x.png", "--env-map", "sky.hdr", "--sky"])
+        .assert_failure(2)
+        .assert_stderr_contains("--env-map and sky");
+    assert!(!dir.path().join("x.png").exists());
+}

@@ -85,6 +85,7 @@ fn decode(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         file_bytes: bytes.len() as u64,
         // Scanners level their scans: the world's z is up.
         up: Some([0.0, 0.0, 1.0]),
+        sun: None,
     };
     Ok(LoadedCloud { cloud, info })
 }

@@ -196,6 +196,7 @@ fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
         comments: Vec::new(),
         file_bytes,
         up: Some([0.0, 0.0, 1.0]),
+        sun: Some(crate::SURVEY_SUN),
     };
     Ok(LoadedCloud { cloud, info })
 }

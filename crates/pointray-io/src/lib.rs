@@ -5,6 +5,7 @@
 //! the file and, where there is one, the line or byte offset (see [`IoError`]). No input
 //! makes a reader panic or allocate more than the file could describe.
 
+pub mod env_map;
 pub mod error;
 pub mod image;
 mod las;
@@ -25,10 +26,11 @@ mod text;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+pub use env_map::read_env_map;
 pub use error::IoError;
 use file::{FileBytes, read_file};
 pub use image::{decode_png, read_png, write_exr, write_png, write_png_rgba, write_png16, write_png16_rgba};
-pub use ply::{Mesh, read_ply, write_ply, write_ply_with_up};
+pub use ply::{Mesh, read_ply, write_ply, write_ply_with_axes};
 pub use xyz::{Column, TextColumns, read_xyz};
 
 /// What a reader cannot learn from the file itself.
@@ -62,6 +64,21 @@ pub struct FileInfo {
     /// The up axis the file gives, where it gives one: +z for LAS, LAZ and E57 (surveys in
     /// east, north and height, levelled scans), a prepared PLY's `comment up`.
     pub up: Option<[f32; 3]>,
+    /// The direction towards a default sun, where the data has a geography: [`SURVEY_SUN`] over
+    /// an airborne survey (LAS, LAZ), a prepared PLY's `comment sun`.
+    pub sun: Option<[f32; 3]>,
+}
+
+/// The sun a survey (x east, y north, z up) is lit by unless told otherwise: from the north-west
+/// at 45°, the hillshade convention of GIS, so that relief reads as raised. (Not E57's scans,
+/// which may be rooms.)
+pub const SURVEY_SUN: [f32; 3] = [-0.5, 0.5, std::f32::consts::FRAC_1_SQRT_2];
+
+/// What a prepared PLY records of the data beside its points (`comment up`, `comment sun`).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Axes {
+    pub up: Option<[f32; 3]>,
+    pub sun: Option<[f32; 3]>,
 }
 
 /// Extensions taken as XYZ text even when the first line would not tell.

@@ -122,6 +122,7 @@ fn read(path: &Path, bytes: &[u8], faces: bool) -> Result<MeshFile, IoError> {
         comments,
         file_bytes: bytes.len() as u64,
         up: None,
+        sun: None,
     };
     Ok(MeshFile { mesh: Mesh { vertices: vertices_cloud, triangles, skipped_faces }, info })
 }

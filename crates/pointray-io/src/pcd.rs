@@ -248,6 +248,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         file_bytes: bytes.len() as u64,
         // A frame is in its sensor's optical frame (PCL's: x right, y down, z ahead).
         up: header.viewpoint.map(|_| [0.0, -1.0, 0.0]),
+        sun: None,
     };
     let mut cloud = builder.finish();
     if channels.is_some() {

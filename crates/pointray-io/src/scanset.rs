@@ -106,6 +106,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         comments: Vec::new(),
         file_bytes: bytes.len() as u64 + loaded.iter().map(|l| l.info.file_bytes).sum::<u64>(),
         up: None,
+        sun: None,
     };
     let mut cloud = builder.finish();
     // The scans' attributes, one after another (zeros for a scan without one another has).

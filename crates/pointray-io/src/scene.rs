@@ -49,10 +49,13 @@ impl SceneFile {
         ensure(positive(r.ao_distance), "[render] ao_distance: must be positive")?;
         let tau = r.lod_threshold;
         ensure(tau >= 0.0 && tau.is_finite(), "[render] lod_threshold: must not be negative (0: full detail)")?;
-        match self.environment {
-            EnvironmentSpec::Uniform { color } => colors("[environment] color", &[color], f32::MAX)?,
-            EnvironmentSpec::Sky { zenith, horizon, ground } => {
+        match &self.environment {
+            &EnvironmentSpec::Uniform { color } => colors("[environment] color", &[color], f32::MAX)?,
+            &EnvironmentSpec::Sky { zenith, horizon, ground } => {
                 colors("[environment] zenith, horizon and ground", &[zenith, horizon, ground], f32::MAX)?
+            }
+            EnvironmentSpec::Map { rotation, .. } => {
+                ensure(rotation.is_finite(), "[environment] rotation: must be a finite number of degrees")?
             }
         }
         for (i, light) in self.lights.iter().enumerate() {
@@ -256,8 +259,21 @@ impl Default for RenderSpec {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields, tag = "kind", rename_all = "kebab-case")]
 pub enum EnvironmentSpec {
-    Uniform { color: [f32; 3] },
-    Sky { zenith: [f32; 3], horizon: [f32; 3], ground: [f32; 3] },
+    Uniform {
+        color: [f32; 3],
+    },
+    Sky {
+        zenith: [f32; 3],
+        horizon: [f32; 3],
+        ground: [f32; 3],
+    },
+    /// An HDR panorama (`.hdr` or `.exr`, relative to the scene file), turned `rotation`
+    /// degrees about the camera's up.
+    Map {
+        file: std::path::PathBuf,
+        #[serde(default)]
+        rotation: f32,
+    },
 }
 
 impl Default for EnvironmentSpec {

@@ -5,12 +5,14 @@
 //! World coordinates are f64 in a scene file and f32 once placed: put the models near the
 //! origin (a survey-coordinate scan is moved there by its `translate`).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 use std::time::Instant;
 
 use glam::{DMat3, DVec3, Vec3};
 use pointray::PointCloud;
 use pointray::color::srgb_to_linear;
+use pointray::env_map::{EnvFrame, EnvMap};
 use pointray::ground::{Checker, GroundPlane};
 use pointray::material::{Material, Phong};
 use pointray::preprocess::{PreprocessConfig, PreprocessStats, preprocess_with_progress};
@@ -52,7 +54,8 @@ pub fn load(
         return load_scene(path, preprocess, stage);
     }
     let p = read_prepared(path, preprocess, read, stage)?;
-    let parts = SceneParts { up: p.up, view: sensor_view(&p.cloud), ..SceneParts::from(p.cloud) };
+    let light = p.sun.map(|direction| Light::Directional { direction, intensity: 1.0 });
+    let parts = SceneParts { up: p.up, view: sensor_view(&p.cloud), light, ..SceneParts::from(p.cloud) };
     Ok(Source {
         parts,
         settings: None,
@@ -60,6 +63,16 @@ pub fn load(
         preprocess: p.preprocess,
         load_seconds: p.read_seconds,
     })
+}
+
+/// The environment map `settings.env_map` names, read, for [`pointray::Scene::set_environment_map`];
+/// none if it names none.
+pub fn environment_map(settings: &Settings) -> Result<Option<(PathBuf, Arc<EnvMap>)>, IoError> {
+    let Some(path) = &settings.env_map else { return Ok(None) };
+    let map = crate::read_env_map(path)?;
+    let (w, h) = map.size();
+    tracing::info!("read the {w} x {h} environment map {}", path.display());
+    Ok(Some((path.clone(), Arc::new(map))))
 }
 
 /// Where the default camera stands for a cloud one sensor saw from outside it (an organised
@@ -77,6 +90,8 @@ pub struct PreparedCloud {
     pub cloud: PointCloud,
     /// The up axis the file's format gives, if any (`FileInfo::up`).
     pub up: Option<Vec3>,
+    /// The direction towards the data's default sun, if any (`FileInfo::sun`).
+    pub sun: Option<Vec3>,
     /// Points the reader returned, before preprocessing dropped any.
     pub points_read: usize,
     pub preprocess: PreprocessStats,
@@ -95,12 +110,12 @@ pub fn read_prepared(
     stage("read");
     let loaded = crate::read_cloud_with(path, read)?;
     let read_seconds = start.elapsed().as_secs_f64();
-    let (mut cloud, up) = (loaded.cloud, loaded.info.up.map(Vec3::from));
+    let (mut cloud, up, sun) = (loaded.cloud, loaded.info.up.map(Vec3::from), loaded.info.sun.map(Vec3::from));
     tracing::info!("read {} points from {} in {read_seconds:.3} s", cloud.len(), path.display());
     let points_read = cloud.len();
     let preprocess = prepare(&mut cloud, config, &path.display().to_string(), stage)
         .map_err(|message| IoError::invalid(path, message))?;
-    Ok(PreparedCloud { cloud, up, points_read, preprocess, read_seconds })
+    Ok(PreparedCloud { cloud, up, sun, points_read, preprocess, read_seconds })
 }
 
 /// Preprocesses a cloud read from `input`, logging what was repaired; the message of a
@@ -152,10 +167,15 @@ fn load_scene(path: &Path, preprocess: &PreprocessConfig, stage: &dyn Fn(&str)) 
         placed.push(points);
     }
     let settings = scene_settings(&spec);
-    let environment = match spec.environment {
-        EnvironmentSpec::Uniform { color } => Environment::Uniform { color },
-        EnvironmentSpec::Sky { zenith, horizon, ground } => {
-            Environment::Gradient { up: Vec3::from(spec.camera.up).normalize(), zenith, horizon, ground }
+    let up = Vec3::from(spec.camera.up).normalize();
+    let environment = match &spec.environment {
+        &EnvironmentSpec::Uniform { color } => Environment::Uniform { color },
+        &EnvironmentSpec::Sky { zenith, horizon, ground } => Environment::Gradient { up, zenith, horizon, ground },
+        EnvironmentSpec::Map { file, rotation } => {
+            let file = folder.join(file);
+            stage(&format!("read {}", file.display()));
+            let map = crate::read_env_map(&file).map_err(|e| IoError::invalid(path, format!("[environment]: {e}")))?;
+            Environment::Map { map: Arc::new(map), frame: EnvFrame::new(up, *rotation) }
         }
     };
     let content = SceneContent {
@@ -348,6 +368,33 @@ mod tests {
         let g = ground(&spec);
         assert_eq!((g.up, g.height, g.checker.unwrap().tile), (Vec3::Y, -0.5, 0.25));
         assert_eq!(g.color, [1.0, srgb_to_linear(0.5), 0.0]);
+    }
+
+    /// A scene's `[environment] kind = "map"` reads the panorama beside the scene file and turns
+    /// it about the camera's up; a missing one fails naming both files.
+    #[test]
+    fn a_scene_takes_its_environment_map_from_beside_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let texels: Vec<[f32; 3]> = (0..32).map(|i| [0.5 + (i / 8) as f32; 3]).collect();
+        std::fs::write(dir.path().join("sky.hdr"), crate::env_map::encode_rgbe(8, 4, &texels)).unwrap();
+        let scene = |map: &str| {
+            let text = format!(
+                "[camera]\neye = [0.0, 0.0, 3.0]\nlook_at = [0.0, 0.0, 0.0]\nup = [0.0, 0.0, 1.0]\n\
+                 [environment]\nkind = \"map\"\nfile = \"{map}\"\nrotation = 90.0\n\
+                 [[cloud]]\ngrid = {{ size = 1.0, spacing = 0.1 }}\n"
+            );
+            let path = dir.path().join("scene.toml");
+            std::fs::write(&path, text).unwrap();
+            load(&path, &PreprocessConfig::standard(), &ReadOptions::default(), &|_| {})
+        };
+        let source = scene("sky.hdr").unwrap();
+        let Some(SceneContent { environment: Environment::Map { map, frame }, .. }) = source.parts.content else {
+            panic!("no map");
+        };
+        assert_eq!(map.size(), (8, 4));
+        assert_eq!((frame.up, frame.forward), (Vec3::Z, EnvFrame::new(Vec3::Z, 90.0).forward));
+        let err = scene("none.hdr").err().unwrap().to_string();
+        assert!(err.contains("scene.toml") && err.contains("none.hdr"), "{err}");
     }
 
     /// The example scenes follow the schema (rendering them needs the shared data).

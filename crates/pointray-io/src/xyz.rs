@@ -286,6 +286,7 @@ pub(crate) fn parse(path: &Path, bytes: &[u8], given: Option<&TextColumns>) -> R
         comments,
         file_bytes: bytes.len() as u64,
         up: None,
+        sun: None,
     };
     Ok(LoadedCloud { cloud, info })
 }

@@ -6,7 +6,9 @@ use std::path::{Path, PathBuf};
 use glam::{DVec3, Vec3};
 use pointray::PointCloud;
 use pointray::cloud::ScanAttributes;
-use pointray_io::{FileInfo, IoError, atomic_write, read_cloud, read_png, write_ply, write_ply_with_up, write_png};
+use pointray_io::{
+    Axes, FileInfo, IoError, atomic_write, read_cloud, read_png, write_ply, write_ply_with_axes, write_png,
+};
 
 // ---------------------------------------------------------------- hand-written PLY
 
@@ -972,6 +974,8 @@ fn las_and_laz_read_to_the_same_survey_cloud_with_its_colours() {
     assert_eq!(read_cloud(&write_file(dir.path(), "c.las", &old)).unwrap().info.format, "LAS 1.1, point format 3");
     // Surveys stand on z: the camera's default up for them.
     assert_eq!((a.info.up, b.info.up), (Some([0.0, 0.0, 1.0]), Some([0.0, 0.0, 1.0])));
+    // And are lit by a sun from the north-west at 45°.
+    assert_eq!((a.info.sun, b.info.sun), (Some(pointray_io::SURVEY_SUN), Some(pointray_io::SURVEY_SUN)));
     assert!(std::fs::metadata(&laz).unwrap().len() < std::fs::metadata(&las).unwrap().len() / 2, "LAZ compresses");
     // Large offsets survive: recentred in f64, positions keep f32 precision over the cloud's
     // ~1,000-unit extent (6·10⁻⁵), where f32 at 636,000 would round to 0.06.
@@ -986,6 +990,35 @@ fn las_and_laz_read_to_the_same_survey_cloud_with_its_colours() {
     let colors = a.cloud.colors.as_ref().expect("point format 3 has colour");
     assert_eq!(colors[0], [40.0 / 255.0, 41.0 / 255.0, 42.0 / 255.0]);
     assert_eq!(a.cloud.colors, b.cloud.colors);
+}
+
+/// A survey loaded to render is lit by its sun, at the settings' intensity, unless a light is
+/// named or an environment map lights it alone.
+#[test]
+fn a_survey_renders_under_its_sun_unless_told_otherwise() {
+    use pointray::shading::Light;
+    let dir = temp_dir();
+    let las = write_file(dir.path(), "a.las", &las_bytes(&survey_points(3_000, |_| 100), false));
+    let map = pointray_io::env_map::encode_rgbe(4, 2, &[[0.5; 3]; 8]);
+    let map = write_file(dir.path(), "grey.hdr", &map);
+    let config = pointray::preprocess::PreprocessConfig::standard();
+    let lights = |settings: &pointray::Settings| {
+        let source = pointray_io::source::load(&las, &config, &Default::default(), &|_| {}).unwrap();
+        let mut scene = pointray::Scene::build(source.parts, settings).unwrap();
+        scene.set_environment_map(pointray_io::source::environment_map(settings).unwrap());
+        scene.job(settings).unwrap().config.lights
+    };
+    let dimmer = pointray::Settings { light_intensity: 0.5, width: 8, height: 8, ..Default::default() };
+    match lights(&dimmer)[..] {
+        [Light::Directional { direction, intensity }] => {
+            assert_eq!((direction.to_array(), intensity), (pointray_io::SURVEY_SUN, 0.5))
+        }
+        ref other => panic!("{other:?}"),
+    }
+    let told = pointray::Settings { light_dir: Some(Vec3::X), ..dimmer.clone() };
+    assert!(matches!(lights(&told)[..], [Light::Directional { direction: Vec3::X, .. }]));
+    let mapped = pointray::Settings { env_map: Some(map), ..dimmer };
+    assert!(lights(&mapped).is_empty());
 }
 
 #[test]
@@ -1554,9 +1587,10 @@ fn ply_keeps_scan_attributes_and_the_up_axis() {
         gps_time: Some((0..20).map(|i| 3.5e8 + f64::from(i) * 1e-6).collect()),
     };
     let path = dir.path().join("scan.ply");
-    write_ply_with_up(&path, &cloud, Some([0.0, 0.0, 1.0])).unwrap();
+    let axes = Axes { up: Some([0.0, 0.0, 1.0]), sun: Some(pointray_io::SURVEY_SUN) };
+    write_ply_with_axes(&path, &cloud, axes).unwrap();
     let loaded = read_cloud(&path).unwrap();
-    assert_eq!(loaded.info.up, Some([0.0, 0.0, 1.0]));
+    assert_eq!((loaded.info.up, loaded.info.sun), (axes.up, axes.sun));
     let (read, truth) = (&loaded.cloud.scan, &cloud.scan);
     assert_eq!(read.intensity, truth.intensity);
     assert_eq!(read.classification, truth.classification);

@@ -321,7 +321,9 @@ fn prepare(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Bound<'_,
         (loaded.parts, loaded.settings.unwrap_or_default())
     };
     let settings = with_options(&base, options.as_ref())?;
-    let inner = py.detach(|| pool.install(|| pointray::Scene::build(parts, &settings))).map_err(value_error)?;
+    let env_map = pointray_io::source::environment_map(&settings).map_err(io_error)?;
+    let mut inner = py.detach(|| pool.install(|| pointray::Scene::build(parts, &settings))).map_err(value_error)?;
+    inner.set_environment_map(env_map);
     Ok(Scene { inner, settings })
 }
 
@@ -373,7 +375,13 @@ fn render_frame(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Boun
     let (scene, settings) = match source.cast::<Scene>() {
         Ok(scene) => {
             let scene = scene.get();
-            (scene, with_options(&scene.settings, options)?)
+            let settings = with_options(&scene.settings, options)?;
+            if settings.env_map != scene.settings.env_map {
+                return Err(PyValueError::new_err(
+                    "env_map: a Scene renders with the map prepare() read; give it there",
+                ));
+            }
+            (scene, settings)
         }
         Err(_) => {
             prepared = prepare(py, source, options)?;

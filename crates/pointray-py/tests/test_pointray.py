@@ -227,3 +227,31 @@ def test_threads_change_no_pixel_and_progress_reaches_the_total(sphere_file):
 
     with pytest.raises(RuntimeError, match="enough"):
         pointray.render(scene, width=64, height=48, progress=stop)
+
+
+def write_hdr(path, texels):
+    """A flat Radiance picture of linear RGB texels (H x W x 3, each channel's value a few
+    bits of mantissa, so that it is stored exactly)."""
+    h, w, _ = texels.shape
+    out = bytearray(f"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y {h} +X {w}\n".encode())
+    for r, g, b in texels.reshape(-1, 3):
+        e = int(np.floor(np.log2(max(r, g, b)))) + 1
+        out += bytes([int(c * 256 / 2**e) for c in (r, g, b)] + [e + 128])
+    path.write_bytes(bytes(out))
+
+
+@pytest.mark.skipif(not BIN, reason="POINTRAY_BIN not set")
+def test_an_environment_map_renders_as_on_the_command_line(tmp_path, sphere_file):
+    rows = 0.5 + 0.25 * np.arange(8)[::-1]
+    hdr = tmp_path / "sky.hdr"
+    write_hdr(hdr, np.repeat(rows[:, None, None], 16, axis=1).repeat(3, axis=2))
+    flags = ["--env-map", hdr, "--integrator", "path", "--spp", 4]
+    expected = cli_png(tmp_path, [sphere_file, "--width", 48, "--height", 40, *flags])
+    options = {"env_map": str(hdr), "integrator": "path", "spp": 4}
+    image = pointray.render(str(sphere_file), width=48, height=40, **options)
+    assert np.array_equal(pointray.to_srgb8(image), expected)
+    scene = pointray.prepare(str(sphere_file))
+    with pytest.raises(ValueError, match="give it there"):
+        pointray.render(scene, env_map=str(hdr))
+    with pytest.raises(OSError, match="missing.hdr"):
+        pointray.render(str(sphere_file), env_map=str(tmp_path / "missing.hdr"))

@@ -18,6 +18,7 @@ pub mod color;
 pub mod color_by;
 pub mod culling;
 pub mod demo;
+pub mod env_map;
 pub mod eye_dome;
 pub mod film;
 pub mod frame;

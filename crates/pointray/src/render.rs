@@ -380,7 +380,8 @@ fn render_pixel<A: Accel>(
         // pixel (callgrind).
         let rng = SampleRng::new(config.seed, x, y, 0, None);
         let ray = primary.finish(centre, stats);
-        sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.radiance(&ray, 0, false);
+        sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats, bounce_pdf: 0.0 }
+            .radiance(&ray, 0, false);
     } else if primary.sample_batches {
         // Pinhole rays through the R2 points, which draw no numbers, made a batch at a time
         // and traced in order (`Camera::rays`: the dragon's distant samples, 64 a pixel, 1,233
@@ -396,7 +397,8 @@ fn render_pixel<A: Accel>(
             for i in 0..(samples - start).min(RAY_BATCH as u32) {
                 let rng = SampleRng::new(config.seed, x, y, start + i, low_discrepancy);
                 let ray = primary.finish(rays.ray(i as usize), stats);
-                sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.radiance(&ray, 0, false);
+                sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats, bounce_pdf: 0.0 }
+                    .radiance(&ray, 0, false);
             }
         }
     } else {
@@ -409,7 +411,8 @@ fn render_pixel<A: Accel>(
             };
             let lens = if camera.lens_radius > 0.0 { [rng.next(), rng.next()] } else { [0.5; 2] };
             let ray = primary.finish(camera.lens_ray(x as f32 + dx, y as f32 + dy, lens), stats);
-            sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.radiance(&ray, 0, false);
+            sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats, bounce_pdf: 0.0 }
+                .radiance(&ray, 0, false);
         }
     }
     let nodes = (stats.traversal.nodes_visited - nodes_before).min(u32::MAX as u64) as u32;
@@ -544,6 +547,10 @@ struct Tracer<'a, A> {
     /// The camera ray's hit, for the film's AOVs.
     first: &'a mut FirstHits,
     stats: &'a mut RenderStats,
+    /// The density (per steradian) with which the path tracer drew the ray `radiance` is about
+    /// to follow, a diffuse bounce's; 0 for any other ray. Taken by `radiance`, which weighs
+    /// an environment map it then sees against the map's own samples.
+    bounce_pdf: f32,
 }
 
 impl<A: Accel> Tracer<'_, A> {
@@ -551,12 +558,19 @@ impl<A: Accel> Tracer<'_, A> {
     /// glass object when `inside`.
     fn radiance(&mut self, ray: &Ray, depth: u32, inside: bool) -> Vec3 {
         let config = self.config;
+        let bounce_pdf = std::mem::take(&mut self.bounce_pdf);
         self.stats.rays += 1;
         if depth > 0 {
             self.stats.secondary_rays += 1;
         }
         let Some((hit, material)) = self.closest(ray, depth == 0) else {
-            return config.environment.radiance(ray.dir);
+            return match &config.environment {
+                // Met by a diffuse bounce, which the map's own samples could have drawn too.
+                Environment::Map { map, frame } if bounce_pdf > 0.0 => {
+                    map.radiance(frame, ray.dir) * power_heuristic(bounce_pdf, map.pdf(frame, ray.dir))
+                }
+                environment => environment.radiance(ray.dir),
+            };
         };
         if depth == 0 && config.first_hit_aovs {
             self.first.normal += hit.normal;
@@ -581,7 +595,13 @@ impl<A: Accel> Tracer<'_, A> {
                 Vec3::from(hit.color) * f32::from(u8::from(open))
             }
             Material::Phong(phong) => {
-                let mut color = phong.ambient(&hit);
+                let mut color = match &config.environment {
+                    // The map's light, unshadowed, as Phong's ambient term.
+                    Environment::Map { map, frame } => {
+                        Vec3::from(hit.color) * map.irradiance(frame, hit.normal) / std::f32::consts::PI
+                    }
+                    _ => phong.ambient(&hit),
+                };
                 self.visible_lights(ray, &hit, |to_light, irradiance| {
                     color += phong.direct(&hit, -ray.dir, to_light, irradiance);
                 });
@@ -678,6 +698,7 @@ impl<A: Accel> Tracer<'_, A> {
             color += albedo * (irradiance * hit.normal.dot(to_light));
             color += phong.glossy(hit.normal, -ray.dir, to_light, irradiance);
         });
+        color += albedo * self.environment_sample(ray, hit);
         if depth >= self.config.max_depth {
             return color;
         }
@@ -689,7 +710,23 @@ impl<A: Accel> Tracer<'_, A> {
         let direction = cosine_direction(hit.normal, [self.rng.next(), self.rng.next()]);
         let mut next = secondary(ray, hit, direction, self.config);
         next.cone.spread = next.cone.spread.max(self.config.diffuse_spread);
+        self.bounce_pdf = direction.dot(hit.normal).max(0.0) / std::f32::consts::PI;
         color + albedo * self.radiance(&next, depth + 1, inside) / survive
+    }
+
+    /// The path tracer's sample of an environment map at a diffuse hit: the light of one
+    /// direction drawn from the map (by its luminance) that the hit faces and sees, times the
+    /// Lambert BRDF's 1/π and the cosine over the sample's density, weighed against the bounce
+    /// that may meet the same light (the power heuristic; Veach 1997). Zero without a map.
+    fn environment_sample(&mut self, ray: &Ray, hit: &scheme::SurfaceHit) -> Vec3 {
+        let Environment::Map { map, frame } = &self.config.environment else { return Vec3::ZERO };
+        let Some(sample) = map.sample(frame, [self.rng.next(), self.rng.next()]) else { return Vec3::ZERO };
+        let cos = hit.normal.dot(sample.dir);
+        if cos <= 0.0 || (self.config.shadows && self.in_shadow(ray, hit, sample.dir, f32::INFINITY)) {
+            return Vec3::ZERO;
+        }
+        let bsdf_pdf = cos / std::f32::consts::PI;
+        sample.radiance * (bsdf_pdf / sample.pdf * power_heuristic(sample.pdf, bsdf_pdf))
     }
 
     /// Shadow test from a hit. The ray starts `shadow_offset × k·r` off the surface, on the
@@ -706,6 +743,13 @@ impl<A: Accel> Tracer<'_, A> {
         ray.cone.spread = 0.0;
         self.occluded(&ray, light_dist)
     }
+}
+
+/// The weight of a sample drawn with density `pdf` where another strategy would have drawn
+/// it with density `other`: pdf² / (pdf² + other²).
+fn power_heuristic(pdf: f32, other: f32) -> f32 {
+    let (a, b) = (pdf * pdf, other * other);
+    if a + b > 0.0 { a / (a + b) } else { 0.0 }
 }
 
 /// A direction about unit `normal` distributed as cos θ / π (Malley: uniform on the disk,

@@ -18,8 +18,8 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-use std::sync::OnceLock;
 use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, OnceLock};
 
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -31,6 +31,7 @@ use crate::clip::{ClipBox, ClipPlane};
 use crate::color::srgb_to_linear;
 use crate::color_by::{self, ColorBy};
 use crate::culling::backfacing_fraction;
+use crate::env_map::{EnvFrame, EnvMap};
 use crate::film::Film;
 use crate::frame::{Aov, Frame, FrameReport};
 use crate::ground::{Checker, GroundPlane};
@@ -72,7 +73,8 @@ pub struct SceneParts {
     /// The view direction and distance (in bounding-box diagonals) when the settings name
     /// neither an eye nor their own (default: (0.4, 0.3, 1) at 1).
     pub view: Option<(Vec3, f32)>,
-    /// The light when the settings name none (default: a headlight).
+    /// The light when the settings name none (default: a headlight), at the settings'
+    /// `light_intensity`: a survey's sun, the demo's light.
     pub light: Option<Light>,
     /// The data's up axis, where its format gives one (default: +y).
     pub up: Option<Vec3>,
@@ -175,6 +177,8 @@ pub struct Scene {
     ids: Option<Vec<u32>>,
     /// The `Cull::Auto` probe, run at the first render that asks.
     backfacing: OnceLock<Option<f64>>,
+    /// The map `Settings::env_map` names, read from that file (see [`Scene::set_environment_map`]).
+    environment_map: Option<(std::path::PathBuf, Arc<EnvMap>)>,
 }
 
 /// What a ray query met: the surface point `t` along the ray (its direction normalised), in
@@ -275,6 +279,7 @@ impl Scene {
             build_seconds,
             ids,
             backfacing: OnceLock::new(),
+            environment_map: None,
         })
     }
 
@@ -350,7 +355,8 @@ impl Scene {
                 Cull::Auto => backfacing.is_some_and(|f| f <= CULL_AUTO_MAX_BACKFACING),
             };
         tracing::info!("backface culling {cull_backfaces} (back faces first: {backfacing:?})");
-        let content = self.content.clone().unwrap_or_else(|| self.lone_cloud_content(settings, &camera));
+        let map = self.environment_map(settings)?;
+        let content = self.content.clone().unwrap_or_else(|| self.lone_cloud_content(settings, &camera, map));
         let config = RenderConfig {
             sampler: settings.sampler,
             filter: settings.filter,
@@ -487,18 +493,43 @@ impl Scene {
         Ok(clamped)
     }
 
-    /// A lone cloud's lights, material, sky and ground, from the settings.
-    fn lone_cloud_content(&self, s: &Settings, camera: &Camera) -> SceneContent {
+    /// Gives the scene the environment map read from `path`, which settings whose `env_map`
+    /// names that file render with (`None` takes it away).
+    pub fn set_environment_map(&mut self, map: Option<(std::path::PathBuf, Arc<EnvMap>)>) {
+        self.environment_map = map;
+    }
+
+    /// The map `settings.env_map` names, if it does; an error if the scene was not given it.
+    fn environment_map(&self, settings: &Settings) -> Result<Option<Arc<EnvMap>>, SettingsError> {
+        let Some(path) = &settings.env_map else { return Ok(None) };
+        match &self.environment_map {
+            Some((read, map)) if read == path => Ok(Some(map.clone())),
+            _ => Err(SettingsError::new(
+                "env_map",
+                format!("{} was not read for this scene (pointray_io::source::environment_map)", path.display()),
+            )),
+        }
+    }
+
+    /// A lone cloud's lights, material, sky (or environment map) and ground, from the settings.
+    fn lone_cloud_content(&self, s: &Settings, camera: &Camera, map: Option<Arc<EnvMap>>) -> SceneContent {
         let intensity = s.light_intensity;
         let light = match (s.light_pos, s.light_dir) {
             (Some(position), _) => match s.light_radius {
-                Some(radius) => Light::Sphere { center: self.local(position), radius, intensity },
-                None => Light::Point { position: self.local(position), intensity },
+                Some(radius) => Some(Light::Sphere { center: self.local(position), radius, intensity }),
+                None => Some(Light::Point { position: self.local(position), intensity }),
             },
-            (None, Some(direction)) => Light::Directional { direction, intensity },
-            (None, None) => self.light.unwrap_or_else(|| Light::headlight(camera, intensity)),
+            (None, Some(direction)) => Some(Light::Directional { direction, intensity }),
+            // An environment map is the light: no headlight beside it.
+            (None, None) if map.is_some() => None,
+            // The data's own light (a survey's sun, the demo's), at the settings' intensity.
+            (None, None) => {
+                Some(self.light.map_or_else(|| Light::headlight(camera, intensity), |l| l.with_intensity(intensity)))
+            }
         };
-        let environment = if s.sky {
+        let environment = if let Some(map) = map {
+            Environment::Map { map, frame: EnvFrame::new(self.up(s), s.env_rotation) }
+        } else if s.sky {
             // The world's up (the camera's would tilt the horizon with the view).
             Environment::Gradient {
                 up: self.up(s).normalize(),
@@ -510,7 +541,7 @@ impl Scene {
             Environment::BACKGROUND
         };
         SceneContent {
-            lights: vec![light],
+            lights: light.into_iter().collect(),
             materials: vec![s.material.material(s.ior)],
             environment,
             ground: s.ground.then(|| floor_under(&self.bounds, self.up(s))),

@@ -168,6 +168,13 @@ pub struct Settings {
     pub material: MaterialPreset,
     pub ior: f32,
     pub sky: bool,
+    /// An HDR panorama (equirectangular `.hdr` or `.exr`) around a lone cloud: what rays that
+    /// leave see, and the light (see [`crate::env_map`]; no headlight unless `light_dir` or
+    /// `light_pos` adds a light). The file is read by the front end
+    /// (`pointray_io::source::environment_map`) and handed to [`crate::Scene::set_environment_map`].
+    pub env_map: Option<std::path::PathBuf>,
+    /// Degrees the map turns about the up axis, anticlockwise seen from above.
+    pub env_rotation: f32,
     pub ground: bool,
     /// What the points' colours show (a scene is built with it).
     pub color_by: ColorBy,
@@ -238,6 +245,8 @@ impl Default for Settings {
             material: MaterialPreset::Phong,
             ior: 1.5,
             sky: false,
+            env_map: None,
+            env_rotation: 0.0,
             ground: false,
             color_by: ColorBy::Auto,
             classes: None,
@@ -293,6 +302,8 @@ impl Settings {
             ));
         }
         check(self.fov > 0.0 && self.fov < 180.0, "fov", "must be between 0 and 180 degrees")?;
+        check(!(self.sky && self.env_map.is_some()), "env_map", "and sky: give one of them")?;
+        check(finite(self.env_rotation), "env_rotation", "must be a finite number of degrees")?;
         check(positive(self.distance), "distance", "must be positive")?;
         check(self.spp >= 1, "spp", "must be at least 1")?;
         check(self.sj_window.is_none_or(|w| w >= 0.0 && finite(w)), "sj_window", "must be a non-negative number")?;

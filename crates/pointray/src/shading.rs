@@ -1,6 +1,10 @@
 //! Lights, and the environment that rays leaving the scene see.
 
+use std::sync::Arc;
+
 use glam::Vec3;
+
+use crate::env_map::{EnvFrame, EnvMap};
 
 /// A light. Its `intensity` is in the units of what it shows: a white Lambert surface facing
 /// it (at distance 1 from a point, sphere or spot light) has radiance `intensity`, in the path
@@ -29,6 +33,19 @@ impl Light {
     /// default and the bench's (Embree's bench lights its frames so too).
     pub fn headlight(camera: &crate::camera::Camera, intensity: f32) -> Self {
         Light::Directional { direction: -camera.forward() + 0.6 * camera.up() + 0.4 * camera.right(), intensity }
+    }
+
+    /// The same light at `intensity`.
+    #[must_use]
+    pub fn with_intensity(self, intensity: f32) -> Self {
+        match self {
+            Light::Directional { direction, .. } => Light::Directional { direction, intensity },
+            Light::Point { position, .. } => Light::Point { position, intensity },
+            Light::Sphere { center, radius, .. } => Light::Sphere { center, radius, intensity },
+            Light::Spot { position, direction, inner, outer, .. } => {
+                Light::Spot { position, direction, inner, outer, intensity }
+            }
+        }
     }
 
     /// Unit direction towards the light, the distance to it, and the irradiance scale at `p`.
@@ -83,7 +100,7 @@ impl Light {
 }
 
 /// What a ray that leaves the scene sees.
-#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
 #[serde(rename_all = "kebab-case", tag = "kind")]
 pub enum Environment {
     /// The same linear radiance from every direction.
@@ -91,6 +108,18 @@ pub enum Environment {
     /// A sky: `horizon` level with the horizon, blending linearly in the sine of the elevation
     /// to `zenith` straight up (along unit `up`); `ground` everywhere below the horizon.
     Gradient { up: Vec3, zenith: [f32; 3], horizon: [f32; 3], ground: [f32; 3] },
+    /// An HDR panorama placed in the world by its frame: seen by the rays that leave, and a
+    /// light of its own (the path tracer samples it, Whitted's Phong takes its irradiance
+    /// as the ambient term; see [`crate::env_map`]).
+    Map {
+        #[serde(serialize_with = "shared")]
+        map: Arc<EnvMap>,
+        frame: EnvFrame,
+    },
+}
+
+fn shared<S: serde::Serializer>(map: &Arc<EnvMap>, s: S) -> Result<S::Ok, S::Error> {
+    serde::Serialize::serialize(map.as_ref(), s)
 }
 
 impl Environment {
@@ -99,24 +128,26 @@ impl Environment {
 
     /// Linear radiance arriving along unit `dir` (pointing away from the scene).
     pub fn radiance(&self, dir: Vec3) -> Vec3 {
-        match *self {
-            Environment::Uniform { color } => Vec3::from(color),
+        match self {
+            Environment::Uniform { color } => Vec3::from(*color),
             Environment::Gradient { up, zenith, horizon, ground } => {
-                let elevation = dir.dot(up);
+                let elevation = dir.dot(*up);
                 if elevation < 0.0 {
-                    Vec3::from(ground)
+                    Vec3::from(*ground)
                 } else {
-                    Vec3::from(horizon).lerp(Vec3::from(zenith), elevation.min(1.0))
+                    Vec3::from(*horizon).lerp(Vec3::from(*zenith), elevation.min(1.0))
                 }
             }
+            Environment::Map { map, frame } => map.radiance(frame, dir),
         }
     }
 
     /// One colour for the film outside the rendered region: the horizon's for a sky.
     pub fn flat_color(&self) -> [f32; 3] {
-        match *self {
-            Environment::Uniform { color } => color,
-            Environment::Gradient { horizon, .. } => horizon,
+        match self {
+            Environment::Uniform { color } => *color,
+            Environment::Gradient { horizon, .. } => *horizon,
+            Environment::Map { map, .. } => map.mean(),
         }
     }
 }

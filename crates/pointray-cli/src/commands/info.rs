@@ -21,6 +21,9 @@ pub fn run(a: &InfoArgs, quiet: bool) -> anyhow::Result<()> {
     if let Some([x, y, z]) = info.up {
         writeln!(out, "up:          {x},{y},{z} (given by the file)")?;
     }
+    if let Some([x, y, z]) = info.sun {
+        writeln!(out, "sun:         {x},{y},{z} (towards it; the default light)")?;
+    }
     writeln!(out, "points:      {}", cloud.len())?;
     let has = |b: bool| if b { "yes" } else { "no" };
     writeln!(out, "normals:     {}", has(cloud.normals.is_some()))?;

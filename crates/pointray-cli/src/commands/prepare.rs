@@ -1,5 +1,5 @@
 //! `pointray prepare`: preprocess once, write a binary PLY with normals, radii, colours, scan
-//! attributes and the data's up axis.
+//! attributes, the data's up axis and its sun.
 
 use crate::args::PrepareArgs;
 
@@ -10,9 +10,10 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     let spinner = crate::progress::spinner("read", quiet);
     let stage = |s: &str| spinner.set_message(s.to_string());
     let prepared = pointray_io::source::read_prepared(&a.input, &config, &a.read.options(), &stage)?;
-    let (cloud, stats, up) = (prepared.cloud, prepared.preprocess, prepared.up.map(|u| u.to_array()));
+    let axes = pointray_io::Axes { up: prepared.up.map(|u| u.to_array()), sun: prepared.sun.map(|s| s.to_array()) };
+    let (cloud, stats) = (prepared.cloud, prepared.preprocess);
     spinner.finish_and_clear();
-    crate::progress::spinning("write", quiet, || pointray_io::write_ply_with_up(&a.output, &cloud, up))
+    crate::progress::spinning("write", quiet, || pointray_io::write_ply_with_axes(&a.output, &cloud, axes))
         .map_err(crate::failure::output)?;
     if !quiet {
         eprintln!(

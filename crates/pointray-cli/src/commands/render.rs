@@ -91,13 +91,16 @@ fn check_outputs(a: &RenderArgs) -> anyhow::Result<()> {
 }
 
 fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()> {
+    // Read first: a bad map fails before the cloud's work.
+    let env_map = pointray_io::source::environment_map(&a.settings())?;
     let (source, input_name) = load_input(a, quiet)?;
     let settings = match (&source.settings, &a.input) {
         (Some(scene), Some(path)) => crate::scene::settings(path, scene, a)?,
         _ => a.settings(),
     };
     let (points_read, preprocess, load_seconds) = (source.points_read, source.preprocess.clone(), source.load_seconds);
-    let (scene, builds) = build(source.parts, &settings, a.bench_builds, quiet).context(input_name.clone())?;
+    let (mut scene, builds) = build(source.parts, &settings, a.bench_builds, quiet).context(input_name.clone())?;
+    scene.set_environment_map(env_map);
     tracing::info!("built {} over {} splats in {:.3} s", scene.accel_name(), scene.points(), builds[0]);
     if a.turntable > 0 {
         return super::turntable::run(a, &scene, &settings, quiet);

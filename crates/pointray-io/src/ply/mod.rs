@@ -22,7 +22,7 @@ use pointray::PointCloud;
 
 use crate::builder::CloudBuilder;
 use crate::text::Lines;
-use crate::{FileInfo, IoError, LoadedCloud, atomic_write};
+use crate::{Axes, FileInfo, IoError, LoadedCloud, atomic_write};
 use binary::{Body, ByteOrder};
 use header::{Encoding, Header, parse_header};
 use vertex::VertexLayout;
@@ -107,14 +107,15 @@ fn file_info(header: &Header, vertex_index: usize, file_bytes: usize) -> FileInf
         vertex_properties,
         comments: header.comments.clone(),
         file_bytes: file_bytes as u64,
-        up: header.comments.iter().find_map(|c| up_comment(c)),
+        up: header.comments.iter().find_map(|c| direction_comment(c, "up ")),
+        sun: header.comments.iter().find_map(|c| direction_comment(c, "sun ")),
     }
 }
 
-/// The axis of a `comment up X Y Z` line ([`write_ply_with_up`]), if it is one and a direction.
-fn up_comment(comment: &str) -> Option<[f32; 3]> {
-    let up = triple_comment(comment, "up ")?.map(|v| v as f32);
-    (up.iter().all(|v| v.is_finite()) && up != [0.0; 3]).then_some(up)
+/// The direction of a `comment KEY X Y Z` line ([`write_ply_with_axes`]), if it is one.
+fn direction_comment(comment: &str, key: &str) -> Option<[f32; 3]> {
+    let d = triple_comment(comment, key)?.map(|v| v as f32);
+    (d.iter().all(|v| v.is_finite()) && d != [0.0; 3]).then_some(d)
 }
 
 /// The three finite numbers of a `comment KEY X Y Z` line (`key` with its space).
@@ -135,17 +136,18 @@ fn triple_comment(comment: &str, key: &str) -> Option<[f64; 3]> {
 /// (a mesh sampled near the origin: 24 bytes a point, not 36). The file appears only when
 /// complete (see [`atomic_write`]).
 pub fn write_ply(path: &Path, cloud: &PointCloud) -> Result<(), IoError> {
-    write_ply_with_up(path, cloud, None)
+    write_ply_with_axes(path, cloud, Axes::default())
 }
 
-/// [`write_ply`], naming the data's up axis in a `comment up X Y Z` line, which the reader
-/// gives back as [`FileInfo::up`] (a prepared survey keeps its +z).
-pub fn write_ply_with_up(path: &Path, cloud: &PointCloud, up: Option<[f32; 3]>) -> Result<(), IoError> {
+/// [`write_ply`], naming the data's up axis and sun in `comment up X Y Z` and `comment sun X Y
+/// Z` lines, which the reader gives back as [`FileInfo::up`] and [`FileInfo::sun`] (a prepared
+/// survey keeps its +z and its sun).
+pub fn write_ply_with_axes(path: &Path, cloud: &PointCloud, axes: Axes) -> Result<(), IoError> {
     cloud
         .check_lengths()
         .map_err(|message| IoError::invalid(path, format!("cannot write an inconsistent cloud: {message}")))?;
     let world_doubles = cloud.origin.abs().max_element() > f64::from(cloud.bounds().diagonal());
-    let header = write_header(cloud, world_doubles, up);
+    let header = write_header(cloud, world_doubles, axes);
     atomic_write(path, |out| {
         out.write_all(header.as_bytes())?;
         let mut record = Vec::with_capacity(64);
@@ -158,10 +160,12 @@ pub fn write_ply_with_up(path: &Path, cloud: &PointCloud, up: Option<[f32; 3]>) 
     })
 }
 
-fn write_header(cloud: &PointCloud, world_doubles: bool, up: Option<[f32; 3]>) -> String {
+fn write_header(cloud: &PointCloud, world_doubles: bool, axes: Axes) -> String {
     let mut header = String::from("ply\nformat binary_little_endian 1.0\ncomment written by pointray-io\n");
-    if let Some([x, y, z]) = up {
-        header += &format!("comment up {x} {y} {z}\n");
+    for (key, axis) in [("up", axes.up), ("sun", axes.sun)] {
+        if let Some([x, y, z]) = axis {
+            header += &format!("comment {key} {x} {y} {z}\n");
+        }
     }
     // One sensor's position (a depth frame's; a cloud of several scans keeps none).
     if let ([v], None) = (cloud.viewpoints.as_slice(), &cloud.viewpoint_of) {
