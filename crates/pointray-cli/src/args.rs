@@ -271,7 +271,8 @@ pub struct RenderArgs {
     #[arg(long)]
     pub ground: bool,
     /// A sky-blue gradient above a grey ground around the scene, instead of the dark
-    /// background (what mirrors and glass show).
+    /// background (what mirrors and glass show). A survey (LAS, LAZ) has this sky already for
+    /// the light that bounces; --sky shows it behind the model too.
     #[arg(long)]
     pub sky: bool,
     /// An HDR panorama around the model (equirectangular Radiance .hdr or OpenEXR .exr, linear

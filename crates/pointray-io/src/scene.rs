@@ -278,7 +278,8 @@ pub enum EnvironmentSpec {
 
 impl Default for EnvironmentSpec {
     fn default() -> Self {
-        EnvironmentSpec::Sky { zenith: [0.18, 0.32, 0.62], horizon: [0.75, 0.82, 0.90], ground: [0.25, 0.24, 0.22] }
+        let [zenith, horizon, ground] = pointray::shading::SKY;
+        EnvironmentSpec::Sky { zenith, horizon, ground }
     }
 }
 

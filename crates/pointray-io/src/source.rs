@@ -54,8 +54,10 @@ pub fn load(
         return load_scene(path, preprocess, stage);
     }
     let p = read_prepared(path, preprocess, read, stage)?;
+    // A survey under its sun, and the sky round it for the light that bounces.
     let light = p.sun.map(|direction| Light::Directional { direction, intensity: 1.0 });
-    let parts = SceneParts { up: p.up, view: sensor_view(&p.cloud), light, ..SceneParts::from(p.cloud) };
+    let environment = p.sun.map(|_| Environment::sky(p.up.unwrap_or(Vec3::Z).normalize()));
+    let parts = SceneParts { up: p.up, view: sensor_view(&p.cloud), light, environment, ..SceneParts::from(p.cloud) };
     Ok(Source {
         parts,
         settings: None,
@@ -182,6 +184,7 @@ fn load_scene(path: &Path, preprocess: &PreprocessConfig, stage: &dyn Fn(&str)) 
         lights: spec.lights.iter().map(light).collect(),
         materials,
         environment,
+        background: None,
         ground: spec.ground.as_ref().map(ground),
     };
     let parts = SceneParts {

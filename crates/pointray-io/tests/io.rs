@@ -992,8 +992,8 @@ fn las_and_laz_read_to_the_same_survey_cloud_with_its_colours() {
     assert_eq!(a.cloud.colors, b.cloud.colors);
 }
 
-/// A survey loaded to render is lit by its sun, at the settings' intensity, unless a light is
-/// named or an environment map lights it alone.
+/// A survey loaded to render is lit by its sun, at the settings' intensity, and a sky, unless
+/// a light is named or an environment map lights it alone.
 #[test]
 fn a_survey_renders_under_its_sun_unless_told_otherwise() {
     use pointray::shading::Light;
@@ -1002,12 +1002,13 @@ fn a_survey_renders_under_its_sun_unless_told_otherwise() {
     let map = pointray_io::env_map::encode_rgbe(4, 2, &[[0.5; 3]; 8]);
     let map = write_file(dir.path(), "grey.hdr", &map);
     let config = pointray::preprocess::PreprocessConfig::standard();
-    let lights = |settings: &pointray::Settings| {
+    let job = |settings: &pointray::Settings| {
         let source = pointray_io::source::load(&las, &config, &Default::default(), &|_| {}).unwrap();
         let mut scene = pointray::Scene::build(source.parts, settings).unwrap();
         scene.set_environment_map(pointray_io::source::environment_map(settings).unwrap());
-        scene.job(settings).unwrap().config.lights
+        scene.job(settings).unwrap().config
     };
+    let lights = |settings: &pointray::Settings| job(settings).lights;
     let dimmer = pointray::Settings { light_intensity: 0.5, width: 8, height: 8, ..Default::default() };
     match lights(&dimmer)[..] {
         [Light::Directional { direction, intensity }] => {
@@ -1015,6 +1016,10 @@ fn a_survey_renders_under_its_sun_unless_told_otherwise() {
         }
         ref other => panic!("{other:?}"),
     }
+    // A sky lights what bounces; camera rays still see the dark background.
+    let config = job(&dimmer);
+    assert_eq!(config.environment, pointray::shading::Environment::sky(Vec3::Z));
+    assert_eq!(config.background, Some(pointray::shading::Environment::BACKGROUND.flat_color()));
     let told = pointray::Settings { light_dir: Some(Vec3::X), ..dimmer.clone() };
     assert!(matches!(lights(&told)[..], [Light::Directional { direction: Vec3::X, .. }]));
     let mapped = pointray::Settings { env_map: Some(map), ..dimmer };

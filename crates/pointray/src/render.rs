@@ -91,6 +91,8 @@ pub struct RenderConfig {
     pub shadow_offset: f32,
     /// What rays that leave the scene see.
     pub environment: Environment,
+    /// What camera rays that leave the scene see instead (none: the environment).
+    pub background: Option<[f32; 3]>,
     /// An analytic plane under the clouds, tested by every ray beside the accelerator.
     pub ground: Option<GroundPlane>,
     /// Bounces a path may take (Whitted: off mirrors and glass; the path tracer: any); the
@@ -564,13 +566,7 @@ impl<A: Accel> Tracer<'_, A> {
             self.stats.secondary_rays += 1;
         }
         let Some((hit, material)) = self.closest(ray, depth == 0) else {
-            return match &config.environment {
-                // Met by a diffuse bounce, which the map's own samples could have drawn too.
-                Environment::Map { map, frame } if bounce_pdf > 0.0 => {
-                    map.radiance(frame, ray.dir) * power_heuristic(bounce_pdf, map.pdf(frame, ray.dir))
-                }
-                environment => environment.radiance(ray.dir),
-            };
+            return self.missed(ray, depth, bounce_pdf);
         };
         if depth == 0 && config.first_hit_aovs {
             self.first.normal += hit.normal;
@@ -636,6 +632,19 @@ impl<A: Accel> Tracer<'_, A> {
                     }
                 }
             }
+        }
+    }
+
+    /// What `ray`, which left the scene after `depth` bounces (drawn with `bounce_pdf` by a
+    /// diffuse bounce, else 0), sees: the environment, or the background for a camera ray.
+    fn missed(&self, ray: &Ray, depth: u32, bounce_pdf: f32) -> Vec3 {
+        match (&self.config.environment, self.config.background) {
+            (_, Some(background)) if depth == 0 => Vec3::from(background),
+            // Met by a diffuse bounce, which the map's own samples could have drawn too.
+            (Environment::Map { map, frame }, _) if bounce_pdf > 0.0 => {
+                map.radiance(frame, ray.dir) * power_heuristic(bounce_pdf, map.pdf(frame, ray.dir))
+            }
+            (environment, _) => environment.radiance(ray.dir),
         }
     }
 

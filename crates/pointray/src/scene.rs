@@ -59,6 +59,9 @@ pub struct SceneContent {
     /// By index, as [`SceneParts::point_materials`] names them.
     pub materials: Vec<Material>,
     pub environment: Environment,
+    /// What camera rays that leave the scene see instead of the environment (none: the
+    /// environment), so that a sky can light a survey while its plan keeps a dark surround.
+    pub background: Option<[f32; 3]>,
     pub ground: Option<GroundPlane>,
 }
 
@@ -78,6 +81,10 @@ pub struct SceneParts {
     pub light: Option<Light>,
     /// The data's up axis, where its format gives one (default: +y).
     pub up: Option<Vec3>,
+    /// The light around a lone cloud when the settings name neither a sky nor a map (default:
+    /// the dark background): a survey's sky, which bounced rays (the path tracer's, mirrors')
+    /// see while camera rays still see the dark background.
+    pub environment: Option<Environment>,
 }
 
 impl From<PointCloud> for SceneParts {
@@ -165,6 +172,8 @@ pub struct Scene {
     /// The data's up (unit).
     up: Vec3,
     light: Option<Light>,
+    /// See [`SceneParts::environment`].
+    environment: Option<Environment>,
     /// Added to the stored positions to give the file's coordinates (see [`PointCloud`]).
     origin: DVec3,
     /// What the camera frames and `crop_to_model` crops to: the points' bounds.
@@ -199,7 +208,7 @@ impl Scene {
     /// those of the settings' `classes` (less `exclude_classes`) inside their clip, coloured by
     /// `color_by`.
     pub fn build(parts: SceneParts, settings: &Settings) -> Result<Scene, SceneError> {
-        let SceneParts { mut cloud, mut point_materials, content, view, light, up } = parts;
+        let SceneParts { mut cloud, mut point_materials, content, view, light, up, environment } = parts;
         cloud.check_lengths().map_err(SceneError::Inconsistent)?;
         if point_materials.as_ref().is_some_and(|m| m.len() != cloud.len()) {
             return Err(SceneError::MaterialCount);
@@ -272,6 +281,7 @@ impl Scene {
             view,
             up,
             light,
+            environment,
             origin,
             bounds,
             points,
@@ -370,6 +380,7 @@ impl Scene {
             shadows: settings.shadows,
             shadow_offset: settings.shadow_offset,
             environment: content.environment,
+            background: content.background,
             ground: content.ground,
             max_depth: settings.max_depth,
             region,
@@ -527,23 +538,19 @@ impl Scene {
                 Some(self.light.map_or_else(|| Light::headlight(camera, intensity), |l| l.with_intensity(intensity)))
             }
         };
-        let environment = if let Some(map) = map {
-            Environment::Map { map, frame: EnvFrame::new(self.up(s), s.env_rotation) }
-        } else if s.sky {
+        let dark = Environment::BACKGROUND.flat_color();
+        let (environment, background) = match (map, &self.environment) {
+            (Some(map), _) => (Environment::Map { map, frame: EnvFrame::new(self.up(s), s.env_rotation) }, None),
             // The world's up (the camera's would tilt the horizon with the view).
-            Environment::Gradient {
-                up: self.up(s).normalize(),
-                zenith: [0.18, 0.32, 0.62],
-                horizon: [0.75, 0.82, 0.90],
-                ground: [0.25, 0.24, 0.22],
-            }
-        } else {
-            Environment::BACKGROUND
+            (None, _) if s.sky => (Environment::sky(self.up(s).normalize()), None),
+            (None, Some(around)) => (around.clone(), Some(dark)),
+            (None, None) => (Environment::BACKGROUND, None),
         };
         SceneContent {
             lights: light.into_iter().collect(),
             materials: vec![s.material.material(s.ior)],
             environment,
+            background,
             ground: s.ground.then(|| floor_under(&self.bounds, self.up(s))),
         }
     }
@@ -665,7 +672,7 @@ impl RenderJob<'_> {
 
     /// What rays that leave the scene see, flat: the colour outside the rendered region.
     pub fn background(&self) -> [f32; 3] {
-        self.config.environment.flat_color()
+        self.config.background.unwrap_or_else(|| self.config.environment.flat_color())
     }
 
     /// What was rendered and how: the settings as resolved, the scene, the work counted.

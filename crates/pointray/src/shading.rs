@@ -99,6 +99,9 @@ impl Light {
     }
 }
 
+/// [`Environment::sky`]'s zenith, horizon and ground, linear RGB.
+pub const SKY: [[f32; 3]; 3] = [[0.18, 0.32, 0.62], [0.75, 0.82, 0.90], [0.25, 0.24, 0.22]];
+
 /// What a ray that leaves the scene sees.
 #[derive(Clone, Debug, PartialEq, serde::Serialize)]
 #[serde(rename_all = "kebab-case", tag = "kind")]
@@ -125,6 +128,13 @@ fn shared<S: serde::Serializer>(map: &Arc<EnvMap>, s: S) -> Result<S::Ok, S::Err
 impl Environment {
     /// The dark blue the command line renders behind a model by default.
     pub const BACKGROUND: Environment = Environment::Uniform { color: [0.010, 0.011, 0.019] };
+
+    /// The sky of `--sky` (and a scene file's default), its zenith up `up` (unit): a blue
+    /// zenith, a pale horizon and a grey-brown ground.
+    pub fn sky(up: Vec3) -> Environment {
+        let [zenith, horizon, ground] = SKY;
+        Environment::Gradient { up, zenith, horizon, ground }
+    }
 
     /// Linear radiance arriving along unit `dir` (pointing away from the scene).
     pub fn radiance(&self, dir: Vec3) -> Vec3 {

@@ -323,3 +323,25 @@ fn whitted_takes_a_maps_irradiance_as_its_ambient_light() {
     assert!((whitted / (albedo * 0.4) - 1.0).abs() < 0.01, "{whitted}");
     assert!((path / (albedo * 0.4) - 1.0).abs() < 0.01, "{path}");
 }
+
+#[test]
+fn a_background_hides_the_environment_from_camera_rays_only() {
+    // A grey sphere in a white furnace, behind a black background: the missed pixels are
+    // black, the sphere still shows its albedo (its bounced rays see the environment).
+    let mut splats = sphere_splats(20_000, 1.0, 54);
+    splats.iter_mut().for_each(|s| s.color = pack_color([188.0 / 255.0; 3]));
+    let bvh = Bvh::build(splats, &BvhParams::standard());
+    let cam = Camera::look_at(Vec3::new(0.0, 0.0, 4.0), Vec3::ZERO, Vec3::Y, 40.0, 32, 32);
+    let config = RenderConfig {
+        integrator: Integrator::Path,
+        environment: Environment::Uniform { color: [1.0; 3] },
+        background: Some([0.0; 3]),
+        seed: 5,
+        ..render_config(Region::full(32, 32), 4)
+    };
+    let (film, _) = render(&bvh, &cam, &config, &|_| {});
+    let albedo = pointray::color::srgb_to_linear(188.0 / 255.0);
+    let (corner, centre) = (film.rgb[0][1], film.rgb[16 * 32 + 16][1]);
+    assert_eq!(corner, 0.0);
+    assert!((centre - albedo).abs() < 1e-3, "{centre} against {albedo}");
+}

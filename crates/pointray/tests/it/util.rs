@@ -75,6 +75,7 @@ pub fn render_config(region: pointray::camera::Region, samples: u32) -> pointray
         shadows: true,
         shadow_offset: 1.0,
         environment: pointray::shading::Environment::Uniform { color: [0.0; 3] },
+        background: None,
         ground: None,
         max_depth: 5,
         region,
