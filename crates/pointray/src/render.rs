@@ -102,6 +102,11 @@ pub struct RenderConfig {
     pub region: Region,
     /// Samples per pixel: 1 traces the pixel centre; more jitter within the pixel.
     pub samples: u32,
+    /// Which of the pixel's `samples` this render traces (none: all), its film their mean: a
+    /// pass of a progressive render. Each sample draws the same numbers and positions whatever
+    /// the range, so passes over ranges that split `0..samples`, averaged by their lengths, make
+    /// the image of all the samples at once (to the rounding of the sums).
+    pub sample_range: Option<std::ops::Range<u32>>,
     pub seed: u64,
     /// Level-of-detail threshold τ in pixels for every ray (see `Ray::lod_threshold`); 0 = off.
     pub lod_threshold: f32,
@@ -281,7 +286,7 @@ impl FirstHits {
     /// over the hits (∞ without one) and the share of the samples that hit: averaged only
     /// where the film records them.
     fn means(&self) -> ([f32; 3], [f32; 3], f32, f32) {
-        let n = self.samples as f32;
+        let n = self.samples.max(1) as f32;
         let depth = if self.hits == 0 { f32::INFINITY } else { self.depth / self.hits as f32 };
         ((self.normal / n).to_array(), (self.albedo / n).to_array(), depth, self.hits as f32 / n)
     }
@@ -355,7 +360,8 @@ fn render_pixel<A: Accel>(
     let nodes_before = stats.traversal.nodes_visited;
     let mut sum = Vec3::ZERO;
     let samples = config.samples.max(1);
-    let mut first = FirstHits { samples, ..FirstHits::default() };
+    let range = config.sample_range.clone().map_or(0..samples, |r| r.start.min(samples)..r.end.min(samples));
+    let mut first = FirstHits { samples: range.len() as u32, ..FirstHits::default() };
     // The pixel's own shift of the R2 sequence (Cranley–Patterson rotation), drawn only
     // where it is used: seeding a generator costs ~60 instructions.
     let r2_samples = samples > 1 && config.sampler == Sampler::R2;
@@ -376,7 +382,7 @@ fn render_pixel<A: Accel>(
         Filter::Box => u,
         Filter::Tent => [0.5 + tent(u[0]), 0.5 + tent(u[1])],
     };
-    if let Some(centre) = centre {
+    if let Some(centre) = centre.filter(|_| !range.is_empty()) {
         // Apart from the loop below, which would make the same ray: folded into it, the
         // sample's offsets and the test cost the dragon's first hits 649 → 681 instructions a
         // pixel (callgrind).
@@ -388,7 +394,7 @@ fn render_pixel<A: Accel>(
         // Pinhole rays through the R2 points, which draw no numbers, made a batch at a time
         // and traced in order (`Camera::rays`: the dragon's distant samples, 64 a pixel, 1,233
         // → 1,165 instructions each, callgrind, and 7 % more a second, alternating runs).
-        for start in (0..samples).step_by(RAY_BATCH) {
+        for start in range.clone().step_by(RAY_BATCH) {
             let (mut px, mut py) = ([0.0; RAY_BATCH], [0.0; RAY_BATCH]);
             for i in 0..RAY_BATCH {
                 // Past the last sample too: those rays are made and never traced.
@@ -396,7 +402,7 @@ fn render_pixel<A: Accel>(
                 (px[i], py[i]) = (x as f32 + dx, y as f32 + dy);
             }
             let rays = camera.rays(px, py);
-            for i in 0..(samples - start).min(RAY_BATCH as u32) {
+            for i in 0..(range.end - start).min(RAY_BATCH as u32) {
                 let rng = SampleRng::new(config.seed, x, y, start + i, low_discrepancy);
                 let ray = primary.finish(rays.ray(i as usize), stats);
                 sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats, bounce_pdf: 0.0 }
@@ -404,7 +410,7 @@ fn render_pixel<A: Accel>(
             }
         }
     } else {
-        for sample in 0..samples {
+        for sample in range.clone() {
             let mut rng = SampleRng::new(config.seed, x, y, sample, low_discrepancy);
             let [dx, dy] = match config.sampler {
                 _ if samples == 1 => [0.5, 0.5],
@@ -418,7 +424,7 @@ fn render_pixel<A: Accel>(
         }
     }
     let nodes = (stats.traversal.nodes_visited - nodes_before).min(u32::MAX as u64) as u32;
-    Pixel { rgb: (sum / samples as f32).to_array(), nodes, first }
+    Pixel { rgb: (sum / range.len().max(1) as f32).to_array(), nodes, first }
 }
 
 /// Point `i` of the R2 sequence, shifted by `shift` (modulo 1): α = (1/g, 1/g²), g the

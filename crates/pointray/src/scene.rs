@@ -385,6 +385,7 @@ impl Scene {
             max_depth: settings.max_depth,
             region,
             samples: settings.spp,
+            sample_range: None,
             seed: settings.seed,
             diffuse_spread: settings.diffuse_spread,
             count_work: settings.count_work || settings.aovs.contains(&Aov::Nodes),

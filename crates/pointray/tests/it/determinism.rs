@@ -75,3 +75,46 @@ fn image_is_identical_with_one_and_two_threads() {
     assert!(untouched.normal.iter().all(|n| *n == [0.0; 3]) && untouched.depth.iter().all(|d| d.is_infinite()));
     assert_eq!((sq.rays, sq.primary_hits), (sa.rays, sa.primary_hits));
 }
+
+/// Passes over ranges of a pixel's samples, averaged by their lengths, make the image of all the
+/// samples at once: the path tracer with its low-discrepancy numbers, the samples made in
+/// batches through a pinhole (R2) and one at a time (random), first hits' channels included.
+#[test]
+fn passes_over_sample_ranges_add_up_to_the_whole_render() {
+    use pointray::render::{Integrator, Sampler};
+    let bvh = Bvh::build(torus_splats(20_000, 9), &BvhParams::standard());
+    let cam = Camera::look_at(Vec3::new(0.3, 1.6, 2.4), Vec3::ZERO, Vec3::Y, 50.0, 24, 20);
+    for sampler in [Sampler::R2, Sampler::Random] {
+        let config = RenderConfig {
+            sampler,
+            integrator: Integrator::Path,
+            environment: Environment::Uniform { color: [0.8, 0.9, 1.0] },
+            lights: vec![pointray::demo::demo_light()],
+            seed: 11,
+            ..crate::util::render_config(pointray::camera::Region::full(24, 20), 13)
+        };
+        let whole = render(&bvh, &cam, &config, &|_| {}).0;
+        let mut sum = vec![[0.0f32; 3]; whole.rgb.len()];
+        let mut coverage = vec![0.0f32; whole.rgb.len()];
+        for range in [0..5, 5..12, 12..13] {
+            let len = range.len() as f32;
+            let pass = render(&bvh, &cam, &RenderConfig { sample_range: Some(range), ..config.clone() }, &|_| {}).0;
+            for (s, p) in sum.iter_mut().zip(&pass.rgb) {
+                (0..3).for_each(|k| s[k] += p[k] * len);
+            }
+            let c = &pass.first_hits.as_ref().unwrap().coverage;
+            coverage.iter_mut().zip(c).for_each(|(a, b)| *a += b * len);
+        }
+        let whole_coverage = &whole.first_hits.as_ref().unwrap().coverage;
+        for (i, (s, w)) in sum.iter().zip(&whole.rgb).enumerate() {
+            for k in 0..3 {
+                assert!(
+                    (s[k] / 13.0 - w[k]).abs() <= 1e-5 * w[k].max(1.0),
+                    "{sampler:?} pixel {i}: {s:?} against {w:?}"
+                );
+            }
+            assert!((coverage[i] / 13.0 - whole_coverage[i]).abs() < 1e-6);
+        }
+        assert!(whole_coverage.iter().any(|&c| c > 0.0 && c < 1.0), "edges are part-covered");
+    }
+}

@@ -80,6 +80,7 @@ pub fn render_config(region: pointray::camera::Region, samples: u32) -> pointray
         max_depth: 5,
         region,
         samples,
+        sample_range: None,
         seed: 0,
         lod_threshold: 0.0,
         diffuse_spread: 0.0,
