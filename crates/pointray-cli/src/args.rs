@@ -53,6 +53,12 @@ pub enum Command {
     #[command(after_help = "Example:
   pointray sample dragon_vrip_res2.binary_le.ply -n 20000000 -o dragon_20m.ply")]
     Sample(SampleArgs),
+    /// Look at a cloud (or the demo, or a scene file) in the browser: a local web server whose
+    /// page orbits, pans and zooms, refining each view while it rests.
+    #[command(after_help = "Examples:
+  pointray view bun_zipper.ply
+  pointray view dragon.ply --port 8766 --no-open")]
+    View(ViewArgs),
     /// Describe a point-cloud file: format, elements, properties, bounds.
     #[command(after_help = "Example:
   pointray info dragon.ply")]
@@ -483,6 +489,33 @@ pub struct SampleArgs {
 pub enum NormalsArg {
     Smooth,
     Face,
+}
+
+#[derive(Args, Debug)]
+pub struct ViewArgs {
+    /// Point cloud or scene file, as for `render`; none views the built-in demo scene.
+    pub input: Option<PathBuf>,
+    /// Port to listen on (0: any free one; the address is printed).
+    #[arg(long, default_value_t = 8765)]
+    pub port: u16,
+    /// Address to listen on: this machine only unless told otherwise.
+    #[arg(long, default_value = "127.0.0.1")]
+    pub bind: String,
+    /// Do not open the page in a browser.
+    #[arg(long)]
+    pub no_open: bool,
+    /// The view's size in pixels at full resolution.
+    #[arg(long, default_value_t = 800)]
+    pub width: u32,
+    #[arg(long, default_value_t = 600)]
+    pub height: u32,
+    /// Samples a pixel a view at rest refines to.
+    #[arg(long, default_value_t = 64)]
+    pub max_spp: u32,
+    #[command(flatten)]
+    pub read: ReadArgs,
+    #[command(flatten)]
+    pub preprocess: PreprocessArgs,
 }
 
 #[derive(Args, Debug)]

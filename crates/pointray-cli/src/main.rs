@@ -34,6 +34,7 @@ fn main() -> ExitCode {
         Command::Prepare(a) => commands::prepare::run(a, cli.quiet),
         Command::Sample(a) => commands::sample::run(a, cli.quiet),
         Command::Info(a) => commands::info::run(a, cli.quiet),
+        Command::View(a) => commands::view::run(a, cli.quiet),
         Command::Compare(a) => commands::compare::run(a),
         #[cfg(feature = "bench")]
         Command::Bench(a) => bench::run(a, cli.quiet),

@@ -1815,3 +1815,82 @@ fn an_environment_map_shows_behind_the_model_and_lights_it() {
         .assert_stderr_contains("--env-map and sky");
     assert!(!dir.path().join("x.png").exists());
 }
+
+/// `pointray view`: the page is served, a WebSocket gets the hello (the camera in the file's
+/// coordinates), then frames as PNGs that refine; a camera sent back starts a new view with a
+/// preview, and a bad option is answered with an error while the view goes on. A second page
+/// gets frames too.
+#[test]
+fn the_viewer_serves_its_page_and_refines_the_view_a_page_sends() {
+    use std::net::TcpStream;
+    use tungstenite::Message;
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    /// The server, stopped however the test ends (a failed assertion too).
+    struct Server(std::process::Child);
+    impl Drop for Server {
+        fn drop(&mut self) {
+            let _ = self.0.kill();
+            let _ = self.0.wait();
+        }
+    }
+    let mut server = Server(
+        pointray()
+            .args(["-q", "view", "sphere.ply", "--port", "0", "--no-open", "--width", "64", "--height", "48"])
+            .args(["--max-spp", "4"])
+            .current_dir(dir.path())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let mut line = String::new();
+    BufReader::new(server.0.stdout.take().unwrap()).read_line(&mut line).unwrap();
+    let address = line.trim().strip_prefix("pointray view: http://").unwrap().trim_end_matches('/').to_string();
+    let mut page = String::new();
+    let mut http = TcpStream::connect(&address).unwrap();
+    std::io::Write::write_all(&mut http, b"GET / HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").unwrap();
+    http.read_to_string(&mut page).unwrap();
+    assert!(page.starts_with("HTTP/1.1 200") && page.contains("<canvas"), "{page}");
+    let (mut socket, _) = tungstenite::connect(format!("ws://{address}/ws")).unwrap();
+    let next_text = |socket: &mut tungstenite::WebSocket<_>| loop {
+        match socket.read().unwrap() {
+            Message::Text(t) => return serde_json::from_str::<serde_json::Value>(&t).unwrap(),
+            Message::Binary(png) => assert!(png.starts_with(b"\x89PNG"), "frames are PNGs"),
+            _ => {}
+        }
+    };
+    let hello = next_text(&mut socket);
+    assert_eq!((hello["kind"].as_str(), hello["width"].as_u64()), (Some("hello"), Some(64)));
+    // Frames until the view has its four samples a pixel.
+    while next_text(&mut socket)["samples"].as_u64() != Some(4) {}
+    let eye: Vec<f64> = hello["eye"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap() * 1.5).collect();
+    let view = serde_json::json!({ "eye": eye, "look_at": hello["look_at"], "fov": 30.0 });
+    socket.send(Message::Text(view.to_string().into())).unwrap();
+    let first = next_text(&mut socket);
+    assert_eq!((first["generation"].as_u64(), first["samples"].as_u64()), (Some(1), Some(1)), "{first}");
+    socket.send(Message::Text(r#"{"spp": 0}"#.into())).unwrap();
+    let mut error = next_text(&mut socket);
+    while error["kind"] != "error" {
+        error = next_text(&mut socket);
+    }
+    assert!(error["message"].as_str().unwrap().contains("spp"), "{error}");
+    // A double-click's pick: the sphere's surface under the centre becomes the pivot, the eye
+    // stays (the sphere of `write_sphere` has radius 1 about the origin).
+    socket.send(Message::Text(r#"{"pick": [32, 24]}"#.into())).unwrap();
+    let mut pivot = next_text(&mut socket);
+    while pivot["kind"] != "pivot" {
+        pivot = next_text(&mut socket);
+    }
+    let at: Vec<f64> = pivot["look_at"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect();
+    let radius = at.iter().map(|v| v * v).sum::<f64>().sqrt();
+    assert!((radius - 1.0).abs() < 0.05, "{pivot}");
+    assert_eq!(pivot["eye"].as_array().unwrap().len(), 3);
+    let (mut second, _) = tungstenite::connect(format!("ws://{address}/ws")).unwrap();
+    assert_eq!(next_text(&mut second)["kind"], "hello");
+    assert_eq!(next_text(&mut second)["kind"], "frame");
+    // A file that fails to load fails as `render` does, before any server.
+    run_in(dir.path(), &["-q", "view", "missing.ply", "--no-open", "--port", "0"])
+        .assert_failure(1)
+        .assert_stderr_contains("missing.ply");
+}

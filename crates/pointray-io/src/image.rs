@@ -46,19 +46,37 @@ fn write_png_of(
             format!("cannot write a {width}x{height} {kind} image from {} bytes (need {expected})", pixels.len()),
         ));
     }
-    atomic_write(path, |out| {
-        let mut encoder = png::Encoder::new(out, width, height);
-        encoder.set_color(color);
-        encoder.set_depth(depth);
-        // fdeflate's PNG-tuned compressor: a 512² render encoded in ~60 instructions a pixel
-        // against ~430 with the default zlib level, for files about 10 % larger (callgrind,
-        // `docs/RESULTS.md`).
-        encoder.set_compression(png::Compression::Fast);
-        let mut writer = encoder.write_header()?;
-        writer.write_image_data(pixels)?;
-        writer.finish()?;
-        Ok(())
-    })
+    atomic_write(path, |out| Ok(encode_into(out, width, height, pixels, (color, depth))?))
+}
+
+/// The PNG of 8-bit RGB pixels, rows top to bottom, in memory (a viewer's frames).
+///
+/// # Panics
+/// If `rgb8.len() != width * height * 3` or a side is 0.
+pub fn encode_png(width: u32, height: u32, rgb8: &[u8]) -> Vec<u8> {
+    let mut out = Vec::new();
+    encode_into(&mut out, width, height, rgb8, (png::ColorType::Rgb, png::BitDepth::Eight))
+        .expect("an RGB image of its size, in memory");
+    out
+}
+
+fn encode_into(
+    out: impl std::io::Write,
+    width: u32,
+    height: u32,
+    pixels: &[u8],
+    (color, depth): (png::ColorType, png::BitDepth),
+) -> Result<(), png::EncodingError> {
+    let mut encoder = png::Encoder::new(out, width, height);
+    encoder.set_color(color);
+    encoder.set_depth(depth);
+    // fdeflate's PNG-tuned compressor: a 512² render encoded in ~60 instructions a pixel
+    // against ~430 with the default zlib level, for files about 10 % larger (callgrind,
+    // `docs/RESULTS.md`).
+    encoder.set_compression(png::Compression::Fast);
+    let mut writer = encoder.write_header()?;
+    writer.write_image_data(pixels)?;
+    writer.finish()
 }
 
 /// The most a deflate stream can expand (zlib's documented limit is 1032:1): a header that

@@ -29,7 +29,9 @@ use std::path::{Path, PathBuf};
 pub use env_map::read_env_map;
 pub use error::IoError;
 use file::{FileBytes, read_file};
-pub use image::{decode_png, read_png, write_exr, write_png, write_png_rgba, write_png16, write_png16_rgba};
+pub use image::{
+    decode_png, encode_png, read_png, write_exr, write_png, write_png_rgba, write_png16, write_png16_rgba,
+};
 pub use ply::{Mesh, read_ply, write_ply, write_ply_with_axes};
 pub use xyz::{Column, TextColumns, read_xyz};
 

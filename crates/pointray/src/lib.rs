@@ -29,6 +29,7 @@ pub mod math;
 pub mod mesh_sampling;
 pub mod metrics;
 pub mod preprocess;
+pub mod progressive;
 pub mod render;
 pub mod scene;
 pub mod settings;

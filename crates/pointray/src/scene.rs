@@ -450,8 +450,8 @@ impl Scene {
         (p - self.origin).as_vec3()
     }
 
-    /// The settings' up, else the data's.
-    fn up(&self, s: &Settings) -> Vec3 {
+    /// The world's up for these settings: theirs, else the data's (what a viewer orbits about).
+    pub fn up(&self, s: &Settings) -> Vec3 {
         s.up.unwrap_or(self.up)
     }
 

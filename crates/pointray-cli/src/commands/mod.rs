@@ -4,6 +4,7 @@ pub mod prepare;
 pub mod render;
 pub mod sample;
 pub mod turntable;
+pub mod view;
 
 use std::path::Path;
 use std::time::Instant;

@@ -1,0 +1,259 @@
+//! `pointray view`: the interactive viewer. A local web server (axum) serves one page and a
+//! WebSocket; a render thread runs the library's progressive loop (`pointray::progressive`) on
+//! the scene and pushes each frame, as a PNG with a line of JSON before it, to every open page;
+//! what a page sends (a camera, options: `Settings` fields as JSON) becomes the next view.
+//! Every page shows and steers the one view. Ctrl-C stops the server (`failure`).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Duration;
+
+use anyhow::Context;
+use axum::extract::State;
+use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
+use axum::response::{Html, Response};
+use axum::routing::get;
+use pointray::Scene;
+use pointray::progressive::{Progressive, ProgressiveOptions, Step, ViewControl};
+use pointray::settings::Settings;
+use tokio::sync::watch;
+
+use crate::args::ViewArgs;
+use crate::failure;
+
+/// The page: a canvas, the mouse's orbit, pan and zoom, a few options, the statistics.
+const PAGE: &str = include_str!("view.html");
+
+/// What the server's tasks and the render thread share.
+struct Shared {
+    scene: Arc<Scene>,
+    /// The view last asked for: a page's change is merged into it.
+    settings: Mutex<Settings>,
+    control: Arc<ViewControl>,
+    /// The latest frame (or error), for every page.
+    frames: watch::Sender<Option<Arc<Encoded>>>,
+    /// The first message to a page: the view's camera and size, the input's name.
+    hello: String,
+    stop: AtomicBool,
+}
+
+/// A frame as the pages get it: its JSON line, then its PNG (none for an error).
+struct Encoded {
+    meta: String,
+    png: Option<Vec<u8>>,
+}
+
+pub fn run(a: &ViewArgs, quiet: bool) -> anyhow::Result<()> {
+    let (scene, settings, name) = load(a, quiet)?;
+    let scene = Arc::new(scene);
+    let listener = std::net::TcpListener::bind((a.bind.as_str(), a.port))
+        .map_err(|e| failure::usage(anyhow::anyhow!("--bind {} --port {}: {e}", a.bind, a.port)))?;
+    listener.set_nonblocking(true)?;
+    let url = format!("http://{}/", listener.local_addr()?);
+    println!("pointray view: {url}");
+    if !a.no_open {
+        open_in_browser(&url);
+    }
+    let options = ProgressiveOptions { max_samples: a.max_spp.max(1), ..ProgressiveOptions::default() };
+    let mut view = Progressive::new(&scene, settings.clone(), options).map_err(|e| failure::usage(e.into()))?;
+    let shared = Arc::new(Shared {
+        scene: scene.clone(),
+        hello: hello(&scene, &settings, &name)?,
+        settings: Mutex::new(settings),
+        control: view.control(),
+        frames: watch::channel(None).0,
+        stop: AtomicBool::new(false),
+    });
+    std::thread::scope(|s| {
+        s.spawn(|| render_loop(&mut view, &shared));
+        let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
+        let served = runtime.block_on(serve(listener, shared.clone()));
+        shared.stop.store(true, Ordering::SeqCst);
+        served
+    })
+}
+
+/// The scene to view and its first settings: a cloud or scene file as `render` reads it, or
+/// the demo.
+fn load(a: &ViewArgs, quiet: bool) -> anyhow::Result<(Scene, Settings, String)> {
+    let config = a.preprocess.config();
+    config.check().map_err(|e| failure::usage(super::render::flag_error(e)))?;
+    let stage = |_: &str| {};
+    let (parts, scene_settings, name) = match &a.input {
+        Some(path) => {
+            let source = crate::progress::spinning("read", quiet, || {
+                pointray_io::source::load(path, &config, &a.read.options(), &stage)
+            })?;
+            (source.parts, source.settings, path.display().to_string())
+        }
+        None => {
+            let mut cloud = pointray::demo::demo_cloud(60_000, 0);
+            pointray_io::source::prepare(&mut cloud, &config, "demo", &stage)
+                .map_err(|e| anyhow::anyhow!("demo: {e}"))?;
+            (pointray::demo::demo_scene_parts(cloud), None, "demo".to_string())
+        }
+    };
+    let base = scene_settings.unwrap_or_default();
+    let settings = Settings { width: a.width, height: a.height, region: None, crop_to_model: false, ..base };
+    settings.check().map_err(|e| failure::usage(super::render::flag_error(e)))?;
+    let scene = Scene::build(parts, &settings).with_context(|| name.clone())?;
+    Ok((scene, settings, name))
+}
+
+/// The camera a page starts from, in the file's coordinates, with the frame's size.
+fn hello(scene: &Scene, settings: &Settings, name: &str) -> anyhow::Result<String> {
+    let job = scene.job(settings)?;
+    let bounds = scene.bounds();
+    let eye = scene.origin() + job.camera.eye.as_dvec3();
+    let look_at = settings.look_at.unwrap_or(scene.origin() + bounds.center().as_dvec3());
+    Ok(serde_json::json!({
+        "kind": "hello",
+        "input": name,
+        "width": settings.width,
+        "height": settings.height,
+        "eye": eye.to_array(),
+        "look_at": look_at.to_array(),
+        "up": scene.up(settings).normalize().to_array(),
+        "fov": settings.fov,
+        "diagonal": bounds.diagonal(),
+        "settings": settings,
+    })
+    .to_string())
+}
+
+/// Renders the latest view, frame after frame, until the server stops; idle while a view has
+/// all its samples.
+fn render_loop(view: &mut Progressive, shared: &Shared) {
+    while !shared.stop.load(Ordering::SeqCst) {
+        let encoded = match view.step() {
+            Ok(Step::Frame(f)) => {
+                let frame = &f.frame;
+                let rgb8 = frame.srgb8(view.settings().tone_map());
+                let mrays = frame.stats.rays as f64 / f.seconds.max(1e-9) / 1e6;
+                let meta = serde_json::json!({
+                    "kind": "frame", "generation": f.generation, "samples": f.samples, "scale": f.scale,
+                    "width": frame.width, "height": frame.height, "seconds": f.seconds, "mrays_per_second": mrays,
+                });
+                Encoded { meta: meta.to_string(), png: Some(pointray_io::encode_png(frame.width, frame.height, &rgb8)) }
+            }
+            Ok(Step::Cancelled) => {
+                tracing::debug!("pass cancelled");
+                continue;
+            }
+            Ok(Step::Idle) => {
+                let generation = shared.control.generation();
+                while shared.control.generation() == generation && !shared.stop.load(Ordering::SeqCst) {
+                    std::thread::sleep(Duration::from_millis(10));
+                }
+                continue;
+            }
+            Err(e) => Encoded {
+                meta: serde_json::json!({ "kind": "error", "message": e.to_string() }).to_string(),
+                png: None,
+            },
+        };
+        shared.frames.send_replace(Some(Arc::new(encoded)));
+    }
+}
+
+async fn serve(listener: std::net::TcpListener, shared: Arc<Shared>) -> anyhow::Result<()> {
+    let listener = tokio::net::TcpListener::from_std(listener)?;
+    let app =
+        axum::Router::new().route("/", get(|| async { Html(PAGE) })).route("/ws", get(connect)).with_state(shared);
+    axum::serve(listener, app).await?;
+    Ok(())
+}
+
+async fn connect(upgrade: WebSocketUpgrade, State(shared): State<Arc<Shared>>) -> Response {
+    upgrade.on_upgrade(move |socket| page(socket, shared))
+}
+
+/// One page: the hello, then every new frame; its messages become views.
+async fn page(mut socket: WebSocket, shared: Arc<Shared>) {
+    if socket.send(Message::Text(shared.hello.clone().into())).await.is_err() {
+        return;
+    }
+    let mut frames = shared.frames.subscribe();
+    frames.mark_changed();
+    loop {
+        tokio::select! {
+            changed = frames.changed() => {
+                if changed.is_err() {
+                    return;
+                }
+                let Some(frame) = frames.borrow_and_update().clone() else { continue };
+                if socket.send(Message::Text(frame.meta.clone().into())).await.is_err() {
+                    return;
+                }
+                if let Some(png) = &frame.png && socket.send(Message::Binary(png.clone().into())).await.is_err() {
+                    return;
+                }
+            }
+            message = socket.recv() => match message {
+                Some(Ok(Message::Text(text))) => {
+                    let reply = match answer(&shared, &text) {
+                        Ok(reply) => reply,
+                        Err(e) => Some(serde_json::json!({ "kind": "error", "message": format!("{e:#}") })),
+                    };
+                    if let Some(reply) = reply && socket.send(Message::Text(reply.to_string().into())).await.is_err() {
+                        return;
+                    }
+                }
+                Some(Ok(_)) => {}
+                _ => return,
+            },
+        }
+    }
+}
+
+/// What a page's message asks: `{"pick": [x, y]}` makes the surface under that pixel the point
+/// the camera turns about (the reply names it); any other object is settings for the view.
+fn answer(shared: &Shared, text: &str) -> anyhow::Result<Option<serde_json::Value>> {
+    let given: serde_json::Value = serde_json::from_str(text).context("not JSON")?;
+    let serde_json::Value::Object(mut given) = given else { anyhow::bail!("expected a JSON object of settings") };
+    let Some(pixel) = given.remove("pick") else {
+        change_view(shared, given)?;
+        return Ok(None);
+    };
+    let [x, y]: [u32; 2] = serde_json::from_value(pixel).context("pick: expected [x, y] in pixels")?;
+    let settings = shared.settings.lock().unwrap_or_else(PoisonError::into_inner).clone();
+    let job = shared.scene.job(&settings)?;
+    anyhow::ensure!(x < settings.width && y < settings.height, "pick: ({x}, {y}) lies outside the view");
+    let (origin, direction) = job.camera_ray(x, y);
+    let Some(hit) = shared.scene.intersect(&[(origin, direction)], &settings)?[0] else { return Ok(None) };
+    let eye = shared.scene.origin() + job.camera.eye.as_dvec3();
+    let pivot = serde_json::json!({ "eye": eye.to_array(), "look_at": hit.position.to_array() });
+    let serde_json::Value::Object(view) = pivot.clone() else { unreachable!("an object") };
+    change_view(shared, view)?;
+    Ok(Some(serde_json::json!({ "kind": "pivot", "eye": pivot["eye"], "look_at": pivot["look_at"] })))
+}
+
+/// Merges a page's settings into the view and renders it next; an unknown option or a value
+/// out of range is an error, and the view stays.
+fn change_view(shared: &Shared, given: serde_json::Map<String, serde_json::Value>) -> anyhow::Result<()> {
+    let mut current = shared.settings.lock().unwrap_or_else(PoisonError::into_inner);
+    let mut merged = serde_json::to_value(&*current)?;
+    if let Some(m) = merged.as_object_mut() {
+        m.extend(given);
+    }
+    let settings: Settings = serde_json::from_value(merged)?;
+    settings.check()?;
+    *current = settings.clone();
+    tracing::debug!("view {} set", shared.control.generation() + 1);
+    shared.control.set_view(settings);
+    Ok(())
+}
+
+/// Opens `url` in the desktop's browser, if it has one (a failure only says so).
+fn open_in_browser(url: &str) {
+    let opener = if cfg!(target_os = "macos") {
+        "open"
+    } else if cfg!(windows) {
+        "explorer"
+    } else {
+        "xdg-open"
+    };
+    if let Err(e) = std::process::Command::new(opener).arg(url).spawn() {
+        tracing::warn!("could not open a browser ({opener}: {e}); open {url}");
+    }
+}

@@ -1,0 +1,316 @@
+//! Progressive rendering, the loop of an interactive viewer (`pointray view`), on the library's
+//! scene: right after the view changes, a preview at a resolution chosen to hold a frame time;
+//! then, while the view rests, passes of more samples at full resolution, averaged, until a
+//! budget of samples a pixel is spent. A view set from another thread ([`ViewControl`]) cancels
+//! the pass in flight, and the next frame starts over from a preview of the new view.
+//!
+//! The refinement passes trace disjoint ranges of the same samples (`RenderConfig::sample_range`),
+//! so the converged image is the render of all of them at once, whatever the passes were.
+
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, PoisonError};
+use std::time::Instant;
+
+use crate::frame::Frame;
+use crate::scene::Scene;
+use crate::settings::{Settings, SettingsError};
+
+/// How a [`Progressive`] spends its time.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ProgressiveOptions {
+    /// What a preview frame should take, in seconds (30 frames a second).
+    pub frame_seconds: f64,
+    /// Samples a pixel a view at rest converges to.
+    pub max_samples: u32,
+    /// The coarsest preview: one pixel for this many across (and down).
+    pub max_preview_scale: u32,
+}
+
+impl Default for ProgressiveOptions {
+    fn default() -> Self {
+        Self { frame_seconds: 1.0 / 30.0, max_samples: 64, max_preview_scale: 8 }
+    }
+}
+
+/// The side of a [`Progressive`] that other threads hold: where a new view goes.
+#[derive(Debug, Default)]
+pub struct ViewControl {
+    pending: Mutex<Option<Settings>>,
+    generation: AtomicU64,
+    cancel: AtomicBool,
+}
+
+impl ViewControl {
+    /// Renders `settings` next (the camera moved, an option changed): the pass in flight stops
+    /// within a band's time, and the view's generation counts up.
+    pub fn set_view(&self, settings: Settings) {
+        *self.pending.lock().unwrap_or_else(PoisonError::into_inner) = Some(settings);
+        self.generation.fetch_add(1, Ordering::SeqCst);
+        self.cancel.store(true, Ordering::SeqCst);
+    }
+
+    /// How many views have been set.
+    pub fn generation(&self) -> u64 {
+        self.generation.load(Ordering::SeqCst)
+    }
+}
+
+/// A frame to show: a preview (`scale` > 1: each pixel stands for scale × scale of the view) or
+/// the mean of the `samples` a pixel so far, of the view of `generation`.
+pub struct ProgressiveFrame {
+    pub frame: Frame,
+    pub generation: u64,
+    pub samples: u32,
+    pub scale: u32,
+    /// The pass's own seconds.
+    pub seconds: f64,
+}
+
+/// What [`Progressive::step`] did.
+pub enum Step {
+    /// Boxed: a frame's film beside two empty variants.
+    Frame(Box<ProgressiveFrame>),
+    /// A new view came while rendering: nothing to show, step again.
+    Cancelled,
+    /// The view has all its samples: nothing to do until it changes.
+    Idle,
+}
+
+enum State {
+    Preview,
+    /// Samples `0..done` a pixel summed, full resolution.
+    Refining {
+        done: u32,
+        sum: Vec<[f32; 3]>,
+    },
+    Converged,
+}
+
+/// A view rendered progressively (see the module's documentation).
+pub struct Progressive<'s> {
+    scene: &'s Scene,
+    control: Arc<ViewControl>,
+    options: ProgressiveOptions,
+    settings: Settings,
+    generation: u64,
+    state: State,
+    /// Seconds a preview pixel took last (none before the first preview).
+    seconds_per_pixel: Option<f64>,
+}
+
+impl<'s> Progressive<'s> {
+    /// Starts at a preview of `settings`, which must be a whole frame (no region, no crop).
+    pub fn new(scene: &'s Scene, settings: Settings, options: ProgressiveOptions) -> Result<Self, SettingsError> {
+        let settings = whole_frame(settings)?;
+        scene.job(&settings)?;
+        let control = Arc::new(ViewControl::default());
+        Ok(Self { scene, control, options, settings, generation: 0, state: State::Preview, seconds_per_pixel: None })
+    }
+
+    pub fn control(&self) -> Arc<ViewControl> {
+        self.control.clone()
+    }
+
+    /// The settings of the view being rendered.
+    pub fn settings(&self) -> &Settings {
+        &self.settings
+    }
+
+    /// Renders the next frame of the latest view: its preview first, then the next pass.
+    /// Settings that the scene refuses are an error, and the view before them stays.
+    pub fn step(&mut self) -> Result<Step, SettingsError> {
+        // Cleared before the pending view is taken: a view set after this cancels what follows.
+        self.control.cancel.store(false, Ordering::SeqCst);
+        let pending = self.control.pending.lock().unwrap_or_else(PoisonError::into_inner).take();
+        if let Some(settings) = pending {
+            let settings = whole_frame(settings)?;
+            self.scene.job(&settings)?;
+            (self.settings, self.state) = (settings, State::Preview);
+            self.generation = self.control.generation();
+        }
+        match std::mem::replace(&mut self.state, State::Converged) {
+            State::Preview => self.preview(),
+            State::Refining { done, sum } => self.refine(done, sum),
+            State::Converged => Ok(Step::Idle),
+        }
+    }
+
+    /// A frame of one sample a pixel at the scale the last preview's time allows (the coarsest
+    /// at first), level of detail at least at a pixel.
+    fn preview(&mut self) -> Result<Step, SettingsError> {
+        let scale = self.preview_scale();
+        let s = &self.settings;
+        let preview = Settings {
+            width: s.width.div_ceil(scale),
+            height: s.height.div_ceil(scale),
+            spp: 1,
+            lod_threshold: s.lod_threshold.max(1.0),
+            ..s.clone()
+        };
+        let start = Instant::now();
+        let Some(frame) = self.scene.job(&preview)?.render_until(&|_| {}, &self.control.cancel) else {
+            self.state = State::Preview;
+            return Ok(Step::Cancelled);
+        };
+        let seconds = start.elapsed().as_secs_f64();
+        self.seconds_per_pixel = Some(seconds / f64::from(preview.width * preview.height));
+        let pixels = (self.settings.width * self.settings.height) as usize;
+        self.state = State::Refining { done: 0, sum: vec![[0.0; 3]; pixels] };
+        Ok(Step::Frame(Box::new(ProgressiveFrame { frame, generation: self.generation, samples: 1, scale, seconds })))
+    }
+
+    /// The least scale (a power of two) whose preview the measured time a pixel says fits the
+    /// frame time.
+    fn preview_scale(&self) -> u32 {
+        let most = self.options.max_preview_scale.max(1);
+        let Some(per_pixel) = self.seconds_per_pixel else { return most };
+        let pixels = f64::from(self.settings.width) * f64::from(self.settings.height);
+        let mut scale = 1;
+        while scale < most && per_pixel * pixels / f64::from(scale * scale) > self.options.frame_seconds {
+            scale *= 2;
+        }
+        scale.min(most)
+    }
+
+    /// The next pass at full resolution: as many samples as are done already (at least one), up
+    /// to the budget, so that the image sharpens at once and the passes stay few.
+    fn refine(&mut self, done: u32, mut sum: Vec<[f32; 3]>) -> Result<Step, SettingsError> {
+        let budget = self.options.max_samples.max(1);
+        if done >= budget {
+            return Ok(Step::Idle);
+        }
+        let range = done..(2 * done).clamp(done + 1, budget);
+        let settings = Settings { spp: budget, ..self.settings.clone() };
+        let mut job = self.scene.job(&settings)?;
+        job.config.sample_range = Some(range.clone());
+        let start = Instant::now();
+        let Some(mut frame) = job.render_until(&|_| {}, &self.control.cancel) else {
+            self.state = State::Refining { done, sum };
+            return Ok(Step::Cancelled);
+        };
+        let seconds = start.elapsed().as_secs_f64();
+        let weight = range.len() as f32;
+        let done = range.end;
+        for (s, p) in sum.iter_mut().zip(frame.film.rgb.iter_mut()) {
+            for k in 0..3 {
+                s[k] += p[k] * weight;
+                p[k] = s[k] / done as f32;
+            }
+        }
+        self.state = if done >= budget { State::Converged } else { State::Refining { done, sum } };
+        Ok(Step::Frame(Box::new(ProgressiveFrame {
+            frame,
+            generation: self.generation,
+            samples: done,
+            scale: 1,
+            seconds,
+        })))
+    }
+}
+
+/// `settings` for a viewer: the whole frame, or an error naming the option that crops it.
+fn whole_frame(settings: Settings) -> Result<Settings, SettingsError> {
+    if settings.region.is_some() || settings.crop_to_model {
+        let option = if settings.region.is_some() { "region" } else { "crop_to_model" };
+        return Err(SettingsError::new(option, "a progressive view renders the whole frame"));
+    }
+    Ok(settings)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn demo(settings: &Settings) -> Scene {
+        let mut cloud = crate::demo::demo_cloud(4000, 3);
+        crate::preprocess::preprocess(&mut cloud, &crate::preprocess::PreprocessConfig::standard()).unwrap();
+        Scene::build(crate::demo::demo_scene_parts(cloud), settings).unwrap()
+    }
+
+    fn frame(step: Step) -> ProgressiveFrame {
+        match step {
+            Step::Frame(f) => *f,
+            Step::Cancelled => panic!("cancelled"),
+            Step::Idle => panic!("idle"),
+        }
+    }
+
+    #[test]
+    fn a_view_at_rest_converges_to_the_render_of_all_its_samples() {
+        let settings =
+            Settings { width: 40, height: 30, integrator: crate::render::Integrator::Path, ..Settings::default() };
+        let scene = demo(&settings);
+        let options = ProgressiveOptions { max_samples: 8, ..ProgressiveOptions::default() };
+        let mut view = Progressive::new(&scene, settings.clone(), options).unwrap();
+        let preview = frame(view.step().unwrap());
+        assert_eq!((preview.samples, preview.scale, preview.frame.width), (1, 8, 5));
+        let passes: Vec<ProgressiveFrame> = std::iter::from_fn(|| match view.step().unwrap() {
+            Step::Frame(f) => Some(*f),
+            _ => None,
+        })
+        .collect();
+        assert_eq!(passes.iter().map(|f| f.samples).collect::<Vec<_>>(), [1, 2, 4, 8]);
+        assert!(matches!(view.step().unwrap(), Step::Idle));
+        let whole = crate::scene::render(&scene, &Settings { spp: 8, ..settings }).unwrap();
+        let last = &passes[3].frame.film.rgb;
+        for (i, (a, b)) in last.iter().zip(&whole.film.rgb).enumerate() {
+            assert!((0..3).all(|k| (a[k] - b[k]).abs() <= 1e-5 * b[k].max(1.0)), "pixel {i}: {a:?} against {b:?}");
+        }
+    }
+
+    #[test]
+    fn a_new_view_starts_over_from_a_preview_and_a_refused_one_keeps_the_last() {
+        let settings = Settings { width: 32, height: 24, ..Settings::default() };
+        let scene = demo(&settings);
+        let mut view = Progressive::new(&scene, settings.clone(), ProgressiveOptions::default()).unwrap();
+        frame(view.step().unwrap());
+        frame(view.step().unwrap());
+        let control = view.control();
+        control.set_view(Settings { fov: 40.0, ..settings.clone() });
+        let preview = frame(view.step().unwrap());
+        assert_eq!((preview.generation, preview.samples, view.settings().fov), (1, 1, 40.0));
+        // Timed: the first preview measured the time a pixel takes, and a slow frame time
+        // allows the full resolution.
+        view.options.frame_seconds = 1e9;
+        control.set_view(Settings { fov: 50.0, ..settings.clone() });
+        assert_eq!(frame(view.step().unwrap()).scale, 1);
+        control.set_view(Settings { spp: 0, ..settings });
+        assert_eq!(view.step().err().map(|e| e.option), Some("spp"));
+        assert_eq!(view.settings().fov, 50.0);
+        assert!(matches!(view.step().unwrap(), Step::Frame(f) if f.samples == 1 && f.scale == 1));
+    }
+
+    #[test]
+    fn a_view_set_while_a_pass_renders_cancels_it() {
+        // A pass long enough (the path tracer, 512², 64 samples: seconds) that the view set
+        // 50 ms into it lands inside it: the pass stops at the next band.
+        let settings =
+            Settings { width: 512, height: 512, integrator: crate::render::Integrator::Path, ..Settings::default() };
+        let scene = demo(&settings);
+        let options = ProgressiveOptions { max_samples: 4096, ..ProgressiveOptions::default() };
+        let mut view = Progressive::new(&scene, settings.clone(), options).unwrap();
+        frame(view.step().unwrap());
+        view.state = State::Refining { done: 64, sum: vec![[0.0; 3]; 512 * 512] };
+        let control = view.control();
+        let started = Instant::now();
+        let setter = std::thread::spawn(move || {
+            std::thread::sleep(std::time::Duration::from_millis(50));
+            control.set_view(settings);
+        });
+        let step = view.step().unwrap();
+        setter.join().unwrap();
+        assert!(matches!(step, Step::Cancelled), "after {:?}", started.elapsed());
+        assert!(matches!(view.step().unwrap(), Step::Frame(f) if f.generation == 1 && f.samples == 1));
+    }
+
+    #[test]
+    fn a_cropped_view_is_refused() {
+        let settings = Settings { width: 16, height: 16, ..Settings::default() };
+        let scene = demo(&settings);
+        let crop = Settings { crop_to_model: true, ..settings };
+        assert_eq!(
+            Progressive::new(&scene, crop, ProgressiveOptions::default()).err().unwrap().option,
+            "crop_to_model"
+        );
+    }
+}
