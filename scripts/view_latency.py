@@ -2,13 +2,13 @@
 """How interactive `pointray view` is: frames a second while the camera moves, and the time from
 a camera change to its first frame and to its converged frame.
 
-Usage: scripts/view_latency.py MODEL [--size 512] [--max-spp 64] [--drag-seconds 3] [--pointray BIN]
+Usage: scripts/view_latency.py MODEL [--size 512] [--spp 64] [--drag-seconds 3] [--pointray BIN]
 
 Starts the viewer on MODEL, talks to it as a page does (a WebSocket; this file's own minimal
 client, Python's standard library only), then: (1) a drag: the camera turns 1° about the up
 axis every 33 ms for DRAG seconds, frames counted as they arrive, with the preview scales the
 viewer chose; (2) the drag stops: the time from the last change to the first frame of that view
-and to the frame with all its samples (SIZE², MAX_SPP samples a pixel). Needs `cargo build --release`.
+and to the frame with all its samples (SIZE², SPP samples a pixel). Needs `cargo build --release`.
 """
 import argparse, base64, json, math, os, socket, struct, subprocess, time
 
@@ -94,12 +94,12 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("model")
     ap.add_argument("--size", type=int, default=512)
-    ap.add_argument("--max-spp", type=int, default=64)
+    ap.add_argument("--spp", type=int, default=64)
     ap.add_argument("--drag-seconds", type=float, default=3.0)
     ap.add_argument("--pointray", default=os.path.join(ROOT, "target", "release", "pointray"))
     a = ap.parse_args()
     server = subprocess.Popen([a.pointray, "-q", "view", a.model, "--port", "0", "--no-open", "--width", str(a.size),
-                               "--height", str(a.size), "--max-spp", str(a.max_spp)], stdout=subprocess.PIPE, text=True)
+                               "--height", str(a.size), "--spp", str(a.spp)], stdout=subprocess.PIPE, text=True)
     try:
         address = server.stdout.readline().split("http://")[1].strip().rstrip("/")
         host, port = address.rsplit(":", 1)
@@ -107,7 +107,7 @@ def main():
         hello = json.loads(ws.recv())
         while True:  # the first view, converged
             m = ws.recv()
-            if isinstance(m, str) and json.loads(m).get("samples") == a.max_spp:
+            if isinstance(m, str) and json.loads(m).get("samples") == a.spp:
                 break
         # (1) The drag.
         start, frames, step = time.monotonic(), [], 0
@@ -129,9 +129,9 @@ def main():
                 meta = json.loads(m)
                 if first is None:
                     first, first_scale = time.monotonic() - sent, meta["scale"]
-                if meta["samples"] == a.max_spp:
+                if meta["samples"] == a.spp:
                     done = time.monotonic() - sent
-        print(f"{a.model}, {a.size}², up to {a.max_spp} samples a pixel:")
+        print(f"{a.model}, {a.size}², up to {a.spp} samples a pixel:")
         print(f"  dragging: {len(shown) / dragged:.1f} frames a second ({len(shown)} in {dragged:.1f} s, "
               f"{step - 1} camera changes), preview scales {scales}")
         print(f"  at rest: first frame {first * 1000:.0f} ms after the change (scale {first_scale}), "

@@ -509,9 +509,9 @@ pub struct ViewArgs {
     pub width: u32,
     #[arg(long, default_value_t = 600)]
     pub height: u32,
-    /// Samples a pixel a view at rest refines to.
+    /// Samples a pixel a view at rest refines to (the page can change it).
     #[arg(long, default_value_t = 64)]
-    pub max_spp: u32,
+    pub spp: u32,
     #[command(flatten)]
     pub read: ReadArgs,
     #[command(flatten)]

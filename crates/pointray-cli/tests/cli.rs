@@ -1837,7 +1837,7 @@ fn the_viewer_serves_its_page_and_refines_the_view_a_page_sends() {
     let mut server = Server(
         pointray()
             .args(["-q", "view", "sphere.ply", "--port", "0", "--no-open", "--width", "64", "--height", "48"])
-            .args(["--max-spp", "4"])
+            .args(["--spp", "4"])
             .current_dir(dir.path())
             .stdout(Stdio::piped())
             .stderr(Stdio::null())
@@ -1852,7 +1852,15 @@ fn the_viewer_serves_its_page_and_refines_the_view_a_page_sends() {
     std::io::Write::write_all(&mut http, b"GET / HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n").unwrap();
     http.read_to_string(&mut page).unwrap();
     assert!(page.starts_with("HTTP/1.1 200") && page.contains("<canvas"), "{page}");
-    let (mut socket, _) = tungstenite::connect(format!("ws://{address}/ws")).unwrap();
+    // Reads give up after a while: a viewer that stops sending fails the test, not hangs it.
+    let connect = |address: &str| {
+        let (socket, _) = tungstenite::connect(format!("ws://{address}/ws")).unwrap();
+        if let tungstenite::stream::MaybeTlsStream::Plain(tcp) = socket.get_ref() {
+            tcp.set_read_timeout(Some(std::time::Duration::from_secs(60))).unwrap();
+        }
+        socket
+    };
+    let mut socket = connect(&address);
     let next_text = |socket: &mut tungstenite::WebSocket<_>| loop {
         match socket.read().unwrap() {
             Message::Text(t) => return serde_json::from_str::<serde_json::Value>(&t).unwrap(),
@@ -1869,6 +1877,10 @@ fn the_viewer_serves_its_page_and_refines_the_view_a_page_sends() {
     socket.send(Message::Text(view.to_string().into())).unwrap();
     let first = next_text(&mut socket);
     assert_eq!((first["generation"].as_u64(), first["samples"].as_u64()), (Some(1), Some(1)), "{first}");
+    assert!(first["nodes_per_ray"].as_f64().unwrap() > 0.0, "the work is counted: {first}");
+    // The heat map of the nodes visited: the view renders again.
+    socket.send(Message::Text(r#"{"heat_map": true}"#.into())).unwrap();
+    while next_text(&mut socket)["generation"].as_u64() != Some(2) {}
     socket.send(Message::Text(r#"{"spp": 0}"#.into())).unwrap();
     let mut error = next_text(&mut socket);
     while error["kind"] != "error" {
@@ -1886,7 +1898,7 @@ fn the_viewer_serves_its_page_and_refines_the_view_a_page_sends() {
     let radius = at.iter().map(|v| v * v).sum::<f64>().sqrt();
     assert!((radius - 1.0).abs() < 0.05, "{pivot}");
     assert_eq!(pivot["eye"].as_array().unwrap().len(), 3);
-    let (mut second, _) = tungstenite::connect(format!("ws://{address}/ws")).unwrap();
+    let mut second = connect(&address);
     assert_eq!(next_text(&mut second)["kind"], "hello");
     assert_eq!(next_text(&mut second)["kind"], "frame");
     // A file that fails to load fails as `render` does, before any server.

@@ -1,7 +1,7 @@
 //! Progressive rendering, the loop of an interactive viewer (`pointray view`), on the library's
 //! scene: right after the view changes, a preview at a resolution chosen to hold a frame time;
-//! then, while the view rests, passes of more samples at full resolution, averaged, until a
-//! budget of samples a pixel is spent. A view set from another thread ([`ViewControl`]) cancels
+//! then, while the view rests, passes of more samples at full resolution, averaged, until the
+//! view's `spp` samples a pixel are spent. A view set from another thread ([`ViewControl`]) cancels
 //! the pass in flight, and the next frame starts over from a preview of the new view.
 //!
 //! The refinement passes trace disjoint ranges of the same samples (`RenderConfig::sample_range`),
@@ -20,15 +20,13 @@ use crate::settings::{Settings, SettingsError};
 pub struct ProgressiveOptions {
     /// What a preview frame should take, in seconds (30 frames a second).
     pub frame_seconds: f64,
-    /// Samples a pixel a view at rest converges to.
-    pub max_samples: u32,
     /// The coarsest preview: one pixel for this many across (and down).
     pub max_preview_scale: u32,
 }
 
 impl Default for ProgressiveOptions {
     fn default() -> Self {
-        Self { frame_seconds: 1.0 / 30.0, max_samples: 64, max_preview_scale: 8 }
+        Self { frame_seconds: 1.0 / 30.0, max_preview_scale: 8 }
     }
 }
 
@@ -173,9 +171,9 @@ impl<'s> Progressive<'s> {
     }
 
     /// The next pass at full resolution: as many samples as are done already (at least one), up
-    /// to the budget, so that the image sharpens at once and the passes stay few.
+    /// to the view's `spp`, so that the image sharpens at once and the passes stay few.
     fn refine(&mut self, done: u32, mut sum: Vec<[f32; 3]>) -> Result<Step, SettingsError> {
-        let budget = self.options.max_samples.max(1);
+        let budget = self.settings.spp.max(1);
         if done >= budget {
             return Ok(Step::Idle);
         }
@@ -237,11 +235,10 @@ mod tests {
 
     #[test]
     fn a_view_at_rest_converges_to_the_render_of_all_its_samples() {
-        let settings =
-            Settings { width: 40, height: 30, integrator: crate::render::Integrator::Path, ..Settings::default() };
+        let integrator = crate::render::Integrator::Path;
+        let settings = Settings { width: 40, height: 30, spp: 8, integrator, ..Settings::default() };
         let scene = demo(&settings);
-        let options = ProgressiveOptions { max_samples: 8, ..ProgressiveOptions::default() };
-        let mut view = Progressive::new(&scene, settings.clone(), options).unwrap();
+        let mut view = Progressive::new(&scene, settings.clone(), ProgressiveOptions::default()).unwrap();
         let preview = frame(view.step().unwrap());
         assert_eq!((preview.samples, preview.scale, preview.frame.width), (1, 8, 5));
         let passes: Vec<ProgressiveFrame> = std::iter::from_fn(|| match view.step().unwrap() {
@@ -251,7 +248,7 @@ mod tests {
         .collect();
         assert_eq!(passes.iter().map(|f| f.samples).collect::<Vec<_>>(), [1, 2, 4, 8]);
         assert!(matches!(view.step().unwrap(), Step::Idle));
-        let whole = crate::scene::render(&scene, &Settings { spp: 8, ..settings }).unwrap();
+        let whole = crate::scene::render(&scene, &settings).unwrap();
         let last = &passes[3].frame.film.rgb;
         for (i, (a, b)) in last.iter().zip(&whole.film.rgb).enumerate() {
             assert!((0..3).all(|k| (a[k] - b[k]).abs() <= 1e-5 * b[k].max(1.0)), "pixel {i}: {a:?} against {b:?}");
@@ -284,11 +281,10 @@ mod tests {
     fn a_view_set_while_a_pass_renders_cancels_it() {
         // A pass long enough (the path tracer, 512², 64 samples: seconds) that the view set
         // 50 ms into it lands inside it: the pass stops at the next band.
-        let settings =
-            Settings { width: 512, height: 512, integrator: crate::render::Integrator::Path, ..Settings::default() };
+        let integrator = crate::render::Integrator::Path;
+        let settings = Settings { width: 512, height: 512, spp: 4096, integrator, ..Settings::default() };
         let scene = demo(&settings);
-        let options = ProgressiveOptions { max_samples: 4096, ..ProgressiveOptions::default() };
-        let mut view = Progressive::new(&scene, settings.clone(), options).unwrap();
+        let mut view = Progressive::new(&scene, settings.clone(), ProgressiveOptions::default()).unwrap();
         frame(view.step().unwrap());
         view.state = State::Refining { done: 64, sum: vec![[0.0; 3]; 512 * 512] };
         let control = view.control();

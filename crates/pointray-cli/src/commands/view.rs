@@ -32,6 +32,8 @@ struct Shared {
     control: Arc<ViewControl>,
     /// The latest frame (or error), for every page.
     frames: watch::Sender<Option<Arc<Encoded>>>,
+    /// Show the nodes each pixel visited (a heat map) rather than the image.
+    heat_map: AtomicBool,
     /// The first message to a page: the view's camera and size, the input's name.
     hello: String,
     stop: AtomicBool,
@@ -54,7 +56,7 @@ pub fn run(a: &ViewArgs, quiet: bool) -> anyhow::Result<()> {
     if !a.no_open {
         open_in_browser(&url);
     }
-    let options = ProgressiveOptions { max_samples: a.max_spp.max(1), ..ProgressiveOptions::default() };
+    let options = ProgressiveOptions::default();
     let mut view = Progressive::new(&scene, settings.clone(), options).map_err(|e| failure::usage(e.into()))?;
     let shared = Arc::new(Shared {
         scene: scene.clone(),
@@ -63,6 +65,7 @@ pub fn run(a: &ViewArgs, quiet: bool) -> anyhow::Result<()> {
         control: view.control(),
         frames: watch::channel(None).0,
         stop: AtomicBool::new(false),
+        heat_map: AtomicBool::new(false),
     });
     std::thread::scope(|s| {
         s.spawn(|| render_loop(&mut view, &shared));
@@ -94,7 +97,9 @@ fn load(a: &ViewArgs, quiet: bool) -> anyhow::Result<(Scene, Settings, String)> 
         }
     };
     let base = scene_settings.unwrap_or_default();
-    let settings = Settings { width: a.width, height: a.height, region: None, crop_to_model: false, ..base };
+    // The whole frame, its work counted: the page shows the nodes a ray visits, and their heat map.
+    let (width, height, spp) = (a.width, a.height, a.spp);
+    let settings = Settings { width, height, spp, region: None, crop_to_model: false, count_work: true, ..base };
     settings.check().map_err(|e| failure::usage(super::render::flag_error(e)))?;
     let scene = Scene::build(parts, &settings).with_context(|| name.clone())?;
     Ok((scene, settings, name))
@@ -128,11 +133,17 @@ fn render_loop(view: &mut Progressive, shared: &Shared) {
         let encoded = match view.step() {
             Ok(Step::Frame(f)) => {
                 let frame = &f.frame;
-                let rgb8 = frame.srgb8(view.settings().tone_map());
-                let mrays = frame.stats.rays as f64 / f.seconds.max(1e-9) / 1e6;
+                let rgb8 = if shared.heat_map.load(Ordering::SeqCst) {
+                    frame.aov_rgb8(pointray::frame::Aov::Nodes)
+                } else {
+                    frame.srgb8(view.settings().tone_map())
+                };
+                let stats = &frame.stats;
                 let meta = serde_json::json!({
                     "kind": "frame", "generation": f.generation, "samples": f.samples, "scale": f.scale,
-                    "width": frame.width, "height": frame.height, "seconds": f.seconds, "mrays_per_second": mrays,
+                    "width": frame.width, "height": frame.height, "seconds": f.seconds,
+                    "mrays_per_second": stats.rays as f64 / f.seconds.max(1e-9) / 1e6,
+                    "nodes_per_ray": stats.traversal.nodes_visited as f64 / stats.rays.max(1) as f64,
                 });
                 Encoded { meta: meta.to_string(), png: Some(pointray_io::encode_png(frame.width, frame.height, &rgb8)) }
             }
@@ -207,10 +218,14 @@ async fn page(mut socket: WebSocket, shared: Arc<Shared>) {
 }
 
 /// What a page's message asks: `{"pick": [x, y]}` makes the surface under that pixel the point
-/// the camera turns about (the reply names it); any other object is settings for the view.
+/// the camera turns about (the reply names it), `{"heat_map": true}` shows the nodes visited
+/// instead of the image; any other object is settings for the view.
 fn answer(shared: &Shared, text: &str) -> anyhow::Result<Option<serde_json::Value>> {
     let given: serde_json::Value = serde_json::from_str(text).context("not JSON")?;
     let serde_json::Value::Object(mut given) = given else { anyhow::bail!("expected a JSON object of settings") };
+    if let Some(on) = given.remove("heat_map") {
+        shared.heat_map.store(on.as_bool().context("heat_map: expected true or false")?, Ordering::SeqCst);
+    }
     let Some(pixel) = given.remove("pick") else {
         change_view(shared, given)?;
         return Ok(None);
