@@ -512,6 +512,10 @@ pub struct ViewArgs {
     /// Samples a pixel a view at rest refines to (the page can change it).
     #[arg(long, default_value_t = 64)]
     pub spp: u32,
+    /// What the points' colours show, as for `render` (the scene is built with it) [default: a
+    /// scene file's, else auto].
+    #[arg(long, value_enum)]
+    pub color_by: Option<ColorBy>,
     #[command(flatten)]
     pub read: ReadArgs,
     #[command(flatten)]

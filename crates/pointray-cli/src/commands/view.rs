@@ -98,8 +98,9 @@ fn load(a: &ViewArgs, quiet: bool) -> anyhow::Result<(Scene, Settings, String)> 
     };
     let base = scene_settings.unwrap_or_default();
     // The whole frame, its work counted: the page shows the nodes a ray visits, and their heat map.
-    let (width, height, spp) = (a.width, a.height, a.spp);
-    let settings = Settings { width, height, spp, region: None, crop_to_model: false, count_work: true, ..base };
+    let (width, height, spp, color_by) = (a.width, a.height, a.spp, a.color_by.unwrap_or(base.color_by));
+    let whole = Settings { region: None, crop_to_model: false, count_work: true, ..base };
+    let settings = Settings { width, height, spp, color_by, ..whole };
     settings.check().map_err(|e| failure::usage(super::render::flag_error(e)))?;
     let scene = Scene::build(parts, &settings).with_context(|| name.clone())?;
     Ok((scene, settings, name))
