@@ -361,7 +361,7 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     pub bench_builds: u32,
     /// Points in the demo scene.
-    #[arg(long, default_value_t = 300_000)]
+    #[arg(long, default_value_t = pointray::demo::DEMO_POINTS)]
     pub demo_points: usize,
     #[command(flatten)]
     pub read: ReadArgs,

@@ -53,6 +53,9 @@ pub fn demo_cloud(points: usize, seed: u64) -> PointCloud {
     PointCloud { positions, colors: Some(colors), ..PointCloud::default() }
 }
 
+/// Points in the demo scene unless told otherwise (`--demo-points`).
+pub const DEMO_POINTS: usize = 300_000;
+
 /// The demo's camera, as (view direction, distance in bounding-box diagonals).
 pub const DEMO_VIEW: ([f32; 3], f32) = ([0.35, 0.5, 1.0], 0.62);
 

@@ -90,7 +90,7 @@ fn load(a: &ViewArgs, quiet: bool) -> anyhow::Result<(Scene, Settings, String)> 
             (source.parts, source.settings, path.display().to_string())
         }
         None => {
-            let mut cloud = pointray::demo::demo_cloud(60_000, 0);
+            let mut cloud = pointray::demo::demo_cloud(pointray::demo::DEMO_POINTS, 0);
             pointray_io::source::prepare(&mut cloud, &config, "demo", &stage)
                 .map_err(|e| anyhow::anyhow!("demo: {e}"))?;
             (pointray::demo::demo_scene_parts(cloud), None, "demo".to_string())
