@@ -1887,6 +1887,21 @@ fn the_viewer_serves_its_page_and_refines_the_view_a_page_sends() {
         error = next_text(&mut socket);
     }
     assert!(error["message"].as_str().unwrap().contains("spp"), "{error}");
+    // What the colours show is built into the scene: asked for, the scene is built anew; one the
+    // cloud cannot give (it has no intensity) is refused, and the view goes on.
+    socket.send(Message::Text(r#"{"color_by": "normal"}"#.into())).unwrap();
+    let mut built = next_text(&mut socket);
+    while built["kind"] != "frame" || built["generation"].as_u64() < Some(3) {
+        assert_ne!(built["kind"], "error", "{built}");
+        built = next_text(&mut socket);
+    }
+    socket.send(Message::Text(r#"{"color_by": "intensity"}"#.into())).unwrap();
+    let mut refused = next_text(&mut socket);
+    while refused["kind"] != "error" {
+        refused = next_text(&mut socket);
+    }
+    assert!(refused["message"].as_str().unwrap().contains("intensity"), "{refused}");
+    while next_text(&mut socket)["kind"] != "frame" {}
     // A double-click's pick: the sphere's surface under the centre becomes the pivot, the eye
     // stays (the sphere of `write_sphere` has radius 1 about the origin).
     socket.send(Message::Text(r#"{"pick": [32, 24]}"#.into())).unwrap();

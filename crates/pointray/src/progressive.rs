@@ -47,6 +47,13 @@ impl ViewControl {
         self.cancel.store(true, Ordering::SeqCst);
     }
 
+    /// Stops the pass in flight and counts a new view without giving one: the caller starts
+    /// another [`Progressive`] on this control (a scene built anew).
+    pub fn restart(&self) {
+        self.generation.fetch_add(1, Ordering::SeqCst);
+        self.cancel.store(true, Ordering::SeqCst);
+    }
+
     /// How many views have been set.
     pub fn generation(&self) -> u64 {
         self.generation.load(Ordering::SeqCst)
@@ -99,10 +106,20 @@ pub struct Progressive<'s> {
 impl<'s> Progressive<'s> {
     /// Starts at a preview of `settings`, which must be a whole frame (no region, no crop).
     pub fn new(scene: &'s Scene, settings: Settings, options: ProgressiveOptions) -> Result<Self, SettingsError> {
+        Self::with_control(scene, settings, options, Arc::new(ViewControl::default()))
+    }
+
+    /// [`Self::new`], steered by `control` (which a scene built anew keeps), at its generation.
+    pub fn with_control(
+        scene: &'s Scene,
+        settings: Settings,
+        options: ProgressiveOptions,
+        control: Arc<ViewControl>,
+    ) -> Result<Self, SettingsError> {
         let settings = whole_frame(settings)?;
         scene.job(&settings)?;
-        let control = Arc::new(ViewControl::default());
-        Ok(Self { scene, control, options, settings, generation: 0, state: State::Preview, seconds_per_pixel: None })
+        let generation = control.generation();
+        Ok(Self { scene, control, options, settings, generation, state: State::Preview, seconds_per_pixel: None })
     }
 
     pub fn control(&self) -> Arc<ViewControl> {

@@ -396,6 +396,12 @@ impl Scene {
 
     /// Refuses settings that need another build: another accelerator, other bounding volumes,
     /// or disks of another shape in the bounds.
+    /// Whether the scene was built as `settings` ask (accelerator, disks, colours, classes,
+    /// clips): else it must be built again for them (`job` refuses them, naming the option).
+    pub fn built_for(&self, settings: &Settings) -> bool {
+        self.check_build(settings).is_ok()
+    }
+
     fn check_build(&self, settings: &Settings) -> Result<(), SettingsError> {
         let (built, asked) = (&self.build, Build::of(settings));
         let problem =

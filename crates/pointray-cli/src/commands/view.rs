@@ -1,11 +1,13 @@
 //! `pointray view`: the interactive viewer. A local web server (axum) serves one page and a
 //! WebSocket; a render thread runs the library's progressive loop (`pointray::progressive`) on
 //! the scene and pushes each frame, as a PNG with a line of JSON before it, to every open page;
-//! what a page sends (a camera, options: `Settings` fields as JSON) becomes the next view.
-//! Every page shows and steers the one view. Ctrl-C stops the server (`failure`).
+//! what a page sends (a camera, options: `Settings` fields as JSON) becomes the next view, and
+//! an option the scene was built with (what the colours show, classes, clips) builds it anew
+//! from the parts kept for that. Every page shows and steers the one view. Ctrl-C stops the
+//! server (`failure`).
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, PoisonError};
+use std::sync::{Arc, Mutex, PoisonError, RwLock};
 use std::time::Duration;
 
 use anyhow::Context;
@@ -13,9 +15,9 @@ use axum::extract::State;
 use axum::extract::ws::{Message, WebSocket, WebSocketUpgrade};
 use axum::response::{Html, Response};
 use axum::routing::get;
-use pointray::Scene;
-use pointray::progressive::{Progressive, ProgressiveOptions, Step, ViewControl};
+use pointray::progressive::{Progressive, ProgressiveFrame, ProgressiveOptions, Step, ViewControl};
 use pointray::settings::Settings;
+use pointray::{Scene, SceneParts};
 use tokio::sync::watch;
 
 use crate::args::ViewArgs;
@@ -26,7 +28,12 @@ const PAGE: &str = include_str!("view.html");
 
 /// What the server's tasks and the render thread share.
 struct Shared {
-    scene: Arc<Scene>,
+    /// The scene rendered, swapped when it is built anew.
+    scene: RwLock<Arc<Scene>>,
+    /// What it is built from, kept to build it again (the cloud's memory twice).
+    parts: SceneParts,
+    /// A page asked for a scene built otherwise: the render thread builds it.
+    rebuild: AtomicBool,
     /// The view last asked for: a page's change is merged into it.
     settings: Mutex<Settings>,
     control: Arc<ViewControl>,
@@ -46,8 +53,8 @@ struct Encoded {
 }
 
 pub fn run(a: &ViewArgs, quiet: bool) -> anyhow::Result<()> {
-    let (scene, settings, name) = load(a, quiet)?;
-    let scene = Arc::new(scene);
+    let (parts, settings, name) = load(a, quiet)?;
+    let scene = Arc::new(Scene::build(parts.clone(), &settings).with_context(|| name.clone())?);
     let listener = std::net::TcpListener::bind((a.bind.as_str(), a.port))
         .map_err(|e| failure::usage(anyhow::anyhow!("--bind {} --port {}: {e}", a.bind, a.port)))?;
     listener.set_nonblocking(true)?;
@@ -56,19 +63,20 @@ pub fn run(a: &ViewArgs, quiet: bool) -> anyhow::Result<()> {
     if !a.no_open {
         open_in_browser(&url);
     }
-    let options = ProgressiveOptions::default();
-    let mut view = Progressive::new(&scene, settings.clone(), options).map_err(|e| failure::usage(e.into()))?;
+    Progressive::new(&scene, settings.clone(), ProgressiveOptions::default()).map_err(|e| failure::usage(e.into()))?;
     let shared = Arc::new(Shared {
-        scene: scene.clone(),
         hello: hello(&scene, &settings, &name)?,
+        scene: RwLock::new(scene),
+        parts,
+        rebuild: AtomicBool::new(false),
         settings: Mutex::new(settings),
-        control: view.control(),
+        control: Arc::new(ViewControl::default()),
         frames: watch::channel(None).0,
         stop: AtomicBool::new(false),
         heat_map: AtomicBool::new(false),
     });
     std::thread::scope(|s| {
-        s.spawn(|| render_loop(&mut view, &shared));
+        s.spawn(|| render_loop(&shared));
         let runtime = tokio::runtime::Builder::new_multi_thread().worker_threads(1).enable_all().build()?;
         let served = runtime.block_on(serve(listener, shared.clone()));
         shared.stop.store(true, Ordering::SeqCst);
@@ -76,9 +84,9 @@ pub fn run(a: &ViewArgs, quiet: bool) -> anyhow::Result<()> {
     })
 }
 
-/// The scene to view and its first settings: a cloud or scene file as `render` reads it, or
-/// the demo.
-fn load(a: &ViewArgs, quiet: bool) -> anyhow::Result<(Scene, Settings, String)> {
+/// What the scene to view is built from and its first settings: a cloud or scene file as
+/// `render` reads it, or the demo.
+fn load(a: &ViewArgs, quiet: bool) -> anyhow::Result<(SceneParts, Settings, String)> {
     let config = a.preprocess.config();
     config.check().map_err(|e| failure::usage(super::render::flag_error(e)))?;
     let stage = |_: &str| {};
@@ -102,8 +110,7 @@ fn load(a: &ViewArgs, quiet: bool) -> anyhow::Result<(Scene, Settings, String)> 
     let whole = Settings { region: None, crop_to_model: false, count_work: true, ..base };
     let settings = Settings { width, height, spp, color_by, ..whole };
     settings.check().map_err(|e| failure::usage(super::render::flag_error(e)))?;
-    let scene = Scene::build(parts, &settings).with_context(|| name.clone())?;
-    Ok((scene, settings, name))
+    Ok((parts, settings, name))
 }
 
 /// The camera a page starts from, in the file's coordinates, with the frame's size.
@@ -127,45 +134,98 @@ fn hello(scene: &Scene, settings: &Settings, name: &str) -> anyhow::Result<Strin
     .to_string())
 }
 
-/// Renders the latest view, frame after frame, until the server stops; idle while a view has
-/// all its samples.
-fn render_loop(view: &mut Progressive, shared: &Shared) {
+/// Renders the latest view of the latest scene, frame after frame, until the server stops;
+/// builds the scene anew when a page asks.
+fn render_loop(shared: &Shared) {
     while !shared.stop.load(Ordering::SeqCst) {
-        let encoded = match view.step() {
-            Ok(Step::Frame(f)) => {
-                let frame = &f.frame;
-                let rgb8 = if shared.heat_map.load(Ordering::SeqCst) {
-                    frame.aov_rgb8(pointray::frame::Aov::Nodes)
-                } else {
-                    frame.srgb8(view.settings().tone_map())
-                };
-                let stats = &frame.stats;
-                let meta = serde_json::json!({
-                    "kind": "frame", "generation": f.generation, "samples": f.samples, "scale": f.scale,
-                    "width": frame.width, "height": frame.height, "seconds": f.seconds,
-                    "mrays_per_second": stats.rays as f64 / f.seconds.max(1e-9) / 1e6,
-                    "nodes_per_ray": stats.traversal.nodes_visited as f64 / stats.rays.max(1) as f64,
-                });
-                Encoded { meta: meta.to_string(), png: Some(pointray_io::encode_png(frame.width, frame.height, &rgb8)) }
+        let scene = shared.scene.read().unwrap_or_else(PoisonError::into_inner).clone();
+        let settings = shared.settings.lock().unwrap_or_else(PoisonError::into_inner).clone();
+        let shown = match Progressive::with_control(
+            &scene,
+            settings.clone(),
+            ProgressiveOptions::default(),
+            shared.control.clone(),
+        ) {
+            Ok(mut view) => render_scene(&mut view, shared),
+            Err(e) => {
+                // Unless a build the settings ask for is due: then it comes next.
+                if !shared.rebuild.load(Ordering::SeqCst) {
+                    shared.frames.send_replace(Some(Arc::new(message("error", &e.to_string()))));
+                    wait_for_change(shared);
+                }
+                settings
             }
+        };
+        if shared.rebuild.swap(false, Ordering::SeqCst) {
+            rebuild(shared, &shown);
+        }
+    }
+}
+
+/// Steps `view` until the server stops or a page asks for another build; the settings it
+/// rendered last.
+fn render_scene(view: &mut Progressive, shared: &Shared) -> Settings {
+    while !shared.stop.load(Ordering::SeqCst) && !shared.rebuild.load(Ordering::SeqCst) {
+        let encoded = match view.step() {
+            Ok(Step::Frame(f)) => encode(&f, view.settings(), shared),
             Ok(Step::Cancelled) => {
                 tracing::debug!("pass cancelled");
                 continue;
             }
             Ok(Step::Idle) => {
-                let generation = shared.control.generation();
-                while shared.control.generation() == generation && !shared.stop.load(Ordering::SeqCst) {
-                    std::thread::sleep(Duration::from_millis(10));
-                }
+                wait_for_change(shared);
                 continue;
             }
-            Err(e) => Encoded {
-                meta: serde_json::json!({ "kind": "error", "message": e.to_string() }).to_string(),
-                png: None,
-            },
+            Err(e) => message("error", &e.to_string()),
         };
         shared.frames.send_replace(Some(Arc::new(encoded)));
     }
+    view.settings().clone()
+}
+
+/// Builds the scene for the settings a page last asked for; if it cannot be, says why and
+/// goes back to `before`, the settings of the scene there is.
+fn rebuild(shared: &Shared, before: &Settings) {
+    let settings = shared.settings.lock().unwrap_or_else(PoisonError::into_inner).clone();
+    shared.frames.send_replace(Some(Arc::new(message("status", "building the scene"))));
+    match Scene::build(shared.parts.clone(), &settings) {
+        Ok(scene) => *shared.scene.write().unwrap_or_else(PoisonError::into_inner) = Arc::new(scene),
+        Err(e) => {
+            *shared.settings.lock().unwrap_or_else(PoisonError::into_inner) = before.clone();
+            shared.control.set_view(before.clone());
+            shared.frames.send_replace(Some(Arc::new(message("error", &e.to_string()))));
+        }
+    }
+}
+
+fn wait_for_change(shared: &Shared) {
+    let generation = shared.control.generation();
+    while shared.control.generation() == generation && !shared.stop.load(Ordering::SeqCst) {
+        std::thread::sleep(Duration::from_millis(10));
+    }
+}
+
+/// A frame for the pages: the image (or the heat map of the nodes visited) and its statistics.
+fn encode(f: &ProgressiveFrame, settings: &Settings, shared: &Shared) -> Encoded {
+    let frame = &f.frame;
+    let rgb8 = if shared.heat_map.load(Ordering::SeqCst) {
+        frame.aov_rgb8(pointray::frame::Aov::Nodes)
+    } else {
+        frame.srgb8(settings.tone_map())
+    };
+    let stats = &frame.stats;
+    let meta = serde_json::json!({
+        "kind": "frame", "generation": f.generation, "samples": f.samples, "scale": f.scale,
+        "width": frame.width, "height": frame.height, "seconds": f.seconds,
+        "mrays_per_second": stats.rays as f64 / f.seconds.max(1e-9) / 1e6,
+        "nodes_per_ray": stats.traversal.nodes_visited as f64 / stats.rays.max(1) as f64,
+    });
+    Encoded { meta: meta.to_string(), png: Some(pointray_io::encode_png(frame.width, frame.height, &rgb8)) }
+}
+
+/// A message without an image: `kind` "error" or "status".
+fn message(kind: &str, text: &str) -> Encoded {
+    Encoded { meta: serde_json::json!({ "kind": kind, "message": text }).to_string(), png: None }
 }
 
 async fn serve(listener: std::net::TcpListener, shared: Arc<Shared>) -> anyhow::Result<()> {
@@ -233,11 +293,12 @@ fn answer(shared: &Shared, text: &str) -> anyhow::Result<Option<serde_json::Valu
     };
     let [x, y]: [u32; 2] = serde_json::from_value(pixel).context("pick: expected [x, y] in pixels")?;
     let settings = shared.settings.lock().unwrap_or_else(PoisonError::into_inner).clone();
-    let job = shared.scene.job(&settings)?;
+    let scene = shared.scene.read().unwrap_or_else(PoisonError::into_inner).clone();
+    let job = scene.job(&settings)?;
     anyhow::ensure!(x < settings.width && y < settings.height, "pick: ({x}, {y}) lies outside the view");
     let (origin, direction) = job.camera_ray(x, y);
-    let Some(hit) = shared.scene.intersect(&[(origin, direction)], &settings)?[0] else { return Ok(None) };
-    let eye = shared.scene.origin() + job.camera.eye.as_dvec3();
+    let Some(hit) = scene.intersect(&[(origin, direction)], &settings)?[0] else { return Ok(None) };
+    let eye = scene.origin() + job.camera.eye.as_dvec3();
     let pivot = serde_json::json!({ "eye": eye.to_array(), "look_at": hit.position.to_array() });
     let serde_json::Value::Object(view) = pivot.clone() else { unreachable!("an object") };
     change_view(shared, view)?;
@@ -256,7 +317,13 @@ fn change_view(shared: &Shared, given: serde_json::Map<String, serde_json::Value
     settings.check()?;
     *current = settings.clone();
     tracing::debug!("view {} set", shared.control.generation() + 1);
-    shared.control.set_view(settings);
+    if shared.scene.read().unwrap_or_else(PoisonError::into_inner).built_for(&settings) {
+        shared.control.set_view(settings);
+    } else {
+        // Colours, classes or clips changed: the render thread builds the scene anew.
+        shared.rebuild.store(true, Ordering::SeqCst);
+        shared.control.restart();
+    }
     Ok(())
 }
 
