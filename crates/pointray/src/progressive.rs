@@ -69,6 +69,8 @@ pub struct ProgressiveFrame {
     pub scale: u32,
     /// The pass's own seconds.
     pub seconds: f64,
+    /// The level-of-detail threshold it took.
+    pub lod_threshold: f32,
 }
 
 /// What [`Progressive::step`] did.
@@ -151,17 +153,14 @@ impl<'s> Progressive<'s> {
     }
 
     /// A frame of one sample a pixel at the scale the last preview's time allows (the coarsest
-    /// at first), level of detail at least at a pixel.
+    /// at first), level of detail at least at a pixel, and at two where even the coarsest
+    /// scale is predicted to take longer than the frame time.
     fn preview(&mut self) -> Result<Step, SettingsError> {
-        let scale = self.preview_scale();
+        let (scale, too_slow) = self.preview_scale();
         let s = &self.settings;
-        let preview = Settings {
-            width: s.width.div_ceil(scale),
-            height: s.height.div_ceil(scale),
-            spp: 1,
-            lod_threshold: s.lod_threshold.max(1.0),
-            ..s.clone()
-        };
+        let lod_threshold = s.lod_threshold.max(1.0) * if too_slow { 2.0 } else { 1.0 };
+        let (width, height) = (s.width.div_ceil(scale), s.height.div_ceil(scale));
+        let preview = Settings { width, height, spp: 1, lod_threshold, ..s.clone() };
         let start = Instant::now();
         let Some(frame) = self.scene.job(&preview)?.render_until(&|_| {}, &self.control.cancel) else {
             self.state = State::Preview;
@@ -171,20 +170,22 @@ impl<'s> Progressive<'s> {
         self.seconds_per_pixel = Some(seconds / f64::from(preview.width * preview.height));
         let pixels = (self.settings.width * self.settings.height) as usize;
         self.state = State::Refining { done: 0, sum: vec![[0.0; 3]; pixels] };
-        Ok(Step::Frame(Box::new(ProgressiveFrame { frame, generation: self.generation, samples: 1, scale, seconds })))
+        let generation = self.generation;
+        Ok(Step::Frame(Box::new(ProgressiveFrame { frame, generation, samples: 1, scale, seconds, lod_threshold })))
     }
 
     /// The least scale (a power of two) whose preview the measured time a pixel says fits the
-    /// frame time.
-    fn preview_scale(&self) -> u32 {
+    /// frame time, and whether even the coarsest does not.
+    fn preview_scale(&self) -> (u32, bool) {
         let most = self.options.max_preview_scale.max(1);
-        let Some(per_pixel) = self.seconds_per_pixel else { return most };
+        let Some(per_pixel) = self.seconds_per_pixel else { return (most, false) };
         let pixels = f64::from(self.settings.width) * f64::from(self.settings.height);
+        let seconds = |scale: u32| per_pixel * pixels / f64::from(scale * scale);
         let mut scale = 1;
-        while scale < most && per_pixel * pixels / f64::from(scale * scale) > self.options.frame_seconds {
+        while scale < most && seconds(scale) > self.options.frame_seconds {
             scale *= 2;
         }
-        scale.min(most)
+        (scale.min(most), seconds(most) > self.options.frame_seconds)
     }
 
     /// The next pass at full resolution: as many samples as are done already (at least one), up
@@ -204,6 +205,7 @@ impl<'s> Progressive<'s> {
             return Ok(Step::Cancelled);
         };
         let seconds = start.elapsed().as_secs_f64();
+        let lod_threshold = job.config.lod_threshold;
         let weight = range.len() as f32;
         let done = range.end;
         for (s, p) in sum.iter_mut().zip(frame.film.rgb.iter_mut()) {
@@ -213,12 +215,14 @@ impl<'s> Progressive<'s> {
             }
         }
         self.state = if done >= budget { State::Converged } else { State::Refining { done, sum } };
+        let generation = self.generation;
         Ok(Step::Frame(Box::new(ProgressiveFrame {
             frame,
-            generation: self.generation,
+            generation,
             samples: done,
             scale: 1,
             seconds,
+            lod_threshold,
         })))
     }
 }
@@ -283,11 +287,17 @@ mod tests {
         control.set_view(Settings { fov: 40.0, ..settings.clone() });
         let preview = frame(view.step().unwrap());
         assert_eq!((preview.generation, preview.samples, view.settings().fov), (1, 1, 40.0));
-        // Timed: the first preview measured the time a pixel takes, and a slow frame time
-        // allows the full resolution.
+        // Timed: the first preview measured the time a pixel takes; a slow frame time allows
+        // the full resolution at a pixel's level of detail, one too short for any scale takes
+        // the coarsest and twice the level of detail.
+        view.options.frame_seconds = 1e-12;
+        control.set_view(Settings { fov: 45.0, ..settings.clone() });
+        let hurried = frame(view.step().unwrap());
+        assert_eq!((hurried.scale, hurried.lod_threshold), (8, 2.0));
         view.options.frame_seconds = 1e9;
         control.set_view(Settings { fov: 50.0, ..settings.clone() });
-        assert_eq!(frame(view.step().unwrap()).scale, 1);
+        let leisurely = frame(view.step().unwrap());
+        assert_eq!((leisurely.scale, leisurely.lod_threshold), (1, 1.0));
         control.set_view(Settings { spp: 0, ..settings });
         assert_eq!(view.step().err().map(|e| e.option), Some("spp"));
         assert_eq!(view.settings().fov, 50.0);
