@@ -6,7 +6,9 @@ $POINTRAY_VIEW_MODEL (`.ci/run` gives the Stanford bunny where ../shared/data is
     POINTRAY_BIN=target/release/pointray pytest crates/pointray-cli/tests/browser
 """
 
+import base64
 import os
+import shlex
 import subprocess
 import time
 
@@ -17,6 +19,28 @@ from selenium.webdriver.common.by import By
 
 BIN = os.environ.get("POINTRAY_BIN")
 MODEL = os.environ.get("POINTRAY_VIEW_MODEL")
+
+# How many channel values of the PNG `arguments[0]` (base64) differ from the canvas's by more
+# than one level, the most any does, and how many there are.
+COMPARE = """
+const [png, done] = arguments;
+const image = new Image();
+image.onload = () => {
+  const other = new OffscreenCanvas(image.width, image.height).getContext("2d");
+  other.drawImage(image, 0, 0);
+  const a = other.getImageData(0, 0, image.width, image.height).data;
+  const c = document.getElementById("view");
+  const b = c.getContext("2d").getImageData(0, 0, c.width, c.height).data;
+  let differ = 0, most = 0;
+  for (let i = 0; i < a.length; i++) {
+    const d = Math.abs(a[i] - b[i]);
+    most = Math.max(most, d);
+    if (d > 1) differ++;
+  }
+  done([differ, most, a.length, b.length]);
+};
+image.src = "data:image/png;base64," + png;
+"""
 
 # A digest of the canvas and how many of its pixels are brighter than the dark background.
 SNAPSHOT = """
@@ -69,7 +93,7 @@ def wait_for(condition, seconds=30):
 
 
 @pytest.mark.skipif(not BIN, reason="POINTRAY_BIN not set")
-def test_the_model_appears_and_a_drag_turns_it(viewer, browser):
+def test_the_model_appears_and_a_drag_turns_it(viewer, browser, tmp_path):
     start = time.monotonic()
     browser.get(viewer)
     # The model appears: frames drawn, and pixels brighter than the background.
@@ -83,3 +107,14 @@ def test_the_model_appears_and_a_drag_turns_it(viewer, browser):
     turned = wait_for(lambda: (s := browser.execute_script(SNAPSHOT))[2] > rested[2] and s[0] != rested[0] and s)
     assert turned[1] > 500, "the model is still in view"
     assert "error" not in browser.find_element(By.ID, "error").text
+    # "Copy CLI command": the command line draws the view the page converged to.
+    converged = lambda: (m := browser.execute_script("return window.pointrayMeta()")) and m["samples"] == 4
+    wait_for(converged)
+    time.sleep(0.5)  # the frame's PNG follows its line
+    command = browser.execute_script("return window.pointrayCommand()")
+    out = tmp_path / "view.png"
+    args = [BIN, "-q", *[str(out) if a == "view.png" else a for a in shlex.split(command)[1:]]]
+    subprocess.run(args, check=True)
+    differ, most, values, canvas_values = browser.execute_async_script(COMPARE, base64.b64encode(out.read_bytes()).decode())
+    print(f"the command line's image against the page's: {differ} of {values} values differ by more than 1 (most {most})")
+    assert values == canvas_values and differ <= values // 200, command
