@@ -309,6 +309,10 @@ struct PrimaryRays {
     /// Many samples a pixel through a pinhole, at R2 points (which draw no numbers): a
     /// pixel's rays are made RAY_BATCH at a time.
     sample_batches: bool,
+    /// The samples of each pixel traced (`RenderConfig::sample_range` within `0..samples`),
+    /// found once a frame: per pixel, with the mean's divisor, it cost the dragon's first hits
+    /// 702 → 699 instructions a pixel (callgrind).
+    samples: std::ops::Range<u32>,
 }
 
 impl PrimaryRays {
@@ -330,7 +334,9 @@ impl PrimaryRays {
         let pinhole = camera.lens_radius <= 0.0 && camera.orthographic.is_none();
         let centre_rays = pinhole && config.samples <= 1;
         let sample_batches = pinhole && config.samples > 1 && config.sampler == Sampler::R2;
-        Self { tau, footprint_scale, cull_backfaces, centre_rays, sample_batches }
+        let n = config.samples.max(1);
+        let samples = config.sample_range.as_ref().map_or(0..n, |r| r.start.min(n)..r.end.clamp(r.start.min(n), n));
+        Self { tau, footprint_scale, cull_backfaces, centre_rays, sample_batches, samples }
     }
 
     /// A camera's `ray` with the frame's threshold, culling and footprint, counted.
@@ -360,8 +366,9 @@ fn render_pixel<A: Accel>(
     let nodes_before = stats.traversal.nodes_visited;
     let mut sum = Vec3::ZERO;
     let samples = config.samples.max(1);
-    let range = config.sample_range.clone().map_or(0..samples, |r| r.start.min(samples)..r.end.min(samples));
-    let mut first = FirstHits { samples: range.len() as u32, ..FirstHits::default() };
+    let range = primary.samples.clone();
+    let traced = range.end - range.start;
+    let mut first = FirstHits { samples: traced, ..FirstHits::default() };
     // The pixel's own shift of the R2 sequence (Cranley–Patterson rotation), drawn only
     // where it is used: seeding a generator costs ~60 instructions.
     let r2_samples = samples > 1 && config.sampler == Sampler::R2;
@@ -388,8 +395,7 @@ fn render_pixel<A: Accel>(
         // pixel (callgrind).
         let rng = SampleRng::new(config.seed, x, y, 0, None);
         let ray = primary.finish(centre, stats);
-        sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats, bounce_pdf: 0.0 }
-            .radiance(&ray, 0, false);
+        sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.radiance(&ray, 0, false);
     } else if primary.sample_batches {
         // Pinhole rays through the R2 points, which draw no numbers, made a batch at a time
         // and traced in order (`Camera::rays`: the dragon's distant samples, 64 a pixel, 1,233
@@ -405,8 +411,7 @@ fn render_pixel<A: Accel>(
             for i in 0..(range.end - start).min(RAY_BATCH as u32) {
                 let rng = SampleRng::new(config.seed, x, y, start + i, low_discrepancy);
                 let ray = primary.finish(rays.ray(i as usize), stats);
-                sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats, bounce_pdf: 0.0 }
-                    .radiance(&ray, 0, false);
+                sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.radiance(&ray, 0, false);
             }
         }
     } else {
@@ -419,12 +424,11 @@ fn render_pixel<A: Accel>(
             };
             let lens = if camera.lens_radius > 0.0 { [rng.next(), rng.next()] } else { [0.5; 2] };
             let ray = primary.finish(camera.lens_ray(x as f32 + dx, y as f32 + dy, lens), stats);
-            sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats, bounce_pdf: 0.0 }
-                .radiance(&ray, 0, false);
+            sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.radiance(&ray, 0, false);
         }
     }
     let nodes = (stats.traversal.nodes_visited - nodes_before).min(u32::MAX as u64) as u32;
-    Pixel { rgb: (sum / range.len().max(1) as f32).to_array(), nodes, first }
+    Pixel { rgb: (sum / traced.max(1) as f32).to_array(), nodes, first }
 }
 
 /// Point `i` of the R2 sequence, shifted by `shift` (modulo 1): α = (1/g, 1/g²), g the
@@ -555,18 +559,21 @@ struct Tracer<'a, A> {
     /// The camera ray's hit, for the film's AOVs.
     first: &'a mut FirstHits,
     stats: &'a mut RenderStats,
-    /// The density (per steradian) with which the path tracer drew the ray `radiance` is about
-    /// to follow, a diffuse bounce's; 0 for any other ray. Taken by `radiance`, which weighs
-    /// an environment map it then sees against the map's own samples.
-    bounce_pdf: f32,
 }
 
 impl<A: Accel> Tracer<'_, A> {
     /// Radiance arriving along `ray`, which has bounced `depth` times and travels inside a
     /// glass object when `inside`.
+    #[inline(always)]
     fn radiance(&mut self, ray: &Ray, depth: u32, inside: bool) -> Vec3 {
+        self.radiance_drawn(ray, depth, inside, 0.0)
+    }
+
+    /// [`Self::radiance`] along a ray the path tracer's diffuse bounce drew with density
+    /// `bounce_pdf` (per steradian; 0 for any other ray): an environment map it then sees is
+    /// weighed against the map's own samples.
+    fn radiance_drawn(&mut self, ray: &Ray, depth: u32, inside: bool, bounce_pdf: f32) -> Vec3 {
         let config = self.config;
-        let bounce_pdf = std::mem::take(&mut self.bounce_pdf);
         self.stats.rays += 1;
         if depth > 0 {
             self.stats.secondary_rays += 1;
@@ -644,13 +651,16 @@ impl<A: Accel> Tracer<'_, A> {
     /// What `ray`, which left the scene after `depth` bounces (drawn with `bounce_pdf` by a
     /// diffuse bounce, else 0), sees: the environment, or the background for a camera ray.
     fn missed(&self, ray: &Ray, depth: u32, bounce_pdf: f32) -> Vec3 {
-        match (&self.config.environment, self.config.background) {
-            (_, Some(background)) if depth == 0 => Vec3::from(background),
+        let config = self.config;
+        if let (0, Some(background)) = (depth, &config.background) {
+            return Vec3::from(*background);
+        }
+        match &config.environment {
             // Met by a diffuse bounce, which the map's own samples could have drawn too.
-            (Environment::Map { map, frame }, _) if bounce_pdf > 0.0 => {
+            Environment::Map { map, frame } if bounce_pdf > 0.0 => {
                 map.radiance(frame, ray.dir) * power_heuristic(bounce_pdf, map.pdf(frame, ray.dir))
             }
-            (environment, _) => environment.radiance(ray.dir),
+            environment => environment.radiance(ray.dir),
         }
     }
 
@@ -725,8 +735,8 @@ impl<A: Accel> Tracer<'_, A> {
         let direction = cosine_direction(hit.normal, [self.rng.next(), self.rng.next()]);
         let mut next = secondary(ray, hit, direction, self.config);
         next.cone.spread = next.cone.spread.max(self.config.diffuse_spread);
-        self.bounce_pdf = direction.dot(hit.normal).max(0.0) / std::f32::consts::PI;
-        color + albedo * self.radiance(&next, depth + 1, inside) / survive
+        let pdf = direction.dot(hit.normal).max(0.0) / std::f32::consts::PI;
+        color + albedo * self.radiance_drawn(&next, depth + 1, inside, pdf) / survive
     }
 
     /// The path tracer's sample of an environment map at a diffuse hit: the light of one

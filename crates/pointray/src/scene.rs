@@ -394,14 +394,14 @@ impl Scene {
         Ok(RenderJob { scene: self, settings: settings.clone(), camera, config, backfacing })
     }
 
-    /// Refuses settings that need another build: another accelerator, other bounding volumes,
-    /// or disks of another shape in the bounds.
     /// Whether the scene was built as `settings` ask (accelerator, disks, colours, classes,
     /// clips): else it must be built again for them (`job` refuses them, naming the option).
     pub fn built_for(&self, settings: &Settings) -> bool {
         self.check_build(settings).is_ok()
     }
 
+    /// Refuses settings that need another build: another accelerator, other bounding volumes,
+    /// or disks of another shape in the bounds.
     fn check_build(&self, settings: &Settings) -> Result<(), SettingsError> {
         let (built, asked) = (&self.build, Build::of(settings));
         let problem =
