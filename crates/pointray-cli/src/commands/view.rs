@@ -135,27 +135,26 @@ fn hello(scene: &Scene, settings: &Settings, name: &str) -> anyhow::Result<Strin
 }
 
 /// Renders the latest view of the latest scene, frame after frame, until the server stops;
-/// builds the scene anew when a page asks.
+/// builds the scene anew when the settings ask for another build.
 fn render_loop(shared: &Shared) {
+    // The settings last rendered on the scene there is: where a failed build goes back to.
+    let mut shown = shared.settings.lock().unwrap_or_else(PoisonError::into_inner).clone();
     while !shared.stop.load(Ordering::SeqCst) {
         let scene = shared.scene.read().unwrap_or_else(PoisonError::into_inner).clone();
         let settings = shared.settings.lock().unwrap_or_else(PoisonError::into_inner).clone();
-        let shown = match Progressive::with_control(
-            &scene,
-            settings.clone(),
-            ProgressiveOptions::default(),
-            shared.control.clone(),
-        ) {
-            Ok(mut view) => render_scene(&mut view, shared),
-            Err(e) => {
-                // Unless a build the settings ask for is due: then it comes next.
-                if !shared.rebuild.load(Ordering::SeqCst) {
+        // Settings of another build are a rebuild, whether or not the page's task has said so yet.
+        if !scene.built_for(&settings) {
+            shared.rebuild.store(true, Ordering::SeqCst);
+        } else {
+            let options = ProgressiveOptions::default();
+            match Progressive::with_control(&scene, settings, options, shared.control.clone()) {
+                Ok(mut view) => shown = render_scene(&mut view, shared),
+                Err(e) => {
                     shared.frames.send_replace(Some(Arc::new(message("error", &e.to_string()))));
                     wait_for_change(shared);
                 }
-                settings
             }
-        };
+        }
         if shared.rebuild.swap(false, Ordering::SeqCst) {
             rebuild(shared, &shown);
         }
