@@ -36,7 +36,7 @@ pub(crate) struct Window<D> {
     /// The least `collect_to` so far: every crossing up to it has been collected.
     collected_to: f32,
     /// Nearest crossing so far (the window's start).
-    first_t: f32,
+    pub(crate) first_t: f32,
     /// The end is final (the completing walk, see [`Self::start_completion`]).
     fixed: bool,
     /// The end moved past `collect_to` during the walk (a nearer first crossing with a disk
