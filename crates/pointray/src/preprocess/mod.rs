@@ -542,7 +542,8 @@ fn fill_normals(
 }
 
 /// Orients computed normals from views round the model ([`visibility`]): the points the views
-/// agree on are turned to face them and seed the spanning trees, which orient the rest. A
+/// agree on are turned to face them and seed the spanning trees, which orient the rest, and
+/// neighbours outvote the tree's thin-fold mistakes ([`orient::turn_against_neighbours`]). A
 /// cloud the views do not see as closed keeps the trees' orientation alone
 /// ([`visibility::looks_closed`]).
 fn orient_by_views(positions: &[Vec3], normals: &mut [Vec3], nbrs: &Neighbourhoods) -> orient::OrientStats {
@@ -560,6 +561,7 @@ fn orient_by_views(positions: &[Vec3], normals: &mut [Vec3], nbrs: &Neighbourhoo
         }
     }
     let mut orientation = orient::orient_normals_from(positions, normals, nbrs, Some(&settled));
+    orient::turn_against_neighbours(positions, normals, nbrs, Some(&settled));
     orientation.flipped = normals.iter().zip(&pca).filter(|(n, p)| n.dot(**p) < 0.0).count();
     orientation.settled_by_views = settled.iter().filter(|&&s| s).count();
     orientation.against_views = (0..normals.len())
