@@ -504,15 +504,18 @@ fn fill_normals(
     let start = Instant::now();
     let positions = &cloud.positions;
     let normals = cloud.normals.get_or_insert_with(|| vec![Vec3::Z; positions.len()]);
+    // Surface variation, for the orientation of computed normals (0 for given ones).
+    let mut variation = vec![0f32; positions.len()];
     let degenerate = normals
         .par_iter_mut()
+        .zip(&mut variation)
         .zip(missing)
         .enumerate()
         .filter(|(_, (_, missing))| **missing)
-        .map(|(i, (n, _))| {
-            let (normal, determined) = normals::pca_normal(positions, i, nbrs, k);
-            *n = normal;
-            usize::from(!determined)
+        .map(|(i, ((n, v), _))| {
+            let pca = normals::pca(positions, i, nbrs, k);
+            (*n, *v) = (pca.normal, pca.variation);
+            usize::from(!pca.determined)
         })
         .sum();
     stats.degenerate_normals = degenerate;
@@ -531,7 +534,7 @@ fn fill_normals(
         stats.flipped_normals = orientation.flipped;
         stats.orientation_components = orientation.components;
     } else {
-        let orientation = orient_by_views(positions, normals, nbrs);
+        let orientation = orient_by_views(positions, normals, nbrs, &variation);
         stats.flipped_normals = orientation.flipped;
         stats.orientation_components = orientation.components;
         stats.orientation_settled_by_views = orientation.settled_by_views;
@@ -543,10 +546,15 @@ fn fill_normals(
 
 /// Orients computed normals from views round the model ([`visibility`]): the points the views
 /// agree on are turned to face them and seed the spanning trees, which orient the rest, and
-/// neighbours outvote the tree's thin-fold mistakes ([`orient::turn_against_neighbours`]). A
-/// cloud the views do not see as closed keeps the trees' orientation alone
-/// ([`visibility::looks_closed`]).
-fn orient_by_views(positions: &[Vec3], normals: &mut [Vec3], nbrs: &Neighbourhoods) -> orient::OrientStats {
+/// the points of folds (by their surface `variation`) are turned where their neighbours outvote
+/// the tree ([`orient::turn_against_neighbours`]). A cloud the views do not see as closed keeps
+/// the trees' orientation alone ([`visibility::looks_closed`]).
+fn orient_by_views(
+    positions: &[Vec3],
+    normals: &mut [Vec3],
+    nbrs: &Neighbourhoods,
+    variation: &[f32],
+) -> orient::OrientStats {
     let radii = radii::splat_radii(positions, nbrs, visibility::FOOTPRINT_K, 1.0);
     // The views' sums do not depend on the normals' signs, only their verdicts do.
     let votes = visibility::outward_votes(positions, normals, &radii);
@@ -561,7 +569,9 @@ fn orient_by_views(positions: &[Vec3], normals: &mut [Vec3], nbrs: &Neighbourhoo
         }
     }
     let mut orientation = orient::orient_normals_from(positions, normals, nbrs, Some(&settled));
-    orient::turn_against_neighbours(positions, normals, nbrs, Some(&settled));
+    let fold = orient::fold_variation(variation);
+    let kept: Vec<bool> = settled.iter().zip(variation).map(|(&s, &v)| s || v <= fold).collect();
+    orient::turn_against_neighbours(positions, normals, nbrs, Some(&kept));
     orientation.flipped = normals.iter().zip(&pca).filter(|(n, p)| n.dot(**p) < 0.0).count();
     orientation.settled_by_views = settled.iter().filter(|&&s| s).count();
     orientation.against_views = (0..normals.len())
