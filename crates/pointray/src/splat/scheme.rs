@@ -239,8 +239,9 @@ fn windowed<A: Accel + ?Sized, D: DiskTest>(
             let from = if accel.may_stop_at_representatives(&ray) { ray.t_min } else { collected.max(ray.t_min) };
             accel.traverse(&ray.with_t_min(from), &mut v, stats);
         }
-        // Nothing behind a weak window: it was the surface after all (a thinly covered spot),
-        // not a disk sticking out in front of one.
+        // Nothing behind a covered window facing away: it was the surface. Nothing behind a weak
+        // window: it was the surface after all (a thinly covered spot), not a disk sticking out
+        // in front of one.
         let Some(Blend { hit, coverage, facing_away }) = v.blend(&ray, accel, tangent_planes) else {
             // Spelled out: `return weak` copied all of an absent hit, field by field, for every
             // ray that missed (22 instructions).
@@ -256,17 +257,17 @@ fn windowed<A: Accel + ?Sized, D: DiskTest>(
             let covered_near_side = !facing_away && v.first_t <= overhang && coverage >= scheme.min_coverage;
             return Some(if covered_near_side { hit } else { away_hit });
         }
-        if coverage >= if facing_away { scheme.min_coverage_facing_away } else { scheme.min_coverage } {
-            match weak {
-                // Past a thin spot facing the viewer, the inside of the shape: the ray went
-                // between the near side's disks, and the thin spot was the surface.
-                Some((thin, true)) if facing_away => return Some(thin),
-                _ if facing_away => {
-                    let r0 = (v.end - v.first_t) / scheme.window.max(f32::MIN_POSITIVE);
-                    away = Some((hit, v.first_t + OVERHANG * r0));
-                }
-                _ => return Some(hit),
+        if !facing_away && coverage >= scheme.min_coverage {
+            return Some(hit);
+        }
+        if facing_away && coverage >= scheme.min_coverage_facing_away {
+            // Past a thin spot facing the viewer, the inside of the shape: the ray went between
+            // the near side's disks, and the thin spot was the surface.
+            if let Some((thin, true)) = weak {
+                return Some(thin);
             }
+            let r0 = (v.end - v.first_t) / scheme.window.max(f32::MIN_POSITIVE);
+            away = Some((hit, v.first_t + OVERHANG * r0));
         } else {
             weak.get_or_insert((hit, !facing_away));
         }
