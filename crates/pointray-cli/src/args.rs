@@ -160,7 +160,8 @@ pub struct RenderArgs {
     #[arg(long, default_value_t = D.sj_min_coverage)]
     pub sj_min_coverage: f32,
     /// SJ and RFD: the same for a window whose disks face away from the viewer (seen past a
-    /// silhouette or through a gap; a thin part seen from behind is covered and still shows).
+    /// silhouette or through a gap; a thin part seen from behind is covered and still shows,
+    /// unless the near side lies just behind it: a crest's far side sticking out over it).
     #[arg(long, default_value_t = D.sj_min_coverage_facing_away)]
     pub sj_min_coverage_facing_away: f32,
     /// Samples per pixel (jittered, anti-aliasing).

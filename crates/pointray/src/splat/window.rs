@@ -75,6 +75,12 @@ impl<D: DiskTest> Window<D> {
         }
     }
 
+    /// Collects no crossing past `t` (before any has come): only a window that starts by then is
+    /// wanted (it is still collected whole, past `t`, as a window that grew is).
+    pub(crate) fn limit(&mut self, t: f32) {
+        (self.collect_to, self.collected_to) = (t, t);
+    }
+
     /// After a walk in which the window grew: fixes the window's end and returns the distance
     /// up to which every crossing is collected already. A second walk from there (the rest of
     /// the window, usually a short stretch) completes it; a crossing the first walk collected

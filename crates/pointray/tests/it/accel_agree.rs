@@ -238,3 +238,20 @@ fn radius_queries_match_brute_force() {
     }
     assert!(total > 1_000, "the queries must find neighbours: {total}");
 }
+
+/// Sheets of disks facing away from the rays from above with the near side 2 radii behind them
+/// and another 10 radii behind: SJ's walk behind a window facing away collects only what begins
+/// within reach (`scheme::windowed`), and must find what brute force finds from every side.
+#[test]
+fn accelerators_match_brute_force_behind_sheets_facing_away() {
+    let sheet = |z: f32, normal: Vec3| -> Vec<Splat> {
+        let at = |i: i32, j: i32| Vec3::new(i as f32 * 0.05, j as f32 * 0.05, z);
+        (-20..=20)
+            .flat_map(|i| (-20..=20).map(move |j| Splat { center: at(i, j), radius: 0.1, normal, color: 0 }))
+            .collect()
+    };
+    let splats = [sheet(0.5, -Vec3::Z), sheet(0.3, Vec3::Z), sheet(-0.5, Vec3::Z)].concat();
+    let bvh_hits = check_agreement(&splats, &bvh(&splats, &BvhParams::standard()), 1_500, 31);
+    let kd_hits = check_agreement(&splats, &kdtree(&splats, &KdTreeParams::standard()), 1_500, 32);
+    assert!(bvh_hits > 1_000 && kd_hits > 1_000, "{bvh_hits} and {kd_hits} hits");
+}
