@@ -18,7 +18,7 @@ use axum::routing::get;
 use pointray::progressive::{Progressive, ProgressiveFrame, ProgressiveOptions, Step, ViewControl};
 use pointray::settings::Settings;
 use pointray::{Scene, SceneParts};
-use tokio::sync::watch;
+use tokio::sync::{broadcast, watch};
 
 use crate::args::ViewArgs;
 use crate::failure;
@@ -37,8 +37,13 @@ struct Shared {
     /// The view last asked for: a page's change is merged into it.
     settings: Mutex<Settings>,
     control: Arc<ViewControl>,
-    /// The latest frame (or error), for every page.
+    /// The latest frame, for every page: one that comes before a page sent the last may
+    /// replace it unsent.
     frames: watch::Sender<Option<Arc<Encoded>>>,
+    /// What the render thread says (building, errors), every word to every page, each before
+    /// the frames that follow it: on the frames' channel, a frame could replace an error unread
+    /// (the viewer's test waited 60 s for a refused build's error in one full test run).
+    notices: broadcast::Sender<Arc<Encoded>>,
     /// Show the nodes each pixel visited (a heat map) rather than the image.
     heat_map: AtomicBool,
     /// The first message to a page: the view's camera and size, the input's name.
@@ -72,6 +77,7 @@ pub fn run(a: &ViewArgs, quiet: bool) -> anyhow::Result<()> {
         settings: Mutex::new(settings),
         control: Arc::new(ViewControl::default()),
         frames: watch::channel(None).0,
+        notices: broadcast::channel(NOTICES).0,
         stop: AtomicBool::new(false),
         heat_map: AtomicBool::new(false),
     });
@@ -150,7 +156,7 @@ fn render_loop(shared: &Shared) {
             match Progressive::with_control(&scene, settings, options, shared.control.clone()) {
                 Ok(mut view) => shown = render_scene(&mut view, shared),
                 Err(e) => {
-                    shared.frames.send_replace(Some(Arc::new(message("error", &e.to_string()))));
+                    notify(shared, message("error", &e.to_string()));
                     wait_for_change(shared);
                 }
             }
@@ -175,7 +181,10 @@ fn render_scene(view: &mut Progressive, shared: &Shared) -> Settings {
                 wait_for_change(shared);
                 continue;
             }
-            Err(e) => message("error", &e.to_string()),
+            Err(e) => {
+                notify(shared, message("error", &e.to_string()));
+                continue;
+            }
         };
         shared.frames.send_replace(Some(Arc::new(encoded)));
     }
@@ -186,16 +195,25 @@ fn render_scene(view: &mut Progressive, shared: &Shared) -> Settings {
 /// goes back to `before`, the settings of the scene there is.
 fn rebuild(shared: &Shared, before: &Settings) {
     let settings = shared.settings.lock().unwrap_or_else(PoisonError::into_inner).clone();
-    shared.frames.send_replace(Some(Arc::new(message("status", "building the scene"))));
+    notify(shared, message("status", "building the scene"));
     match Scene::build(shared.parts.clone(), &settings) {
         Ok(scene) => *shared.scene.write().unwrap_or_else(PoisonError::into_inner) = Arc::new(scene),
         Err(e) => {
             *shared.settings.lock().unwrap_or_else(PoisonError::into_inner) = before.clone();
             shared.control.set_view(before.clone());
-            shared.frames.send_replace(Some(Arc::new(message("error", &e.to_string()))));
+            notify(shared, message("error", &e.to_string()));
         }
     }
 }
+
+/// Tells every page (none listening is no error).
+fn notify(shared: &Shared, notice: Encoded) {
+    let _ = shared.notices.send(Arc::new(notice));
+}
+
+/// Notices a page may fall behind by before it misses some (it then goes on from the oldest
+/// kept).
+const NOTICES: usize = 64;
 
 fn wait_for_change(shared: &Shared) {
     let generation = shared.control.generation();
@@ -246,8 +264,20 @@ async fn page(mut socket: WebSocket, shared: Arc<Shared>) {
     }
     let mut frames = shared.frames.subscribe();
     frames.mark_changed();
+    let mut notices = shared.notices.subscribe();
     loop {
         tokio::select! {
+            // Notices first: a frame sent after a notice never reaches the page before it.
+            biased;
+            notice = notices.recv() => match notice {
+                Ok(notice) => {
+                    if socket.send(Message::Text(notice.meta.clone().into())).await.is_err() {
+                        return;
+                    }
+                }
+                Err(broadcast::error::RecvError::Lagged(_)) => {}
+                Err(broadcast::error::RecvError::Closed) => return,
+            },
             changed = frames.changed() => {
                 if changed.is_err() {
                     return;
