@@ -156,13 +156,13 @@ pub fn orient_normals_from(
     stats
 }
 
-/// After the tree, turns each normal whose 10 nearest neighbours' normals, each reflected towards it
-/// ([`reflected`]), mostly point the other way: Σ n·rⱼ below `−OUTVOTED` × Σ |n·rⱼ|; returns
-/// how many. The tree carries each sign along one edge, and a point of a thin fold may hang from
-/// a neighbour across it; its other neighbours then outvote that edge. Decided from the tree's
-/// normals for all points at once (the same whatever the order); fixed normals stay, and the
-/// caller fixes all but the folds' ([`fold_threshold`]): where noise alone makes a normal
-/// doubtful, its neighbours' votes are no better.
+/// After the tree, turns each normal whose 10 nearest neighbours' normals, each reflected
+/// towards it ([`reflected`]), mostly point the other way: Σ n·rⱼ below `−OUTVOTED` × Σ |n·rⱼ|;
+/// returns how many. The tree carries each sign along one edge, and a point of a thin fold may
+/// hang from a neighbour across it; its other neighbours then outvote that edge. Decided from
+/// the tree's normals for all points at once (the same whatever the order); fixed normals stay,
+/// and the caller fixes all but the folds' ([`fold_threshold`]): where noise alone makes a
+/// normal doubtful, its neighbours' votes are no better.
 pub fn turn_against_neighbours(
     points: &[Vec3],
     normals: &mut [Vec3],

@@ -308,11 +308,13 @@ fn walk_window<A: Accel + ?Sized, D: DiskTest>(accel: &A, ray: &Ray, v: &mut Win
 /// Dark speckles that 16 rays a pixel lack (`scripts/speckle_check.py`, 1024²), swept with a
 /// walk behind of one window: the Armadillo 34 without this, 33 at 2 radii, 21 at 4, 19 at 6,
 /// 22 at 8 and 12; the Happy Buddha 14, 14, 15, 13, 11, 11; the dragon 13 and the bunny 6
-/// throughout. Walking on past further windows facing away within reach, the Armadillo 18. The walk behind collects nothing
-/// that begins past this reach, out of line: SJ on the prepared dragon 1,007 instructions a
-/// pixel without the rule, 1,005 with it (callgrind, `scripts/instructions_per_ray.py`). The
-/// Armadillo close up (distance 1, 512²) pays: 11 % of its camera rays meet a covered window
-/// facing away and take the walk behind, 18.1 → 20.8 disk tests a ray (`render --stats`).
+/// throughout. Walking on past further windows facing away within reach, the Armadillo 18.
+///
+/// The walk behind collects nothing that begins past this reach, out of line: SJ on the
+/// prepared dragon 1,007 instructions a pixel without the rule, 1,005 with it (callgrind,
+/// `scripts/instructions_per_ray.py`). The Armadillo close up (distance 1, 512²) pays: 11 % of
+/// its camera rays meet a covered window facing away and take the walk behind, 18.1 → 20.8
+/// disk tests a ray (`render --stats`).
 const OVERHANG: f32 = 6.0;
 
 /// Most windows a ray skips as too weakly covered before it settles for one.
