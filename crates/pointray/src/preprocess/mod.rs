@@ -591,7 +591,7 @@ fn orient_by_views(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::preprocess::normals::tests::{sphere, torus};
+    use crate::preprocess::normals::tests::{THIN, ellipsoid, sphere, torus};
     use rand::{RngExt, SeedableRng};
     use rand_pcg::Pcg64Mcg;
 
@@ -648,10 +648,7 @@ mod tests {
     /// threshold (every variation 0), none.
     #[test]
     fn the_folds_votes_mend_a_thin_ellipsoids_rim() {
-        let (sphere_points, _) = sphere(20_000, 8);
-        let axes = Vec3::new(1.0, 1.0, 0.05);
-        let points: Vec<Vec3> = sphere_points.iter().map(|&p| p * axes).collect();
-        let outward: Vec<Vec3> = points.iter().map(|&p| (p / (axes * axes)).normalize()).collect();
+        let (points, outward) = ellipsoid(20_000, THIN, 8);
         let nbrs = k_nearest(&points, 16);
         let pca: Vec<normals::Pca> = (0..points.len()).map(|i| normals::pca(&points, i, &nbrs, 16)).collect();
         let orient = |variation: &[f32]| {

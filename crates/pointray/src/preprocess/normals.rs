@@ -103,6 +103,18 @@ pub(crate) mod tests {
         (points.clone(), points)
     }
 
+    /// [`sphere`]'s points scaled by `axes` (an ellipsoid; not area-uniform), with their
+    /// outward normals.
+    pub(crate) fn ellipsoid(n: usize, axes: Vec3, seed: u64) -> (Vec<Vec3>, Vec<Vec3>) {
+        let points: Vec<Vec3> = sphere(n, seed).0.iter().map(|&p| p * axes).collect();
+        let outward = points.iter().map(|&p| (p / (axes * axes)).normalize()).collect();
+        (points, outward)
+    }
+
+    /// The thin flat ellipsoid of the orientation tests: semi-axes 1, 1 and 0.05, two sheets
+    /// about two point spacings apart at 20,000 points.
+    pub(crate) const THIN: Vec3 = Vec3::new(1.0, 1.0, 0.05);
+
     /// Area-uniform points on a torus around Z (major radius `big`, minor `small`), with their
     /// outward normals; rejection sampling on the tube angle makes the density uniform.
     pub(crate) fn torus(n: usize, big: f32, small: f32, seed: u64) -> (Vec<Vec3>, Vec<Vec3>) {

@@ -412,7 +412,7 @@ mod tests {
     use super::*;
     use crate::knn::k_nearest;
     use crate::preprocess::normals::pca_normals;
-    use crate::preprocess::normals::tests::{sphere, torus};
+    use crate::preprocess::normals::tests::{THIN, ellipsoid, sphere, torus};
     use rand::{RngExt, SeedableRng};
     use rand_pcg::Pcg64Mcg;
 
@@ -477,10 +477,7 @@ mod tests {
     /// all but three there.
     #[test]
     fn a_thin_sheet_is_not_turned_inside_out() {
-        let (sphere_points, _) = sphere(20_000, 8);
-        let axes = Vec3::new(1.0, 1.0, 0.05);
-        let points: Vec<Vec3> = sphere_points.iter().map(|&p| p * axes).collect();
-        let outward: Vec<Vec3> = points.iter().map(|&p| (p / (axes * axes)).normalize()).collect();
+        let (points, outward) = ellipsoid(20_000, THIN, 8);
         let nbrs = k_nearest(&points, 16);
         let (mut normals, _) = pca_normals(&points, &nbrs, 16);
         orient_normals(&points, &mut normals, &nbrs);
@@ -496,10 +493,8 @@ mod tests {
     /// neighbours, and no right one is turned; a fixed normal stays, even when outvoted.
     #[test]
     fn neighbours_outvote_single_wrong_signs() {
-        let (sphere_points, _) = sphere(20_000, 9);
-        for axes in [Vec3::ONE, Vec3::new(1.0, 1.0, 0.05)] {
-            let points: Vec<Vec3> = sphere_points.iter().map(|&p| p * axes).collect();
-            let outward: Vec<Vec3> = points.iter().map(|&p| (p / (axes * axes)).normalize()).collect();
+        for axes in [Vec3::ONE, THIN] {
+            let (points, outward) = ellipsoid(20_000, axes, 9);
             let nbrs = k_nearest(&points, 16);
             let wrong: Vec<bool> = (0..points.len()).map(|i| i % 97 == 0).collect();
             let signed: Vec<Vec3> = outward.iter().zip(&wrong).map(|(&n, &w)| if w { -n } else { n }).collect();
