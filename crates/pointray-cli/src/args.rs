@@ -505,9 +505,10 @@ pub struct ViewArgs {
     /// Do not open the page in a browser.
     #[arg(long)]
     pub no_open: bool,
-    /// The view's size in pixels at full resolution.
+    /// The view's width in pixels at full resolution.
     #[arg(long, default_value_t = 800)]
     pub width: u32,
+    /// The view's height in pixels at full resolution.
     #[arg(long, default_value_t = 600)]
     pub height: u32,
     /// Samples a pixel a view at rest refines to (the page can change it).

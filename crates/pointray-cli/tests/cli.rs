@@ -1901,7 +1901,21 @@ fn the_viewer_serves_its_page_and_refines_the_view_a_page_sends() {
         refused = next_text(&mut socket);
     }
     assert!(refused["message"].as_str().unwrap().contains("intensity"), "{refused}");
-    while next_text(&mut socket)["kind"] != "frame" {}
+    let mut shown = next_text(&mut socket);
+    while shown["kind"] != "frame" {
+        shown = next_text(&mut socket);
+    }
+    // A view the viewer cannot show (cropped) is refused, and the next message merges into the
+    // view kept, not into the refused one: a newer view's frames come.
+    socket.send(Message::Text(r#"{"crop_to_model": true}"#.into())).unwrap();
+    let mut cropped = next_text(&mut socket);
+    while cropped["kind"] != "error" {
+        cropped = next_text(&mut socket);
+    }
+    assert!(cropped["message"].as_str().unwrap().contains("crop_to_model"), "{cropped}");
+    socket.send(Message::Text(r#"{"fov": 40.0}"#.into())).unwrap();
+    let kept = shown["generation"].as_u64();
+    while next_text(&mut socket)["generation"].as_u64() <= kept {}
     // A double-click's pick: the sphere's surface under the centre becomes the pivot, the eye
     // stays (the sphere of `write_sphere` has radius 1 about the origin).
     socket.send(Message::Text(r#"{"pick": [32, 24]}"#.into())).unwrap();

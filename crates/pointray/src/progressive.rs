@@ -43,8 +43,7 @@ impl ViewControl {
     /// within a band's time, and the view's generation counts up.
     pub fn set_view(&self, settings: Settings) {
         *self.pending.lock().unwrap_or_else(PoisonError::into_inner) = Some(settings);
-        self.generation.fetch_add(1, Ordering::SeqCst);
-        self.cancel.store(true, Ordering::SeqCst);
+        self.restart();
     }
 
     /// Stops the pass in flight and counts a new view without giving one: the caller starts
@@ -118,10 +117,16 @@ impl<'s> Progressive<'s> {
         options: ProgressiveOptions,
         control: Arc<ViewControl>,
     ) -> Result<Self, SettingsError> {
-        let settings = whole_frame(settings)?;
-        scene.job(&settings)?;
+        Self::check(scene, &settings)?;
         let generation = control.generation();
         Ok(Self { scene, control, options, settings, generation, state: State::Preview, seconds_per_pixel: None })
+    }
+
+    /// Whether `scene` can show `settings` progressively (the whole frame, a job it accepts); the
+    /// error names the option it refuses.
+    pub fn check(scene: &Scene, settings: &Settings) -> Result<(), SettingsError> {
+        whole_frame(settings)?;
+        scene.job(settings).map(|_| ())
     }
 
     pub fn control(&self) -> Arc<ViewControl> {
@@ -140,8 +145,7 @@ impl<'s> Progressive<'s> {
         self.control.cancel.store(false, Ordering::SeqCst);
         let pending = self.control.pending.lock().unwrap_or_else(PoisonError::into_inner).take();
         if let Some(settings) = pending {
-            let settings = whole_frame(settings)?;
-            self.scene.job(&settings)?;
+            Self::check(self.scene, &settings)?;
             (self.settings, self.state) = (settings, State::Preview);
             self.generation = self.control.generation();
         }
@@ -191,13 +195,13 @@ impl<'s> Progressive<'s> {
     /// The next pass at full resolution: as many samples as are done already (at least one), up
     /// to the view's `spp`, so that the image sharpens at once and the passes stay few.
     fn refine(&mut self, done: u32, mut sum: Vec<[f32; 3]>) -> Result<Step, SettingsError> {
-        let budget = self.settings.spp.max(1);
+        // At least 1: the settings passed `Self::check`.
+        let budget = self.settings.spp;
         if done >= budget {
             return Ok(Step::Idle);
         }
         let range = done..(2 * done).clamp(done + 1, budget);
-        let settings = Settings { spp: budget, ..self.settings.clone() };
-        let mut job = self.scene.job(&settings)?;
+        let mut job = self.scene.job(&self.settings)?;
         job.config.sample_range = Some(range.clone());
         let start = Instant::now();
         let Some(mut frame) = job.render_until(&|_| {}, &self.control.cancel) else {
@@ -227,13 +231,17 @@ impl<'s> Progressive<'s> {
     }
 }
 
-/// `settings` for a viewer: the whole frame, or an error naming the option that crops it.
-fn whole_frame(settings: Settings) -> Result<Settings, SettingsError> {
-    if settings.region.is_some() || settings.crop_to_model {
-        let option = if settings.region.is_some() { "region" } else { "crop_to_model" };
-        return Err(SettingsError::new(option, "a progressive view renders the whole frame"));
-    }
-    Ok(settings)
+/// Whether `settings` are for a viewer: the whole frame, or an error naming the option that
+/// crops it.
+fn whole_frame(settings: &Settings) -> Result<(), SettingsError> {
+    let option = if settings.region.is_some() {
+        "region"
+    } else if settings.crop_to_model {
+        "crop_to_model"
+    } else {
+        return Ok(());
+    };
+    Err(SettingsError::new(option, "a progressive view renders the whole frame"))
 }
 
 #[cfg(test)]
@@ -301,7 +309,9 @@ mod tests {
         control.set_view(Settings { spp: 0, ..settings });
         assert_eq!(view.step().err().map(|e| e.option), Some("spp"));
         assert_eq!(view.settings().fov, 50.0);
-        assert!(matches!(view.step().unwrap(), Step::Frame(f) if f.samples == 1 && f.scale == 1));
+        // The kept view's first pass, not a new view's preview.
+        let kept = frame(view.step().unwrap());
+        assert_eq!((kept.generation, kept.samples, kept.scale), (leisurely.generation, 1, 1));
     }
 
     #[test]

@@ -344,12 +344,17 @@ fn change_view(shared: &Shared, given: serde_json::Map<String, serde_json::Value
     }
     let settings: Settings = serde_json::from_value(merged)?;
     settings.check()?;
-    *current = settings.clone();
-    tracing::debug!("view {} set", shared.control.generation() + 1);
-    if shared.scene.read().unwrap_or_else(PoisonError::into_inner).built_for(&settings) {
+    let scene = shared.scene.read().unwrap_or_else(PoisonError::into_inner).clone();
+    if scene.built_for(&settings) {
+        // Refused here, not by the render thread, so that the view kept stays the one merged
+        // into (a crop, say, would otherwise be refused again with every later message).
+        Progressive::check(&scene, &settings)?;
+        *current = settings.clone();
+        tracing::debug!("view {} set", shared.control.generation() + 1);
         shared.control.set_view(settings);
     } else {
         // Colours, classes or clips changed: the render thread builds the scene anew.
+        *current = settings;
         shared.rebuild.store(true, Ordering::SeqCst);
         shared.control.restart();
     }
