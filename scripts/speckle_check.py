@@ -8,8 +8,11 @@ For each scene (the built-in demo and the real scans the image-fidelity issue na
 the default view at SIZE² with `--aov depth`, renders it again with `--spp 16`, and runs
 `pointray compare A B --speckles A.depth.png`: a speckle is a lit pixel 60 levels of luma darker
 than each of its four neighbours (`pointray::metrics::dark_speckles`), and the count that matters
-is of those the 16-ray render lacks at the same place. Prints a Markdown table and leaves the
-images in DIR. Needs `cargo build --release`.
+is of those the 16-ray render lacks at the same place; the last column counts those of which it
+shows no trace at all (`pointray::metrics::darkness_share`: the pixel darker than its neighbours
+by less than half of what one ray of sixteen meeting the dot would make it), the speckles that
+are the one-ray image's own rather than its sampling of a sliver of shadow or crack smaller than
+a pixel. Prints a Markdown table and leaves the images in DIR. Needs `cargo build --release`.
 """
 import argparse, json, os, subprocess, sys, tempfile
 
@@ -39,14 +42,14 @@ def main():
     os.makedirs(out, exist_ok=True)
     only = set(a.only.split(",")) if a.only else None
     print(f"{a.size}², default settings {' '.join(a.extra)}; images in {out}\n")
-    print("| scene | dark speckles | of which 16 rays a pixel lacks |")
-    print("|---|---:|---:|")
+    print("| scene | dark speckles | of which 16 rays a pixel lacks | of which they show no trace |")
+    print("|---|---:|---:|---:|")
     for name, rel in SCENES:
         if only and name not in only:
             continue
         inputs = [] if rel is None else [os.path.join(a.data, rel)]
         if inputs and not os.path.exists(inputs[0]):
-            print(f"| {name} | missing {inputs[0]} | |")
+            print(f"| {name} | missing {inputs[0]} | | |")
             continue
         one, many = os.path.join(out, f"{name}.png"), os.path.join(out, f"{name}-16.png")
         size = ["--width", str(a.size), "--height", str(a.size)]
@@ -57,7 +60,7 @@ def main():
         cmp = subprocess.run([a.pointray, "compare", one, many, "--speckles", mask, "--json"],
                              check=True, capture_output=True, text=True)
         s = json.loads(cmp.stdout)["speckles"]
-        print(f"| {name} | {s['first']} | {s['not_in_second']} |", flush=True)
+        print(f"| {name} | {s['first']} | {s['not_in_second']} | {s['without_trace_in_second']} |", flush=True)
 
 
 if __name__ == "__main__":

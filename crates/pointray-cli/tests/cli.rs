@@ -1541,10 +1541,16 @@ fn compare_counts_the_first_images_speckles() {
         let run = run_in(dir.path(), &["compare", "a.png", b, "--speckles", "mask.png", "--json"]);
         run.assert_success();
         let json: serde_json::Value = serde_json::from_str(&run.stdout).unwrap_or_else(|e| panic!("{e}: {run}"));
-        (json["speckles"]["first"].as_u64().unwrap(), json["speckles"]["not_in_second"].as_u64().unwrap())
+        let s = &json["speckles"];
+        ["first", "not_in_second", "without_trace_in_second"].map(|k| s[k].as_u64().unwrap())
     };
-    assert_eq!(count("smooth.png"), (1, 1));
-    assert_eq!(count("a.png"), (1, 0));
+    assert_eq!(count("smooth.png"), [1, 1, 1]);
+    assert_eq!(count("a.png"), [1, 0, 0]);
+    // A second image with a trace of the dot, too faint to be a speckle itself.
+    let mut faint = vec![200u8; 6 * 5 * 3];
+    faint[(2 * 6 + 2) * 3..][..3].fill(170);
+    pointray_io::write_png(&dir.path().join("faint.png"), 6, 5, &faint).unwrap();
+    assert_eq!(count("faint.png"), [1, 1, 0]);
     // Within a region: the speckle counts where it has its four neighbours there, and not
     // where the region cuts them off.
     let within = |region: &str| {
@@ -1556,7 +1562,7 @@ fn compare_counts_the_first_images_speckles() {
     assert!(within("2,0,6,5").contains("0 dark speckles in the first"));
     run_in(dir.path(), &["compare", "a.png", "smooth.png", "--speckles", "mask.png"])
         .assert_success()
-        .assert_stdout_contains("1 dark speckles in the first, 1 of them not in the second");
+        .assert_stdout_contains("1 dark speckles in the first, 1 of them not in the second, 1 with no trace there");
     let run = run_in(dir.path(), &["compare", "a.png", "smooth.png", "--speckles", "small.png"]);
     run.assert_failure(1).assert_stderr_contains("small.png is 5x5");
     assert!(run.stdout.is_empty(), "{run}");

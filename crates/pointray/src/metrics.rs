@@ -83,6 +83,33 @@ pub fn dark_speckles(rgb: &[u8], width: usize, foreground: &[bool], drop: u8) ->
     found
 }
 
+/// The share of a speckle's darkness in `first` that `second` shows at the same pixel `index`
+/// (of a `width`-wide RGB8 image, not on its edge): how much darker than the mean of its four
+/// neighbours the pixel is in `second`, over the same in `first`, in linear luminance. With
+/// `second` a render of many rays a pixel of the same view, about the share of the pixel that
+/// is dark: near 0 where it shows no trace of the dot (or a pixel brighter than around it), 1
+/// where the whole pixel is as dark. A dot that one ray of a pixel meets and others do not is
+/// the 1-ray image's sampling of a feature smaller than a pixel (a sliver of shadow); one that
+/// no ray of the many meets is the image's own. See [`SPECKLE_TRACE`].
+pub fn darkness_share(first: &[u8], second: &[u8], width: usize, index: usize) -> f64 {
+    let y = |rgb: &[u8], i: usize| {
+        let table = crate::color::srgb8_to_linear_table();
+        let p = &rgb[i * 3..i * 3 + 3];
+        0.2126 * f64::from(table[p[0] as usize])
+            + 0.7152 * f64::from(table[p[1] as usize])
+            + 0.0722 * f64::from(table[p[2] as usize])
+    };
+    let depth = |rgb: &[u8]| {
+        let around = [index - 1, index + 1, index - width, index + width];
+        around.iter().map(|&j| y(rgb, j)).sum::<f64>() / 4.0 - y(rgb, index)
+    };
+    depth(second) / depth(first)
+}
+
+/// Below this [`darkness_share`] a many-ray render shows no trace of a speckle: half of what one
+/// ray of sixteen would show.
+pub const SPECKLE_TRACE: f64 = 1.0 / 32.0;
+
 /// Rec. 709 luma of an sRGB8 pixel, 0–255 (rounded).
 fn luma(p: &[u8]) -> i32 {
     (2126 * i32::from(p[0]) + 7152 * i32::from(p[1]) + 722 * i32::from(p[2]) + 5000) / 10_000
@@ -145,6 +172,25 @@ mod tests {
 
     /// A lit 5×5 patch with one dark pixel in the middle, one dark pixel beside the background,
     /// and a dark pair (not isolated): only the middle one is a speckle.
+    /// A dot at the centre of a 3 × 3 patch, and the second image's share of it: none on a flat
+    /// patch, all of it for the same image, a quarter where a quarter of the pixel is as dark (in
+    /// linear light, to the rounding of the byte), below none where the pixel is brighter.
+    #[test]
+    fn the_darkness_share_is_the_dark_part_of_the_pixel() {
+        let patch = |centre: u8| {
+            let mut rgb = vec![200u8; 9 * 3];
+            rgb[4 * 3..][..3].fill(centre);
+            rgb
+        };
+        let dot = patch(40);
+        let lin = |v: u8| crate::color::srgb_to_linear(f32::from(v) / 255.0);
+        let quarter = (crate::color::linear_to_srgb(0.75 * lin(200) + 0.25 * lin(40)) * 255.0).round() as u8;
+        assert_eq!(darkness_share(&dot, &patch(200), 3, 4), 0.0);
+        assert_eq!(darkness_share(&dot, &dot, 3, 4), 1.0);
+        assert!((darkness_share(&dot, &patch(quarter), 3, 4) - 0.25).abs() < 0.01);
+        assert!(darkness_share(&dot, &patch(220), 3, 4) < 0.0);
+    }
+
     #[test]
     fn a_lone_dark_pixel_is_a_speckle_and_others_are_not() {
         let (w, h) = (7, 6);

@@ -56,19 +56,25 @@ pub fn run(a: &CompareArgs) -> anyhow::Result<()> {
             diff.rmse, diff.max_abs_diff, diff.differing_pixels, diff.pixels
         )?;
         if let Some(s) = speckles {
-            writeln!(out, "{} dark speckles in the first, {} of them not in the second", s.first, s.not_in_second)?;
+            writeln!(
+                out,
+                "{} dark speckles in the first, {} of them not in the second, {} with no trace there",
+                s.first, s.not_in_second, s.without_trace_in_second
+            )?;
         }
     }
     out.flush()?;
     Ok(())
 }
 
-/// The first image's isolated dark speckles (`metrics::dark_speckles`), and how many of them
-/// the second lacks.
+/// The first image's isolated dark speckles (`metrics::dark_speckles`), how many of them the
+/// second lacks (is not itself as dark there against its neighbours), and of those how many it
+/// shows no trace of (`metrics::darkness_share` below `metrics::SPECKLE_TRACE`).
 #[derive(serde::Serialize)]
 struct Speckles {
     first: usize,
     not_in_second: usize,
+    without_trace_in_second: usize,
 }
 
 /// Counts [`Speckles`] in `a` and `b` (the images, `size` before any `region` was cut from
@@ -95,8 +101,9 @@ fn speckles(
     let drop = metrics::SPECKLE_DROP;
     let first = metrics::dark_speckles(a, w, &foreground, drop);
     let in_second = metrics::dark_speckles(b, w, &foreground, drop);
-    let not_in_second = first.iter().filter(|i| in_second.binary_search(i).is_err()).count();
-    Ok(Speckles { first: first.len(), not_in_second })
+    let lacking: Vec<usize> = first.iter().copied().filter(|i| in_second.binary_search(i).is_err()).collect();
+    let without_trace = lacking.iter().filter(|&&i| metrics::darkness_share(a, b, w, i) < metrics::SPECKLE_TRACE);
+    Ok(Speckles { first: first.len(), not_in_second: lacking.len(), without_trace_in_second: without_trace.count() })
 }
 
 /// The RGB8 pixels of `region` of a `width`-wide image, row by row.
