@@ -134,6 +134,16 @@ pub fn prepare(
     Ok(stats)
 }
 
+/// The built-in demo scene's source: `points` points drawn with `seed`, prepared as a cloud
+/// read from a file is (errors name the demo).
+pub fn demo(points: usize, seed: u64, config: &PreprocessConfig, stage: &dyn Fn(&str)) -> Result<Source, String> {
+    let mut cloud = pointray::demo::demo_cloud(points, seed);
+    let points_read = cloud.len();
+    let preprocess = prepare(&mut cloud, config, "demo", stage).map_err(|e| format!("demo: {e}"))?;
+    let parts = pointray::demo::demo_scene_parts(cloud);
+    Ok(Source { parts, settings: None, points_read, preprocess, load_seconds: 0.0 })
+}
+
 /// Reads the scene at `path` and every cloud it names, preprocessed and placed.
 fn load_scene(path: &Path, preprocess: &PreprocessConfig, stage: &dyn Fn(&str)) -> Result<Source, IoError> {
     let start = Instant::now();

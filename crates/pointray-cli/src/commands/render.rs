@@ -156,14 +156,10 @@ fn load_input(a: &RenderArgs, quiet: bool) -> anyhow::Result<(Source, String)> {
         Some(path) => {
             (pointray_io::source::load(path, &config, &a.read.options(), &stage)?, path.display().to_string())
         }
-        None => {
-            let mut cloud = pointray::demo::demo_cloud(a.demo_points, a.seed);
-            let points_read = cloud.len();
-            let preprocess = pointray_io::source::prepare(&mut cloud, &config, "demo", &stage)
-                .map_err(|e| anyhow::anyhow!("demo: {e}"))?;
-            let parts = pointray::demo::demo_scene_parts(cloud);
-            (Source { parts, settings: None, points_read, preprocess, load_seconds: 0.0 }, "demo".to_string())
-        }
+        None => (
+            pointray_io::source::demo(a.demo_points, a.seed, &config, &stage).map_err(anyhow::Error::msg)?,
+            "demo".into(),
+        ),
     };
     spinner.finish_and_clear();
     Ok(loaded)

@@ -104,10 +104,8 @@ fn load(a: &ViewArgs, quiet: bool) -> anyhow::Result<(SceneParts, Settings, Stri
             (source.parts, source.settings, path.display().to_string())
         }
         None => {
-            let mut cloud = pointray::demo::demo_cloud(pointray::demo::DEMO_POINTS, 0);
-            pointray_io::source::prepare(&mut cloud, &config, "demo", &stage)
-                .map_err(|e| anyhow::anyhow!("demo: {e}"))?;
-            (pointray::demo::demo_scene_parts(cloud), None, "demo".to_string())
+            let demo = pointray_io::source::demo(pointray::demo::DEMO_POINTS, 0, &config, &stage);
+            (demo.map_err(anyhow::Error::msg)?.parts, None, "demo".to_string())
         }
     };
     let base = scene_settings.unwrap_or_default();
