@@ -7,7 +7,7 @@
 //! server (`failure`).
 
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::{Arc, Mutex, PoisonError, RwLock};
+use std::sync::{Arc, Mutex, MutexGuard, PoisonError, RwLock};
 use std::time::Duration;
 
 use anyhow::Context;
@@ -49,6 +49,23 @@ struct Shared {
     /// The first message to a page: the view's camera and size, the input's name.
     hello: String,
     stop: AtomicBool,
+}
+
+impl Shared {
+    /// The view last asked for. A lock that a panicking thread left poisoned is taken as it is:
+    /// every writer replaces the settings whole, so they are never half written.
+    fn settings(&self) -> MutexGuard<'_, Settings> {
+        self.settings.lock().unwrap_or_else(PoisonError::into_inner)
+    }
+
+    /// The scene rendered now (poisoning as for [`Self::settings`]).
+    fn scene(&self) -> Arc<Scene> {
+        self.scene.read().unwrap_or_else(PoisonError::into_inner).clone()
+    }
+
+    fn set_scene(&self, scene: Scene) {
+        *self.scene.write().unwrap_or_else(PoisonError::into_inner) = Arc::new(scene);
+    }
 }
 
 /// A frame as the pages get it: its JSON line, then its PNG (none for an error).
@@ -142,10 +159,10 @@ fn hello(scene: &Scene, settings: &Settings, name: &str) -> anyhow::Result<Strin
 /// builds the scene anew when the settings ask for another build.
 fn render_loop(shared: &Shared) {
     // The settings last rendered on the scene there is: where a failed build goes back to.
-    let mut shown = shared.settings.lock().unwrap_or_else(PoisonError::into_inner).clone();
+    let mut shown = shared.settings().clone();
     while !shared.stop.load(Ordering::SeqCst) {
-        let scene = shared.scene.read().unwrap_or_else(PoisonError::into_inner).clone();
-        let settings = shared.settings.lock().unwrap_or_else(PoisonError::into_inner).clone();
+        let scene = shared.scene();
+        let settings = shared.settings().clone();
         // Settings of another build are a rebuild, whether or not the page's task has said so yet.
         if !scene.built_for(&settings) {
             shared.rebuild.store(true, Ordering::SeqCst);
@@ -192,12 +209,12 @@ fn render_scene(view: &mut Progressive, shared: &Shared) -> Settings {
 /// Builds the scene for the settings a page last asked for; if it cannot be, says why and
 /// goes back to `before`, the settings of the scene there is.
 fn rebuild(shared: &Shared, before: &Settings) {
-    let settings = shared.settings.lock().unwrap_or_else(PoisonError::into_inner).clone();
+    let settings = shared.settings().clone();
     notify(shared, message("status", "building the scene"));
     match Scene::build(shared.parts.clone(), &settings) {
-        Ok(scene) => *shared.scene.write().unwrap_or_else(PoisonError::into_inner) = Arc::new(scene),
+        Ok(scene) => shared.set_scene(scene),
         Err(e) => {
-            *shared.settings.lock().unwrap_or_else(PoisonError::into_inner) = before.clone();
+            *shared.settings() = before.clone();
             shared.control.set_view(before.clone());
             notify(shared, message("error", &e.to_string()));
         }
@@ -319,8 +336,8 @@ fn answer(shared: &Shared, text: &str) -> anyhow::Result<Option<serde_json::Valu
         return Ok(None);
     };
     let [x, y]: [u32; 2] = serde_json::from_value(pixel).context("pick: expected [x, y] in pixels")?;
-    let settings = shared.settings.lock().unwrap_or_else(PoisonError::into_inner).clone();
-    let scene = shared.scene.read().unwrap_or_else(PoisonError::into_inner).clone();
+    let settings = shared.settings().clone();
+    let scene = shared.scene();
     let job = scene.job(&settings)?;
     anyhow::ensure!(x < settings.width && y < settings.height, "pick: ({x}, {y}) lies outside the view");
     let (origin, direction) = job.camera_ray(x, y);
@@ -335,14 +352,14 @@ fn answer(shared: &Shared, text: &str) -> anyhow::Result<Option<serde_json::Valu
 /// Merges a page's settings into the view and renders it next; an unknown option or a value
 /// out of range is an error, and the view stays.
 fn change_view(shared: &Shared, given: serde_json::Map<String, serde_json::Value>) -> anyhow::Result<()> {
-    let mut current = shared.settings.lock().unwrap_or_else(PoisonError::into_inner);
+    let mut current = shared.settings();
     let mut merged = serde_json::to_value(&*current)?;
     if let Some(m) = merged.as_object_mut() {
         m.extend(given);
     }
     let settings: Settings = serde_json::from_value(merged)?;
     settings.check()?;
-    let scene = shared.scene.read().unwrap_or_else(PoisonError::into_inner).clone();
+    let scene = shared.scene();
     if scene.built_for(&settings) {
         // Refused here, not by the render thread, so that the view kept stays the one merged
         // into (a crop, say, would otherwise be refused again with every later message).
