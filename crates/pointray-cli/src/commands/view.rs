@@ -77,6 +77,8 @@ struct Encoded {
 pub fn run(a: &ViewArgs, quiet: bool) -> anyhow::Result<()> {
     let (parts, settings, name) = load(a, quiet)?;
     let scene = Arc::new(Scene::build(parts.clone(), &settings).with_context(|| name.clone())?);
+    // A view the viewer cannot show is refused before a page is opened for it.
+    Progressive::check(&scene, &settings).map_err(|e| failure::usage(e.into()))?;
     let listener = std::net::TcpListener::bind((a.bind.as_str(), a.port))
         .map_err(|e| failure::usage(anyhow::anyhow!("--bind {} --port {}: {e}", a.bind, a.port)))?;
     listener.set_nonblocking(true)?;
@@ -85,7 +87,6 @@ pub fn run(a: &ViewArgs, quiet: bool) -> anyhow::Result<()> {
     if !a.no_open {
         open_in_browser(&url);
     }
-    Progressive::new(&scene, settings.clone(), ProgressiveOptions::default()).map_err(|e| failure::usage(e.into()))?;
     let shared = Arc::new(Shared {
         hello: hello(&scene, &settings, &name)?,
         scene: RwLock::new(scene),
