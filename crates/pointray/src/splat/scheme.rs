@@ -356,8 +356,8 @@ fn check_shape<A: Accel + ?Sized>(accel: &A, scheme: &SurfaceScheme) {
     );
 }
 
-/// Whether `crossing` only grazes its disk: near the rim (d/r above [`SLIVER_RIM`]) of a disk
-/// nearly in line with the ray (|n·d| below [`SLIVER_COS`]), a sliver of shadow that an
+/// Whether `crossing` only grazes its oriented disk: near the rim (d/r above [`SLIVER_RIM`]) of a
+/// disk nearly in line with the ray (|n·d| below [`SLIVER_COS`]), a sliver of shadow that an
 /// occlusion query passes. A body in the way blocks the ray through its other disks too; a
 /// sliver alone is where the ray passes a blocker's outline as seen from the light, and there a
 /// lone disk's rim, turned a little from the true outline, cast shadows that the pixels beside
@@ -458,7 +458,8 @@ impl<D: DiskTest> SplatVisitor for AnyHit<D> {
 
     #[inline(always)]
     fn hit(&mut self, ray: &Ray, crossing: Crossing) {
-        self.hit |= !is_sliver(ray, &crossing);
+        // A ray-facing disk faces every ray: it has no slivers.
+        self.hit |= D::SHAPE == DiskShape::RayFacing || !is_sliver(ray, &crossing);
     }
 
     fn done(&self) -> bool {
@@ -617,7 +618,7 @@ mod tests {
     /// A shadow ray up +z past one disk of radius 0.2 at z = 1 tilted 3° from the ray's line
     /// (|n·d| = 0.05): crossed 0.9 of its radius out it is a sliver and blocks nothing, 0.5 out
     /// it blocks; a disk facing the ray blocks at 0.9 out, and so does the tilted one at 0.12
-    /// (|n·d| past [`SLIVER_COS`]).
+    /// (|n·d| past [`SLIVER_COS`]), and a ray-facing disk (RFD) whatever its normal.
     #[test]
     fn shadow_rays_pass_slivers_of_disks_in_line_with_them() {
         let blocked = |offset: f32, sin: f32| {
@@ -635,6 +636,11 @@ mod tests {
         };
         assert!(!blocked(0.18, 0.05));
         assert!(blocked(0.1, 0.05));
+        // The same crossing of the disk turned to face the ray (RFD) blocks.
+        let disk = Splat { center: Vec3::new(0.0, 0.0, 1.0), radius: 0.2, normal: Vec3::X, color: 0 };
+        let ray = Ray::new(Vec3::new(0.18, 0.0, 0.0), Vec3::Z, RayCone::default());
+        let rfd = SurfaceScheme::rfd();
+        assert!(occluded(&BruteForce::new(vec![disk]), &ray, f32::INFINITY, &rfd, &mut TraversalStats::default()));
         assert!(blocked(0.18, 1.0));
         assert!(blocked(0.18, 0.12));
     }
