@@ -586,9 +586,10 @@ pub struct CompareArgs {
     #[arg(long, value_parser = parse_region)]
     pub region: Option<pointray::camera::Region>,
     /// Also count the first image's isolated dark speckles (pixels 60 levels of luma darker
-    /// than each of their four neighbours) and how many of them the second lacks at the same
-    /// place. The foreground is this PNG's non-black pixels: the first render's depth AOV
-    /// (`--aov depth`).
+    /// than each of their four neighbours), how many of them the second lacks at the same
+    /// place, and of those how many it shows no trace of (darker than around it by less than
+    /// 1/32 of the dot's depth, in linear light). The foreground is this PNG's non-black
+    /// pixels: the first render's depth AOV (`--aov depth`).
     #[arg(long, value_name = "FOREGROUND.png")]
     pub speckles: Option<PathBuf>,
 }

@@ -87,12 +87,22 @@ pub fn dark_speckles(rgb: &[u8], width: usize, foreground: &[bool], drop: u8) ->
 /// (of a `width`-wide RGB8 image, not on its edge): how much darker than the mean of its four
 /// neighbours the pixel is in `second`, over the same in `first`, in linear luminance. With
 /// `second` a render of many rays a pixel of the same view, about the share of the pixel that
-/// is dark: near 0 where it shows no trace of the dot (or a pixel brighter than around it), 1
-/// where the whole pixel is as dark. A dot that one ray of a pixel meets and others do not is
-/// the 1-ray image's sampling of a feature smaller than a pixel (a sliver of shadow); one that
-/// no ray of the many meets is the image's own. See [`SPECKLE_TRACE`].
+/// is dark: near 0 where it shows no trace of the dot, below 0 where the pixel is brighter than
+/// around it, 1 where the whole pixel is as dark; 0 where the dot of `first` is no darker in
+/// linear luminance than around it (a saturated colour among greys can be darker in luma
+/// only). A dot that one ray of a pixel meets and others do not is the one-ray image's sampling
+/// of something under a pixel wide (a sliver of shadow, a crack); one that no ray of the many
+/// meets is the image's own. See [`SPECKLE_TRACE`].
+///
+/// # Panics
+///
+/// If the images' lengths differ or `index` is not an inner pixel of rows of `width`.
 pub fn darkness_share(first: &[u8], second: &[u8], width: usize, index: usize) -> f64 {
-    let y = |rgb: &[u8], i: usize| {
+    assert_eq!(first.len(), second.len(), "darkness_share: images of {} and {} bytes", first.len(), second.len());
+    let (x, y) = (index % width.max(1), index / width.max(1));
+    let rows = first.len() / 3 / width.max(1);
+    assert!(x > 0 && x + 1 < width && y > 0 && y + 1 < rows, "darkness_share: pixel {index} is on the edge or outside");
+    let luminance = |rgb: &[u8], i: usize| {
         let table = crate::color::srgb8_to_linear_table();
         let p = &rgb[i * 3..i * 3 + 3];
         0.2126 * f64::from(table[p[0] as usize])
@@ -101,13 +111,14 @@ pub fn darkness_share(first: &[u8], second: &[u8], width: usize, index: usize) -
     };
     let depth = |rgb: &[u8]| {
         let around = [index - 1, index + 1, index - width, index + width];
-        around.iter().map(|&j| y(rgb, j)).sum::<f64>() / 4.0 - y(rgb, index)
+        around.iter().map(|&j| luminance(rgb, j)).sum::<f64>() / 4.0 - luminance(rgb, index)
     };
-    depth(second) / depth(first)
+    let dot = depth(first);
+    if dot > 0.0 { depth(second) / dot } else { 0.0 }
 }
 
-/// Below this [`darkness_share`] a many-ray render shows no trace of a speckle: half of what one
-/// ray of sixteen would show.
+/// Below this [`darkness_share`] a 16-ray render shows no trace of a speckle: half of what one
+/// of its rays meeting the dot would show (for another number of rays, another share).
 pub const SPECKLE_TRACE: f64 = 1.0 / 32.0;
 
 /// Rec. 709 luma of an sRGB8 pixel, 0–255 (rounded).
@@ -170,11 +181,10 @@ fn heat_table() -> [[u8; 3]; HEAT_LEVELS] {
 mod tests {
     use super::*;
 
-    /// A lit 5×5 patch with one dark pixel in the middle, one dark pixel beside the background,
-    /// and a dark pair (not isolated): only the middle one is a speckle.
     /// A dot at the centre of a 3 × 3 patch, and the second image's share of it: none on a flat
     /// patch, all of it for the same image, a quarter where a quarter of the pixel is as dark (in
-    /// linear light, to the rounding of the byte), below none where the pixel is brighter.
+    /// linear light, to the rounding of the byte), below none where the pixel is brighter; and
+    /// none for a dot darker in luma only.
     #[test]
     fn the_darkness_share_is_the_dark_part_of_the_pixel() {
         let patch = |centre: u8| {
@@ -189,8 +199,14 @@ mod tests {
         assert_eq!(darkness_share(&dot, &dot, 3, 4), 1.0);
         assert!((darkness_share(&dot, &patch(quarter), 3, 4) - 0.25).abs() < 0.01);
         assert!(darkness_share(&dot, &patch(220), 3, 4) < 0.0);
+        // Pure red among greys of 120: 66 levels of luma darker, brighter in linear light.
+        let mut red = vec![120u8; 9 * 3];
+        red[4 * 3..][..3].copy_from_slice(&[255, 0, 0]);
+        assert_eq!(darkness_share(&red, &patch(200), 3, 4), 0.0);
     }
 
+    /// A lit 5×5 patch with one dark pixel in the middle, one dark pixel beside the background,
+    /// and a dark pair (not isolated): only the middle one is a speckle.
     #[test]
     fn a_lone_dark_pixel_is_a_speckle_and_others_are_not() {
         let (w, h) = (7, 6);

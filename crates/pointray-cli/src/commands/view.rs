@@ -63,6 +63,7 @@ impl Shared {
         self.scene.read().unwrap_or_else(PoisonError::into_inner).clone()
     }
 
+    /// The scene built anew, for the frames that follow.
     fn set_scene(&self, scene: Scene) {
         *self.scene.write().unwrap_or_else(PoisonError::into_inner) = Arc::new(scene);
     }
