@@ -150,6 +150,12 @@ impl SurfaceScheme {
     pub fn self_hit_radii(&self) -> f32 {
         if self.kind == SurfaceKind::Rfd { 2.0 } else { 1.0 }
     }
+
+    /// Whether windows of `D`'s disks take their positions from the tangent planes: only
+    /// ray-facing disks have a choice (`tangent_planes`).
+    fn tangent_planes_for<D: DiskTest>(&self) -> bool {
+        self.tangent_planes && D::SHAPE == DiskShape::RayFacing
+    }
 }
 
 /// A ray's meeting with the surface.
@@ -222,26 +228,27 @@ fn windowed<A: Accel + ?Sized, D: DiskTest>(
     scheme: &SurfaceScheme,
     stats: &mut TraversalStats,
 ) -> Option<SurfaceHit> {
-    let tangent_planes = scheme.tangent_planes && D::SHAPE == DiskShape::RayFacing;
+    let tangent_planes = scheme.tangent_planes_for::<D>();
     let mut ray = *ray;
     // The weak window kept: the best covered of those facing the viewer, else the first.
-    let mut weak: Option<Weak> = None;
+    let mut weak: Option<Blend> = None;
     for _ in 0..MAX_WEAK_WINDOWS {
         let mut v = Window::<D>::new(scheme.window, accel.wide_radius(), A::REPEATS_SPLATS);
         walk_window(accel, &ray, &mut v, stats);
         // Nothing behind a weak window: it was the surface after all (a thinly covered spot),
         // not a disk sticking out in front of one.
-        let Some(Blend { hit, coverage, facing_away }) = v.blend(&ray, accel, tangent_planes) else {
+        let Some(blend) = v.blend(&ray, accel, tangent_planes) else {
             // Spelled out: `return weak` copied all of an absent hit, field by field, for every
             // ray that missed (22 instructions).
             #[allow(clippy::manual_map)]
             return if let Some(w) = weak { Some(w.hit) } else { None };
         };
+        let Blend { hit, coverage, facing_away } = blend;
         if coverage >= if facing_away { scheme.min_coverage_facing_away } else { scheme.min_coverage } {
             return match weak {
                 // Past a thin spot facing the viewer, the inside of the shape: the ray went
                 // between the near side's disks, and the thin spot was the surface.
-                Some(thin) if facing_away && thin.facing_viewer => Some(thin.hit),
+                Some(thin) if facing_away && !thin.facing_away => Some(thin.hit),
                 _ if facing_away => {
                     let until = v.first_t + OVERHANG * hit.radius;
                     Some(near_side_behind::<A, D>(accel, &ray.with_t_min(v.end), until, scheme, stats).unwrap_or(hit))
@@ -249,9 +256,8 @@ fn windowed<A: Accel + ?Sized, D: DiskTest>(
                 _ => Some(hit),
             };
         }
-        let candidate = Weak { hit, facing_viewer: !facing_away, coverage };
-        if weak.as_ref().is_none_or(|kept| candidate.beats(kept)) {
-            weak = Some(candidate);
+        if weak.as_ref().is_none_or(|kept| better_weak(&blend, kept)) {
+            weak = Some(blend);
         }
         ray.t_min = v.end;
     }
@@ -259,27 +265,19 @@ fn windowed<A: Accel + ?Sized, D: DiskTest>(
     weak.map(|w| w.hit)
 }
 
-/// A weakly covered window passed on the way, kept in case no covered one follows.
-struct Weak {
-    hit: SurfaceHit,
-    facing_viewer: bool,
-    coverage: f32,
-}
-
-impl Weak {
-    /// Whether this window, met later, is the better surface where no covered one follows: one
-    /// facing the viewer beats one facing away, and among those facing it the better covered
-    /// wins (a lone disk crossed at its rim in front of a crease, with a normal from one side
-    /// of it, loses to the disks behind it; the first wins ties), within [`OVERHANG`] radii
-    /// of the kept one (farther, it is another surface, and the nearer keeps the pixel from a
-    /// hole). With the first kept instead, such rims turned from the light were dark speckles
-    /// that 16 rays a pixel lack (the Happy Buddha 12 → 11, the Armadillo 18 → 17,
-    /// `scripts/speckle_check.py`), and the pixels the rule changes, taken together, come
-    /// closer to that render (without the reach, the Buddha's 59: squared error 292 k → 258 k).
-    fn beats(&self, kept: &Weak) -> bool {
-        let near = self.hit.t - kept.hit.t <= OVERHANG * kept.hit.radius;
-        near && self.facing_viewer && (!kept.facing_viewer || self.coverage > kept.coverage)
-    }
+/// Whether the weakly covered window `later`, met after `kept`, is the better surface where no
+/// covered one follows: one
+/// facing the viewer beats one facing away, and among those facing it the better covered
+/// wins (a lone disk crossed at its rim in front of a crease, with a normal from one side of
+/// it, loses to the disks behind it; the first wins ties), within [`OVERHANG`] radii of the
+/// kept one (farther, it is another surface, and the nearer keeps the pixel from a hole). With
+/// the first kept instead, such rims turned from the light were dark speckles that 16 rays a
+/// pixel lack (the Happy Buddha 12 → 11, the Armadillo 18 → 17, `scripts/speckle_check.py`),
+/// and the pixels the rule changes, taken together, come closer to that render (without the
+/// reach, the Buddha's 59: squared error 292 k → 258 k).
+fn better_weak(later: &Blend, kept: &Blend) -> bool {
+    let near = later.hit.t - kept.hit.t <= OVERHANG * kept.hit.radius;
+    near && !later.facing_away && (kept.facing_away || later.coverage > kept.coverage)
 }
 
 /// A covered window facing the viewer that begins on `ray` by `until`, past windows facing away
@@ -294,7 +292,7 @@ fn near_side_behind<A: Accel + ?Sized, D: DiskTest>(
     scheme: &SurfaceScheme,
     stats: &mut TraversalStats,
 ) -> Option<SurfaceHit> {
-    let tangent_planes = scheme.tangent_planes && D::SHAPE == DiskShape::RayFacing;
+    let tangent_planes = scheme.tangent_planes_for::<D>();
     let mut ray = *ray;
     for _ in 0..MAX_WEAK_WINDOWS {
         let mut v = Window::<D>::new(scheme.window, accel.wide_radius(), A::REPEATS_SPLATS);
