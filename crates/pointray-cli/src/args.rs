@@ -324,6 +324,12 @@ pub struct RenderArgs {
     /// Level of detail on or off (off: every ray descends to the input splats).
     #[arg(long, value_enum, default_value_t = Switch::On)]
     pub lod: Switch,
+    /// Level of detail as a prefilter: where the pixel's footprint is wide enough for level
+    /// of detail, the camera ray gathers what its pixel covers (partly covered pixels blended
+    /// with what lies behind, rough patches shaded as such), so one ray a pixel looks like
+    /// many. Whitted and eye-light, BVH only.
+    #[arg(long)]
+    pub prefilter: bool,
     /// Normal-cone backface culling for camera rays; auto turns it on when rays from around
     /// the model meet almost no back faces first (a closed, consistently oriented surface).
     /// Off by default: front-to-back traversal already skips what lies behind the first hit,
@@ -432,6 +438,7 @@ impl RenderArgs {
             shadows: !self.no_shadows,
             shadow_offset: self.shadow_offset,
             lod_threshold: if self.lod == Switch::On { self.lod_threshold } else { 0.0 },
+            prefilter: self.prefilter,
             cull: self.cull,
             // The alpha of --transparent is the coverage AOV.
             aovs: self.aov.iter().copied().chain(self.transparent.then_some(Aov::Alpha)).collect(),

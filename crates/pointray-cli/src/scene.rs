@@ -132,6 +132,7 @@ mod tests {
             "shadow_offset",
             "diffuse_spread",
             "cull",
+            "prefilter",
             "sphere_from_level",
             "classes",
             "exclude_classes",

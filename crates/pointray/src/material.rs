@@ -66,6 +66,25 @@ impl Phong {
             + self.glossy(hit.normal, view, to_light, irradiance)
     }
 
+    /// [`Self::direct`] for a patch whose normals spread, `agreement` the length of their mean
+    /// (1: a smooth patch, the same as `direct`): the lobe widened as Toksvig (2005) widens it,
+    /// s' = s·a / (a + s(1 − a)), its energy kept, (1 + s') / (1 + s) as bright at its peak.
+    pub fn direct_rough(&self, hit: &SurfaceHit, view: Vec3, to_light: Vec3, irradiance: f32, agreement: f32) -> Vec3 {
+        let n_dot_l = hit.normal.dot(to_light);
+        if n_dot_l <= 0.0 {
+            return Vec3::ZERO;
+        }
+        let diffuse = Vec3::from(hit.color) * (n_dot_l * irradiance * (1.0 - self.ambient));
+        if self.specular <= 0.0 {
+            return diffuse;
+        }
+        let a = agreement.clamp(0.0, 1.0);
+        let s = self.shininess * a / (a + self.shininess * (1.0 - a)).max(f32::MIN_POSITIVE);
+        let h = (to_light + view).normalize_or_zero();
+        let peak = self.specular * irradiance * (1.0 + s) / (1.0 + self.shininess);
+        diffuse + Vec3::splat(peak * h.dot(hit.normal).max(0.0).powf(s))
+    }
+
     /// The specular lobe alone (Blinn–Phong, white): what one light at `irradiance` along
     /// `to_light` adds towards `view` on a surface facing `normal`. The path tracer adds the
     /// same lobe to its light samples, so that a highlight has one place and one brightness

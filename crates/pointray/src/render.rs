@@ -23,6 +23,8 @@ use crate::splat::DiskShape;
 use crate::splat::scheme::{self, SurfaceScheme};
 use crate::stats::RenderStats;
 
+mod footprint;
+
 /// How light is carried from the lights to the eye.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
@@ -110,6 +112,10 @@ pub struct RenderConfig {
     pub seed: u64,
     /// Level-of-detail threshold τ in pixels for every ray (see `Ray::lod_threshold`); 0 = off.
     pub lod_threshold: f32,
+    /// Camera rays whose footprint is wide enough for level of detail gather their pixel's
+    /// footprint (`splat::footprint`, `render::footprint`): Whitted and eye light, Phong
+    /// surfaces; others are traced as rays.
+    pub prefilter: bool,
     /// Path tracer: the least spread (beam width per unit length) of a diffusely bounced ray's
     /// cone. Such rays go every which way, so their level of detail may be coarse (Christensen
     /// et al. 2003); 0 keeps the incoming ray's spread.
@@ -278,17 +284,19 @@ struct FirstHits {
     albedo: Vec3,
     depth: f32,
     hits: u32,
+    /// The share of the pixel each sample covered, summed: 1 a hit, or a footprint's coverage.
+    covered: f32,
     samples: u32,
 }
 
 impl FirstHits {
     /// The mean normal and albedo over the samples (a miss counts as zero), the mean depth
-    /// over the hits (∞ without one) and the share of the samples that hit: averaged only
+    /// over the hits (∞ without one) and the share of the pixel covered: averaged only
     /// where the film records them.
     fn means(&self) -> ([f32; 3], [f32; 3], f32, f32) {
         let n = self.samples.max(1) as f32;
         let depth = if self.hits == 0 { f32::INFINITY } else { self.depth / self.hits as f32 };
-        ((self.normal / n).to_array(), (self.albedo / n).to_array(), depth, self.hits as f32 / n)
+        ((self.normal / n).to_array(), (self.albedo / n).to_array(), depth, self.covered / n)
     }
 }
 
@@ -313,6 +321,8 @@ struct PrimaryRays {
     /// found once a frame: per pixel, with the mean's divisor, it cost the dragon's first hits
     /// 702 → 699 instructions a pixel (callgrind).
     samples: std::ops::Range<u32>,
+    /// The footprint prefilter: asked for, at a level of detail, by an accelerator that gathers.
+    prefilter: bool,
 }
 
 impl PrimaryRays {
@@ -336,7 +346,8 @@ impl PrimaryRays {
         let sample_batches = pinhole && config.samples > 1 && config.sampler == Sampler::R2;
         let n = config.samples.max(1);
         let samples = config.sample_range.as_ref().map_or(0..n, |r| r.start.min(n)..r.end.clamp(r.start.min(n), n));
-        Self { tau, footprint_scale, cull_backfaces, centre_rays, sample_batches, samples }
+        let prefilter = config.prefilter && tau > 0.0 && A::GATHERS;
+        Self { tau, footprint_scale, cull_backfaces, centre_rays, sample_batches, samples, prefilter }
     }
 
     /// A camera's `ray` with the frame's threshold, culling and footprint, counted.
@@ -395,7 +406,7 @@ fn render_pixel<A: Accel>(
         // pixel (callgrind).
         let rng = SampleRng::new(config.seed, x, y, 0, None);
         let ray = primary.finish(centre, stats);
-        sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.radiance(&ray, 0, false);
+        sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.camera_radiance(&ray, primary);
     } else if primary.sample_batches {
         // Pinhole rays through the R2 points, which draw no numbers, made a batch at a time
         // and traced in order (`Camera::rays`: the dragon's distant samples, 64 a pixel, 1,233
@@ -411,7 +422,8 @@ fn render_pixel<A: Accel>(
             for i in 0..(range.end - start).min(RAY_BATCH as u32) {
                 let rng = SampleRng::new(config.seed, x, y, start + i, low_discrepancy);
                 let ray = primary.finish(rays.ray(i as usize), stats);
-                sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.radiance(&ray, 0, false);
+                sum +=
+                    Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.camera_radiance(&ray, primary);
             }
         }
     } else {
@@ -424,7 +436,7 @@ fn render_pixel<A: Accel>(
             };
             let lens = if camera.lens_radius > 0.0 { [rng.next(), rng.next()] } else { [0.5; 2] };
             let ray = primary.finish(camera.lens_ray(x as f32 + dx, y as f32 + dy, lens), stats);
-            sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.radiance(&ray, 0, false);
+            sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.camera_radiance(&ray, primary);
         }
     }
     let nodes = (stats.traversal.nodes_visited - nodes_before).min(u32::MAX as u64) as u32;
@@ -562,6 +574,19 @@ struct Tracer<'a, A> {
 }
 
 impl<A: Accel> Tracer<'_, A> {
+    /// Radiance arriving along a camera ray: through the footprint prefilter where the frame
+    /// asks for it and the ray's footprint is wide enough for level of detail.
+    #[inline(always)]
+    fn camera_radiance(&mut self, ray: &Ray, primary: &PrimaryRays) -> Vec3 {
+        if primary.prefilter
+            && self.accel.may_stop_at_representatives(ray)
+            && let Some(radiance) = self.footprint_radiance(ray)
+        {
+            return radiance;
+        }
+        self.radiance(ray, 0, false)
+    }
+
     /// Radiance arriving along `ray`, which has bounced `depth` times and travels inside a
     /// glass object when `inside`.
     #[inline(always)]
@@ -586,33 +611,35 @@ impl<A: Accel> Tracer<'_, A> {
             self.first.albedo += Vec3::from(hit.color);
             self.first.depth += hit.t;
             self.first.hits += 1;
+            self.first.covered += 1.0;
         }
+        self.shade(ray, &hit, material, depth, inside)
+    }
+
+    /// The radiance `hit` (of `material`) sends back along `ray` after `depth` bounces.
+    #[inline(always)]
+    fn shade(&mut self, ray: &Ray, hit: &scheme::SurfaceHit, material: Material, depth: u32, inside: bool) -> Vec3 {
+        let config = self.config;
         if config.integrator == Integrator::EyeLight {
             return Vec3::from(hit.color) * hit.normal.dot(ray.dir).abs();
         }
-        let bounce = |direction: Vec3| secondary(ray, &hit, direction, config);
+        let bounce = |direction: Vec3| secondary(ray, hit, direction, config);
         match material {
             Material::Phong(phong) if config.integrator == Integrator::Path => {
-                self.diffuse(ray, &hit, &phong, depth, inside)
+                self.diffuse(ray, hit, &phong, depth, inside)
             }
             Material::Phong(_) if config.integrator == Integrator::Ao => {
                 let direction = cosine_direction(hit.normal, [self.rng.next(), self.rng.next()]);
-                let probe = secondary(ray, &hit, direction, config);
+                let probe = secondary(ray, hit, direction, config);
                 self.stats.secondary_rays += 1;
                 self.stats.rays += 1;
                 let open = !self.occluded(&probe, config.ao_distance);
                 Vec3::from(hit.color) * f32::from(u8::from(open))
             }
             Material::Phong(phong) => {
-                let mut color = match &config.environment {
-                    // The map's light, unshadowed, as Phong's ambient term.
-                    Environment::Map { map, frame } => {
-                        Vec3::from(hit.color) * map.irradiance(frame, hit.normal) / std::f32::consts::PI
-                    }
-                    _ => phong.ambient(&hit),
-                };
-                self.visible_lights(ray, &hit, |to_light, irradiance| {
-                    color += phong.direct(&hit, -ray.dir, to_light, irradiance);
+                let mut color = self.ambient(&phong, hit);
+                self.visible_lights(ray, hit, |to_light, irradiance| {
+                    color += phong.direct(hit, -ray.dir, to_light, irradiance);
                 });
                 color
             }
@@ -645,6 +672,17 @@ impl<A: Accel> Tracer<'_, A> {
                     }
                 }
             }
+        }
+    }
+
+    /// Phong's ambient term at `hit`: an environment map's light, unshadowed, or the ambient.
+    #[inline(always)]
+    fn ambient(&self, phong: &Phong, hit: &scheme::SurfaceHit) -> Vec3 {
+        match &self.config.environment {
+            Environment::Map { map, frame } => {
+                Vec3::from(hit.color) * map.irradiance(frame, hit.normal) / std::f32::consts::PI
+            }
+            _ => phong.ambient(hit),
         }
     }
 

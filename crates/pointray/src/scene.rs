@@ -373,6 +373,7 @@ impl Scene {
             integrator: settings.integrator,
             ao_distance: settings.ao_distance.unwrap_or(0.1 * self.bounds.diagonal()),
             lod_threshold: if multires { settings.lod_threshold } else { 0.0 },
+            prefilter: settings.prefilter,
             cull_backfaces,
             scheme,
             lights: content.lights,

@@ -201,6 +201,9 @@ pub struct Settings {
 
     /// Level-of-detail threshold τ in pixels; 0 is full detail.
     pub lod_threshold: f32,
+    /// Level of detail as a prefilter: each camera ray gathers what its pixel's beam covers
+    /// (`splat::footprint`) where its footprint is wide enough for level of detail.
+    pub prefilter: bool,
     pub cull: Cull,
     /// The channels recorded beside the image.
     pub aovs: Vec<Aov>,
@@ -263,6 +266,7 @@ impl Default for Settings {
             shadows: true,
             shadow_offset: 1.0,
             lod_threshold: DEFAULT_LOD_THRESHOLD,
+            prefilter: false,
             cull: Cull::Off,
             aovs: Vec::new(),
             count_work: false,
@@ -313,6 +317,13 @@ impl Settings {
         check(self.shadow_offset >= 0.0 && finite(self.shadow_offset), "shadow_offset", "must be non-negative")?;
         let tau = self.lod_threshold;
         check(tau >= 0.0 && finite(tau), "lod_threshold", "must be a non-negative number (0: full detail)")?;
+        let prefilter_integrator = matches!(self.integrator, Integrator::Whitted | Integrator::EyeLight);
+        check(
+            !self.prefilter || prefilter_integrator,
+            "prefilter",
+            "applies to the whitted and eye-light integrators",
+        )?;
+        check(!self.prefilter || self.accel == AccelKind::Bvh, "prefilter", "needs the BVH (--accel bvh)")?;
         check(self.ior > 0.0 && finite(self.ior), "ior", "must be a positive number")?;
         check(self.lens_radius >= 0.0 && finite(self.lens_radius), "lens_radius", "must be non-negative")?;
         let lens = self.lens_radius == 0.0 || self.projection == Projection::Perspective;

@@ -1,5 +1,6 @@
 use super::{Accel, SplatVisitor, TraversalStats};
 use crate::math::{Aabb, Ray};
+use crate::splat::footprint::{Aggregate, Beam, DENSITY_SAMPLES, FootprintVisitor, coverage_density};
 use crate::splat::{DiskShape, Splat};
 use glam::Vec3;
 
@@ -9,6 +10,8 @@ pub struct BruteForce {
     splats: Vec<Splat>,
     bounds: Aabb,
     wide_radius: f32,
+    /// [`Accel::coverage_density`], found when first asked (it costs O(n) a sample here).
+    coverage_density: std::sync::OnceLock<f32>,
 }
 
 impl BruteForce {
@@ -17,7 +20,7 @@ impl BruteForce {
         super::block::snap(&mut splats);
         let bounds = splats.iter().fold(Aabb::EMPTY, |b, s| b.union(s.bounds()));
         let wide_radius = super::representative::wide_radius(&splats);
-        Self { splats, bounds, wide_radius }
+        Self { splats, bounds, wide_radius, coverage_density: std::sync::OnceLock::new() }
     }
 }
 
@@ -44,6 +47,23 @@ impl Accel for BruteForce {
 
     fn wide_radius(&self) -> f32 {
         self.wide_radius
+    }
+
+    fn coverage_density(&self) -> f32 {
+        *self.coverage_density.get_or_init(|| {
+            let step = (self.splats.len() / DENSITY_SAMPLES).max(1);
+            coverage_density(self, self.splats.iter().step_by(step).copied())
+        })
+    }
+
+    const GATHERS: bool = true;
+
+    /// Every disk, at full detail.
+    fn gather<V: FootprintVisitor>(&self, _beam: &Beam, _tau: f32, visitor: &mut V, stats: &mut TraversalStats) {
+        for (i, s) in self.splats.iter().enumerate() {
+            stats.splat_tests += 1;
+            visitor.add(i as u32, s, Aggregate::disk(s.radius));
+        }
     }
 
     /// No level of detail.

@@ -6,6 +6,7 @@ use glam::DVec3;
 
 use crate::accel::block::{BLOCK, SplatBlock, snap_normal};
 use crate::color::{linear_to_srgb, srgb8_to_linear_table};
+use crate::splat::footprint::Aggregate;
 use crate::splat::{Splat, color_linear_in, material_of, pack_color};
 
 /// A representative and whether the normals below agree enough to have a mean.
@@ -103,6 +104,15 @@ impl Moments {
         self.center += w * center;
         self.normal += w * normal;
         self.color += w * glam::Vec3::from(color_linear_in(color, table)).as_dvec3();
+    }
+
+    /// What the footprint prefilter needs of these disks beyond their representative: the
+    /// radius of a disk of their summed area, and their mean normal's length.
+    pub(crate) fn aggregate(&self) -> Aggregate {
+        Aggregate {
+            area_radius: self.area.sqrt() as f32,
+            agreement: (self.normal.length() / self.area).min(1.0) as f32,
+        }
     }
 
     pub(crate) fn merge(&mut self, other: &Moments) {

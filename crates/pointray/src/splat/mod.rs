@@ -7,6 +7,7 @@
 //! (Schaufler–Jensen, `sj`) or over ray-facing disks (`rfd`, [`window`]), or the moving
 //! least-squares surface of the splats near the first hit (`pss`, [`pss`]).
 
+pub mod footprint;
 pub mod oriented_disk;
 pub mod pss;
 pub mod ray_facing_disk;

@@ -4,6 +4,7 @@
 mod accel_agree;
 mod analytic;
 mod determinism;
+mod footprint;
 mod ground;
 mod lights;
 mod materials;

@@ -83,6 +83,7 @@ pub fn render_config(region: pointray::camera::Region, samples: u32) -> pointray
         sample_range: None,
         seed: 0,
         lod_threshold: 0.0,
+        prefilter: false,
         diffuse_spread: 0.0,
         cull_backfaces: false,
         count_work: true,

@@ -11,6 +11,7 @@ use super::{Bvh, MAX_LEAF_SIZE, MAX_SPLATS, MEDIAN_SPLIT_DEPTH, Node, NodeBounds
 use crate::accel::block::{BLOCK, SplatBlock, grid_step, leaf_span, snap};
 use crate::accel::representative::{LOD_FLOOR_QUANTILE, radius_quantile, wide_radius};
 use crate::math::Aabb;
+use crate::splat::footprint;
 use crate::splat::{DiskShape, Splat};
 
 /// Build parameters, with named presets (as in obvhs).
@@ -262,7 +263,7 @@ impl Bvh {
         let counts: Vec<u8> = spans.iter().map(|&(_, count)| count as u8).collect();
         drop(spans);
         let disks = super::lod::Disks { blocks: &blocks, counts: &counts };
-        let (lod, representatives) = super::lod::build(&mut nodes, &disks, params.shape);
+        let (lod, representatives, aggregates) = super::lod::build(&mut nodes, &disks, params.shape);
         drop(counts);
         let lod_floor = radius_quantile(nodes.iter().map(|n| n.min_radius).collect(), LOD_FLOOR_QUANTILE);
         let mut bvh = Bvh {
@@ -270,15 +271,19 @@ impl Bvh {
             lod,
             blocks,
             representatives,
+            aggregates,
             splat_count,
             bounds,
             depth,
             node_bounds: NodeBounds::Boxes,
             lod_floor,
             wide_radius,
+            coverage_density: 1.0,
             shape: params.shape,
         };
         bvh.set_node_bounds(params.node_bounds);
+        let step = (splat_count / footprint::DENSITY_SAMPLES).max(1);
+        bvh.coverage_density = footprint::coverage_density(&bvh, bvh.splats().step_by(step).map(|(_, s)| s));
         (bvh, ids)
     }
 }

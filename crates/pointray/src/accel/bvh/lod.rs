@@ -25,6 +25,7 @@ use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_bl
 use crate::accel::Accel;
 use crate::accel::block::{BLOCK, SplatBlock};
 use crate::accel::representative::{Moments, Representative, Spread, along_and_off};
+use crate::splat::footprint::Aggregate;
 use crate::splat::{DiskShape, Splat};
 
 /// What the multiresolution traversal knows of a node's eight children besides their boxes and
@@ -39,6 +40,23 @@ pub(crate) struct NodeLod {
     pub(crate) radius: Lanes,
     /// The cosine of the normal cones' half-angles (−1: the normals below point every way).
     pub(crate) cos_angle: Lanes,
+}
+
+/// What the footprint prefilter (`splat::footprint`) knows of each child's disks beyond its
+/// representative: the radius of a disk of their summed area, and the length of their
+/// area-weighted mean normal (1 where they agree; shorter where they spread, Toksvig's
+/// measure of roughness). Eight lanes, like [`NodeLod`]; unused slots hold zeros.
+#[repr(C, align(64))]
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct NodeAggregate {
+    pub(crate) area_radius: Lanes,
+    pub(crate) agreement: Lanes,
+}
+
+impl NodeAggregate {
+    pub(crate) fn get(&self, slot: usize) -> Aggregate {
+        Aggregate { area_radius: self.area_radius[slot], agreement: self.agreement[slot] }
+    }
 }
 
 /// The bounds every node uses for its children.
@@ -101,6 +119,7 @@ fn node_ranges(nodes: &[Node]) -> Vec<Range<usize>> {
 
 /// Bounding sphere, cone and representative of one child.
 struct ChildLod {
+    aggregate: Aggregate,
     radius: f32,
     cos_angle: f32,
     rep: Splat,
@@ -155,7 +174,7 @@ fn child_lod(box_center: Vec3, disks: &Disks, blocks: Range<usize>, moments: &Mo
     } else {
         -1.0 // normals that cancel out: a cone that never culls
     };
-    ChildLod { radius: round_up(far), cos_angle, rep }
+    ChildLod { aggregate: moments.aggregate(), radius: round_up(far), cos_angle, rep }
 }
 
 /// [`farthest`] from `p` for each lane of `block`, in the same operations: written over lanes,
@@ -215,18 +234,35 @@ fn node_moments(nodes: &[Node], disks: &Disks, ranges: &[Range<usize>]) -> Vec<M
     moments
 }
 
-/// Level-of-detail payload of every node (`lod[k]` for `nodes[k]`) and the representative
-/// splats, one per child: child `i` of node `k` in lane `i` of block `k`. Also sets every node's
-/// level-of-detail slots and `min_radius`.
-pub(super) fn build(nodes: &mut [Node], disks: &Disks, shape: DiskShape) -> (Vec<NodeLod>, Vec<SplatBlock>) {
+/// A node's level-of-detail payload: its children's spheres and cones, their representatives
+/// (child `i` in lane `i`) and aggregates.
+pub(super) struct Payload {
+    pub(super) lod: NodeLod,
+    pub(super) representatives: SplatBlock,
+    pub(super) aggregate: NodeAggregate,
+}
+
+/// Level-of-detail payload of every node (`lod[k]` for `nodes[k]`, and so on). Also sets every
+/// node's level-of-detail slots and `min_radius`.
+pub(super) fn build(
+    nodes: &mut [Node],
+    disks: &Disks,
+    shape: DiskShape,
+) -> (Vec<NodeLod>, Vec<SplatBlock>, Vec<NodeAggregate>) {
     let ranges = node_ranges(nodes);
     let moments = node_moments(nodes, disks, &ranges);
     // Unzipped straight into the two arrays: collected as pairs and then split, the pairs took
     // 256 bytes a node beside both. A node a job: a node's pass costs its splats, the root all
     // of them, and rayon's default jobs of a quarter of the nodes left one thread idle (the
     // dragon's build 0.0575 → 0.0555 s, two threads, medians of nine alternating runs).
-    let (lod, reps): (Vec<NodeLod>, Vec<SplatBlock>) =
-        nodes.par_iter().with_max_len(1).map(|n| node_lod(n, disks, &ranges, &moments, shape)).unzip();
+    let (lod, (reps, aggregates)): (Vec<NodeLod>, (Vec<SplatBlock>, Vec<NodeAggregate>)) = nodes
+        .par_iter()
+        .with_max_len(1)
+        .map(|n| {
+            let p = node_lod(n, disks, &ranges, &moments, shape);
+            (p.lod, (p.representatives, p.aggregate))
+        })
+        .unzip();
     drop(moments);
     for (n, l) in nodes.iter_mut().zip(&lod) {
         // A leaf of a few splats costs about what its representative does to test: it is never
@@ -237,20 +273,14 @@ pub(super) fn build(nodes: &mut [Node], disks: &Disks, shape: DiskShape) -> (Vec
         n.used = n.used & !(SLOTS << LOD_SLOTS_SHIFT) | coarse.iter().fold(0, |m, i| m | 1 << i) << LOD_SLOTS_SHIFT;
         n.min_radius = coarse.iter().map(|&i| l.radius[i]).fold(f32::INFINITY, f32::min);
     }
-    (lod, reps)
+    (lod, reps, aggregates)
 }
 
 /// The level-of-detail payload and the representatives of one node's children. Never inlined:
 /// inside the parallel iterator's closure, its lane loops were vectorised or not as unrelated
 /// code elsewhere changed (the dragon's build 0.061 or 0.066 s).
 #[inline(never)]
-fn node_lod(
-    n: &Node,
-    disks: &Disks,
-    ranges: &[Range<usize>],
-    moments: &[Moments],
-    shape: DiskShape,
-) -> (NodeLod, SplatBlock) {
+fn node_lod(n: &Node, disks: &Disks, ranges: &[Range<usize>], moments: &[Moments], shape: DiskShape) -> Payload {
     let children: [Option<ChildLod>; WIDTH] = std::array::from_fn(|i| {
         (n.used & (1 << i) != 0).then(|| {
             let below = child_range(n.child[i], ranges);
@@ -274,7 +304,11 @@ fn node_lod(
     let lod = NodeLod { radius: lane(&|c| c.radius, 0.0), cos_angle: lane(&|c| c.cos_angle, -1.0) };
     let unused = Splat { center: Vec3::ZERO, radius: 0.0, normal: Vec3::Z, color: 0 };
     let reps: [Splat; WIDTH] = std::array::from_fn(|i| children[i].as_ref().map_or(unused, |c| c.rep));
-    (lod, SplatBlock::new(&reps))
+    let aggregate = NodeAggregate {
+        area_radius: lane(&|c| c.aggregate.area_radius, 0.0),
+        agreement: lane(&|c| c.aggregate.agreement, 0.0),
+    };
+    Payload { lod, representatives: SplatBlock::new(&reps), aggregate }
 }
 
 /// Marks the nodes that test their children's spheres rather than their boxes.

@@ -14,6 +14,7 @@
 //! level of detail off, culling off and boxes only, the traversal is the full-detail one.
 
 mod build;
+mod gather;
 pub(crate) mod lanes;
 mod lod;
 pub(super) mod traverse;
@@ -28,6 +29,7 @@ use lanes::{Lanes, Wide};
 use crate::accel::Accel;
 use crate::accel::block::{BLOCK, SplatBlock};
 use crate::math::Aabb;
+use crate::splat::footprint::{Beam, FootprintVisitor};
 use crate::splat::{DiskShape, Splat};
 
 /// A child reference is a node index, or for a leaf
@@ -144,6 +146,8 @@ pub struct Bvh {
     /// block `k`, with index `BLOCK·blocks.len() + WIDTH·k + i` for a visitor, which gets one
     /// index space for both (`WIDTH` = `BLOCK`), and one way to fetch either.
     pub(crate) representatives: Vec<SplatBlock>,
+    /// Per node, what the footprint prefilter knows of its children's disks.
+    pub(crate) aggregates: Vec<lod::NodeAggregate>,
     /// The number of input splats.
     pub(crate) splat_count: usize,
     pub(crate) bounds: Aabb,
@@ -156,6 +160,8 @@ pub struct Bvh {
     pub(crate) lod_floor: f32,
     /// See [`super::Accel::wide_radius`].
     pub(crate) wide_radius: f32,
+    /// See [`super::Accel::coverage_density`].
+    pub(crate) coverage_density: f32,
     /// The disks the bounds hold.
     pub(crate) shape: DiskShape,
 }
@@ -174,7 +180,8 @@ impl Bvh {
 
     /// Bytes per node: its boxes and child references, its spheres and cones, and its
     /// children's representative splats.
-    pub const NODE_BYTES: usize = size_of::<Node>() + size_of::<lod::NodeLod>() + size_of::<SplatBlock>();
+    pub const NODE_BYTES: usize =
+        size_of::<Node>() + size_of::<lod::NodeLod>() + size_of::<SplatBlock>() + size_of::<lod::NodeAggregate>();
 
     /// Which bounds the nodes test.
     pub fn node_bounds(&self) -> NodeBounds {
@@ -236,6 +243,16 @@ impl super::Accel for Bvh {
 
     fn wide_radius(&self) -> f32 {
         self.wide_radius
+    }
+
+    fn coverage_density(&self) -> f32 {
+        self.coverage_density
+    }
+
+    const GATHERS: bool = true;
+
+    fn gather<V: FootprintVisitor>(&self, beam: &Beam, tau: f32, visitor: &mut V, stats: &mut super::TraversalStats) {
+        gather::gather(self, beam, tau, visitor, stats);
     }
 
     fn may_stop_at_representatives(&self, ray: &crate::math::Ray) -> bool {

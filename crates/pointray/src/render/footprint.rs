@@ -1,0 +1,144 @@
+//! A camera ray through the footprint prefilter (`splat::footprint`): its pixel's layers
+//! shaded once each, front to back, and blended by their coverage with what lies behind.
+
+use arrayvec::ArrayVec;
+use glam::Vec3;
+
+use super::Tracer;
+use crate::accel::Accel;
+use crate::material::{Material, Phong};
+use crate::math::{Ray, RayCone};
+use crate::render::Integrator;
+use crate::shading::Light;
+use crate::splat::footprint::{Footprint, Layer, shadow_origins};
+use crate::splat::scheme::SurfaceHit;
+
+/// Layers shaded at most; light past them is what lies behind.
+const MAX_LAYERS: usize = 16;
+
+/// Layers letting less than this through hide what lies behind.
+const OPAQUE: f32 = 0.01;
+
+impl<A: Accel> Tracer<'_, A> {
+    /// The radiance of `ray`'s pixel footprint, or `None` where a layer is not of a Phong
+    /// material (mirrors and glass are traced as rays).
+    #[inline(never)]
+    pub(super) fn footprint_radiance(&mut self, ray: &Ray) -> Option<Vec3> {
+        let config = self.config;
+        let ground = config.ground.as_ref().and_then(|g| g.intersect(ray, f32::INFINITY).map(|hit| (g, hit)));
+        let t_max = ground.as_ref().map_or(f32::INFINITY, |(_, hit)| hit.t);
+        let mut footprint = Footprint::new(self.accel, ray, t_max);
+        footprint.gather(self.accel, ray.lod_threshold, &mut self.stats.traversal);
+        let mut layers: ArrayVec<(Layer, Phong), MAX_LAYERS> = ArrayVec::new();
+        let mut transmit = 1.0;
+        for layer in footprint.layers().take(MAX_LAYERS) {
+            let index = usize::from(self.accel.splat(layer.index).material());
+            let Some(Material::Phong(phong)) = config.materials.get(index).or(config.materials.first()).copied() else {
+                return None;
+            };
+            transmit *= 1.0 - layer.coverage;
+            layers.push((layer, phong));
+            if transmit < OPAQUE {
+                break;
+            }
+        }
+        self.stats.rays += 1;
+        self.stats.primary_hits += u64::from(!layers.is_empty());
+        let mut radiance = Vec3::ZERO;
+        let mut transmit = 1.0;
+        for (layer, phong) in &layers {
+            let weight = transmit * layer.coverage;
+            let (hit, agreement) = layer_hit(ray, &footprint, layer);
+            if config.first_hit_aovs {
+                self.first.normal += weight * hit.normal;
+                self.first.albedo += weight * layer.color;
+                self.first.covered += weight;
+            }
+            radiance += weight * self.shade_layer(ray, &footprint, layer, &hit, phong, agreement);
+            transmit *= 1.0 - layer.coverage;
+        }
+        if config.first_hit_aovs
+            && let Some((front, _)) = layers.first()
+        {
+            self.first.depth += front.t;
+            self.first.hits += 1;
+        }
+        let behind = match ground {
+            Some((plane, hit)) => self.shade(ray, &hit, plane.material, 0, false),
+            None => self.missed(ray, 0, 0.0),
+        };
+        Some(radiance + transmit * behind)
+    }
+
+    /// What `layer` sends back along `ray`: Phong with its albedo darkened and its highlight
+    /// widened by its normals' spread, each light seen through its shadow rays' share.
+    fn shade_layer(
+        &mut self,
+        ray: &Ray,
+        footprint: &Footprint,
+        layer: &Layer,
+        hit: &SurfaceHit,
+        phong: &Phong,
+        agreement: f32,
+    ) -> Vec3 {
+        let config = self.config;
+        if config.integrator == Integrator::EyeLight {
+            // The mean of |n·d| over the pixel, as many rays would see it.
+            return layer.color * layer.normal.dot(ray.dir).abs();
+        }
+        let mut color = self.ambient(phong, hit);
+        for light in &config.lights {
+            let (to_light, _, irradiance) = light.towards(hit.position);
+            if hit.normal.dot(to_light) <= 0.0 {
+                continue;
+            }
+            let seen = if config.shadows { self.layer_visibility(footprint, layer, light) } else { 1.0 };
+            if seen > 0.0 {
+                color += seen * phong.direct_rough(hit, -ray.dir, to_light, irradiance, agreement);
+            }
+        }
+        color
+    }
+
+    /// The share of `layer` that sees `light`: a shadow ray from each of its quadrants'
+    /// pieces ([`shadow_origins`]), weighted by their coverage.
+    fn layer_visibility(&mut self, footprint: &Footprint, layer: &Layer, light: &Light) -> f32 {
+        let config = self.config;
+        let reach = config.scheme.self_hit_radii() * footprint.beam.radius(layer.t);
+        let (mut seen, mut total) = (0.0, 0.0);
+        for origin in shadow_origins(footprint, layer) {
+            total += origin.weight;
+            let u = if light.is_area() { [self.rng.next(), self.rng.next()] } else { [0.5; 2] };
+            let (direction, distance) = light.shadow_target(origin.point, u);
+            if origin.normal.dot(direction) <= 0.0 {
+                continue;
+            }
+            let start = origin.point + origin.normal * (config.shadow_offset * reach);
+            let cone = RayCone { width0: origin.width, spread: 0.0 };
+            let shadow = Ray::new(start, direction, cone).with_t_min(reach).with_lod_threshold(config.lod_threshold);
+            self.stats.rays += 1;
+            self.stats.shadow_rays += 1;
+            if !self.occluded(&shadow, distance) {
+                seen += origin.weight;
+            }
+        }
+        if total > 0.0 { seen / total } else { 1.0 }
+    }
+}
+
+/// The hit a layer shades as: at its mean depth on the beam's axis, with its mean normal made
+/// unit and its albedo darkened by the normals' agreement (Toksvig's factor), which it returns.
+fn layer_hit(ray: &Ray, footprint: &Footprint, layer: &Layer) -> (SurfaceHit, f32) {
+    let length = layer.normal.length();
+    let (normal, agreement) = if length > 0.0 { (layer.normal / length, length.min(1.0)) } else { (-ray.dir, 0.0) };
+    let hit = SurfaceHit {
+        t: layer.t,
+        position: ray.origin + layer.t * ray.dir,
+        normal,
+        color: (layer.color * agreement).to_array(),
+        radius: footprint.beam.radius(layer.t),
+        splat: layer.index,
+        blended: layer.pieces.len() as u32,
+    };
+    (hit, agreement)
+}

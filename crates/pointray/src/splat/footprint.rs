@@ -1,0 +1,426 @@
+//! The footprint prefilter: level of detail as a prefilter (issue 21), one beam a pixel.
+//!
+//! A camera ray stands for its pixel: a beam about the ray, as wide as the pixel's footprint
+//! (a disk of the pixel's area). Instead of the first disk the ray meets, the beam gathers
+//! every disk, or representative of disks finer than the pixel, that overlaps it, as a
+//! [`Piece`]: the share of the beam's cross-section the disks cover, their mean colour and
+//! their mean normal, whose length says how much the normals below spread. Pieces at one depth
+//! make a [`Layer`], a surface seen through the pixel: coverage summed, attributes averaged
+//! by it. Layers composite front to back, so a pixel the model covers in part blends with
+//! what lies behind, and a rough patch shades darker and with a wider highlight (Toksvig).
+//! One beam a pixel then approaches the mean of many rays a pixel (`docs/RESULTS.md`).
+//!
+//! Coverage. A representative's disks cover `area / ρ` of the surface, `area` their summed
+//! area and ρ the cloud's [`coverage_density`] (how many disks cover a point of it: they
+//! overlap by design); a piece is a disk of that area in the representative's plane,
+//! projected along the beam, and its coverage the share of the beam's cross-section it
+//! overlaps. Within a layer the pieces tile the surface, so their coverages add (at most 1).
+
+use arrayvec::ArrayVec;
+use glam::Vec3;
+
+use crate::accel::{Accel, TraversalStats};
+use crate::color::srgb8_to_linear_table;
+use crate::math::Ray;
+use crate::splat::{Splat, color_linear_in};
+
+/// The beam's radius as a share of the pixel's width: a disk of the pixel's area (1/√π).
+pub const FOOTPRINT_RADIUS: f32 = 0.564_189_6;
+
+/// The gather stops at subtrees whose bounding sphere's radius is below this share of the
+/// pixel's width, times τ: a few pieces across the pixel. On the dragon at 16 diagonals,
+/// against 256 rays a pixel (without `LEAF_SLACK`): 0.5, 0.56, 0.7, 1 and 1.4 gave 33.8,
+/// 34.6, 35.0, 34.1 and 31.1 dB, the coarser ones with silhouettes too coarse, the finer with
+/// more pieces than help (`docs/RESULTS.md`).
+pub const GATHER_TAU: f32 = 0.7;
+
+/// Pieces within this many beam radii (or piece radii, if wider) of a layer's first piece
+/// join the layer.
+const LAYER_DEPTH: f32 = 2.0;
+
+/// Light passing layers below this share is gone: the beam stops.
+const OPAQUE: f32 = 0.01;
+
+/// The most pieces a beam keeps (the farthest go first): a pixel of the dragon at 16
+/// diagonals gathers 20 to 40.
+pub const MAX_PIECES: usize = 256;
+
+/// The coverage density the prefilter uses is the measured one times this: the pieces' sum
+/// fluctuates about the true coverage, and where it passes 1 it is cut to 1, so a surface that
+/// covers the pixel whole would show through a little (the dragon's inside pixels at 0.94 with
+/// the measured density, 8.4). 0.8 brings them to 1 and the partly covered pixels within 0.03
+/// of the converged coverage (dragon, 16 diagonals; `docs/RESULTS.md`).
+pub const DENSITY_CALIBRATION: f32 = 0.8;
+
+/// What a representative's disks are beyond its own disk.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aggregate {
+    /// √(Σ r²): the radius of a disk of their summed area.
+    pub area_radius: f32,
+    /// The length of their area-weighted mean normal: 1 where all agree.
+    pub agreement: f32,
+}
+
+impl Aggregate {
+    /// One disk's.
+    pub fn disk(radius: f32) -> Self {
+        Self { area_radius: radius, agreement: 1.0 }
+    }
+}
+
+/// A pixel's beam: about the ray's axis, radius `r0 + spread·t` for t in `[t_min, t_max]`.
+#[derive(Clone, Copy, Debug)]
+pub struct Beam {
+    pub origin: Vec3,
+    pub dir: Vec3,
+    pub r0: f32,
+    pub spread: f32,
+    pub t_min: f32,
+    pub t_max: f32,
+}
+
+impl Beam {
+    /// The beam of `ray`'s footprint, up to `t_max`.
+    pub fn of_ray(ray: &Ray, t_max: f32) -> Self {
+        Self {
+            origin: ray.origin,
+            dir: ray.dir,
+            r0: ray.cone.width0 * FOOTPRINT_RADIUS,
+            spread: ray.cone.spread * FOOTPRINT_RADIUS,
+            t_min: ray.t_min,
+            t_max,
+        }
+    }
+
+    #[inline(always)]
+    pub fn radius(&self, t: f32) -> f32 {
+        self.r0 + self.spread * t.max(0.0)
+    }
+}
+
+/// What an accelerator hands the gather: each disk or representative the beam may overlap.
+pub trait FootprintVisitor {
+    /// Nothing beyond this depth can show.
+    fn t_cut(&self) -> f32;
+    /// A disk (or a representative, with what it stands for) that the beam may overlap.
+    fn add(&mut self, index: u32, splat: &Splat, aggregate: Aggregate);
+}
+
+/// One disk's or representative's share of the beam.
+#[derive(Clone, Copy, Debug)]
+pub struct Piece {
+    /// Depth of its centre along the beam.
+    pub t: f32,
+    /// The share of the beam's cross-section it covers.
+    pub coverage: f32,
+    /// Linear albedo.
+    pub color: Vec3,
+    /// Unit normal, facing the beam's origin.
+    pub normal: Vec3,
+    /// Its normals' agreement ([`Aggregate::agreement`]).
+    pub agreement: f32,
+    pub center: Vec3,
+    /// The covered disk's radius as the beam sees it.
+    pub size: f32,
+    /// The disk's own radius.
+    pub radius: f32,
+    /// As [`Accel::splat`] takes it.
+    pub index: u32,
+}
+
+/// Area of the intersection of two disks of radii `a` and `b` whose centres are `d` apart.
+pub fn lens_area(d: f32, a: f32, b: f32) -> f32 {
+    use std::f32::consts::PI;
+    if d >= a + b {
+        return 0.0;
+    }
+    if d <= (a - b).abs() {
+        return PI * a.min(b).powi(2);
+    }
+    let ca = ((d * d + a * a - b * b) / (2.0 * d * a)).clamp(-1.0, 1.0);
+    let cb = ((d * d + b * b - a * a) / (2.0 * d * b)).clamp(-1.0, 1.0);
+    let k = ((-d + a + b) * (d + a - b) * (d - a + b) * (d + a + b)).max(0.0);
+    (a * a * acos(ca) + b * b * acos(cb) - 0.5 * k.sqrt()).max(0.0)
+}
+
+/// arccos within 7·10⁻⁵ (Abramowitz and Stegun 4.4.45): a square root and a cubic, where the
+/// library's took a hundred instructions.
+fn acos(x: f32) -> f32 {
+    let a = x.abs();
+    let r = (1.0 - a).sqrt() * (1.570_728_8 + a * (-0.212_114_4 + a * (0.074_261_0 - 0.018_729_3 * a)));
+    if x < 0.0 { std::f32::consts::PI - r } else { r }
+}
+
+/// A beam's gather: the pieces so far (nearest first once gathered), and the depth past which
+/// the layers already in front are opaque.
+pub struct Footprint {
+    pub beam: Beam,
+    /// ρ with its calibration: a disk of area A covers A/ρ of the surface.
+    density: f32,
+    pieces: ArrayVec<Piece, MAX_PIECES>,
+    t_cut: f32,
+    /// The pieces' summed coverage: no layer is opaque below 1.
+    total: f32,
+    /// The summed coverage at which to look for an opaque layer again.
+    next_scan: f32,
+    /// The largest piece size so far.
+    widest: f32,
+}
+
+impl Footprint {
+    /// An empty gather of `ray`'s footprint up to `t_max` in `accel` (see [`Self::gather`]).
+    /// Inlined, so that the caller's frame holds it: returned by value, its pieces were a copy
+    /// of 30 kB a pixel.
+    #[inline(always)]
+    pub fn new<A: Accel>(accel: &A, ray: &Ray, t_max: f32) -> Self {
+        let beam = Beam::of_ray(ray, t_max);
+        let density = (accel.coverage_density() * DENSITY_CALIBRATION).max(1.0);
+        Self { beam, density, pieces: ArrayVec::new(), t_cut: t_max, total: 0.0, next_scan: 1.0 - OPAQUE, widest: 0.0 }
+    }
+
+    /// Gathers the footprint in `accel` at the level of detail `tau` (the ray's threshold).
+    pub fn gather<A: Accel>(&mut self, accel: &A, tau: f32, stats: &mut TraversalStats) {
+        let beam = self.beam;
+        accel.gather(&beam, tau * GATHER_TAU / FOOTPRINT_RADIUS, self, stats);
+        self.sort();
+    }
+
+    pub fn pieces(&self) -> &[Piece] {
+        &self.pieces
+    }
+
+    /// The surfaces the beam met, nearest first, up to the first opaque one.
+    pub fn layers(&self) -> Layers<'_> {
+        Layers { pieces: &self.pieces, beam: &self.beam, next: 0 }
+    }
+
+    /// Pieces come nearly in order (subtrees nearest first): an insertion sort's case, by hand
+    /// (the library's sort took 35,000 instructions a pixel of the dragon at 16 diagonals,
+    /// callgrind).
+    fn sort(&mut self) {
+        let pieces = self.pieces.as_mut_slice();
+        for i in 1..pieces.len() {
+            let p = pieces[i];
+            let mut at = i;
+            while at > 0 && pieces[at - 1].t > p.t {
+                pieces[at] = pieces[at - 1];
+                at -= 1;
+            }
+            pieces[at] = p;
+        }
+    }
+
+    /// The piece `splat` makes, or none where it does not overlap the beam or faces away.
+    #[inline(always)]
+    fn piece(&self, index: u32, s: &Splat, aggregate: Aggregate) -> Option<Piece> {
+        let beam = &self.beam;
+        let cos = s.normal.dot(beam.dir);
+        // The far side of a closed surface, and subtrees whose normals face away on the
+        // whole (a crease's other side shows through its own pieces, which face the beam).
+        if cos > 0.0 {
+            return None;
+        }
+        let oc = s.center - beam.origin;
+        let t = oc.dot(beam.dir);
+        if t < beam.t_min || t > self.t_cut {
+            return None;
+        }
+        let off = (oc - t * beam.dir).length();
+        // The covered disk seen along the beam: an ellipse, taken as the disk of its area.
+        let size = aggregate.area_radius / self.density.sqrt() * (-cos).max(MIN_COS).sqrt();
+        let w = beam.radius(t);
+        let coverage = lens_area(off, size, w) / (std::f32::consts::PI * w * w);
+        if coverage <= MIN_COVERAGE {
+            return None;
+        }
+        let color = Vec3::from(color_linear_in(s.color, srgb8_to_linear_table()));
+        let (normal, agreement, center, radius) = (s.normal, aggregate.agreement, s.center, s.radius);
+        Some(Piece { t, coverage, color, normal, agreement, center, size, radius, index })
+    }
+
+    fn insert(&mut self, p: Piece) {
+        if self.pieces.is_full() {
+            self.sort();
+            if self.pieces.last().is_some_and(|last| last.t <= p.t) {
+                return;
+            }
+            let dropped = self.pieces.pop().map_or(0.0, |q| q.coverage);
+            self.total -= dropped;
+        }
+        self.pieces.push(p);
+        self.total += p.coverage;
+        self.widest = self.widest.max(p.size);
+        if self.total >= self.next_scan {
+            self.cut_behind_opaque();
+        }
+    }
+
+    /// Drops what lies behind the first layers that let less than [`OPAQUE`] through.
+    fn cut_behind_opaque(&mut self) {
+        self.sort();
+        let mut transmit = 1.0;
+        let mut cut = None;
+        for layer in self.layers() {
+            transmit *= 1.0 - layer.coverage;
+            if transmit < OPAQUE {
+                cut = Some(layer.end);
+                break;
+            }
+        }
+        if let Some(end) = cut {
+            // A layer's end depends on the pieces in it, and a piece still to come in front
+            // may move the layers' bounds by up to a layer's depth: what lies within another
+            // of the opaque layer stays, so that the gather does not depend on the order the
+            // pieces come in (the BVH's nearest first, brute force's any).
+            self.t_cut = end + LAYER_DEPTH * self.beam.radius(end).max(self.widest);
+            let keep = self.pieces.partition_point(|p| p.t <= self.t_cut);
+            self.pieces.truncate(keep);
+            self.total = self.pieces.iter().map(|p| p.coverage).sum();
+        }
+        // Scans a piece, each over all the pieces, cost the dragon at 16 diagonals most of its
+        // time: the next once a quarter more coverage has come.
+        self.next_scan = self.total + SCAN_STEP;
+    }
+}
+
+/// The coverage gathered between two looks for an opaque layer.
+const SCAN_STEP: f32 = 0.25;
+
+/// Grazing disks count as seen at this cosine: edge-on, a disk still covers its thickness.
+const MIN_COS: f32 = 0.05;
+
+/// Pieces covering less than this share of the beam are left out.
+const MIN_COVERAGE: f32 = 1e-4;
+
+impl FootprintVisitor for Footprint {
+    #[inline(always)]
+    fn t_cut(&self) -> f32 {
+        self.t_cut
+    }
+
+    fn add(&mut self, index: u32, splat: &Splat, aggregate: Aggregate) {
+        if let Some(p) = self.piece(index, splat, aggregate) {
+            self.insert(p);
+        }
+    }
+}
+
+/// Pieces at one depth: a surface as the pixel sees it.
+#[derive(Clone, Debug)]
+pub struct Layer {
+    /// Coverage-weighted mean depth.
+    pub t: f32,
+    /// Where it ends: later pieces make another layer.
+    pub end: f32,
+    /// Summed coverage, at most 1.
+    pub coverage: f32,
+    /// Coverage-weighted mean albedo (linear).
+    pub color: Vec3,
+    /// Coverage-weighted mean of the pieces' normals scaled by their agreement: its length
+    /// (≤ 1) measures how much the normals under the pixel spread.
+    pub normal: Vec3,
+    /// The piece covering most, whose disk names the layer's material.
+    pub index: u32,
+    /// Its pieces, in [`Footprint::pieces`].
+    pub pieces: std::ops::Range<usize>,
+}
+
+/// [`Footprint::layers`].
+pub struct Layers<'a> {
+    pieces: &'a [Piece],
+    beam: &'a Beam,
+    next: usize,
+}
+
+impl Iterator for Layers<'_> {
+    type Item = Layer;
+
+    fn next(&mut self) -> Option<Layer> {
+        let start = self.next;
+        let first = self.pieces.get(start)?;
+        let reach = |p: &Piece| p.t + LAYER_DEPTH * self.beam.radius(p.t).max(p.size);
+        let mut end = reach(first);
+        let (mut sum, mut t, mut color, mut normal) = (0.0, 0.0, Vec3::ZERO, Vec3::ZERO);
+        let mut most = (0.0, first.index);
+        while let Some(p) = self.pieces.get(self.next).filter(|p| p.t <= end) {
+            end = end.max(p.t + 0.5 * (reach(p) - p.t));
+            sum += p.coverage;
+            t += p.coverage * p.t;
+            color += p.coverage * p.color;
+            normal += (p.coverage * p.agreement) * p.normal;
+            if p.coverage > most.0 {
+                most = (p.coverage, p.index);
+            }
+            self.next += 1;
+        }
+        let pieces = start..self.next;
+        Some(Layer {
+            t: t / sum,
+            end,
+            coverage: sum.min(1.0),
+            color: color / sum,
+            normal: normal / sum,
+            index: most.1,
+            pieces,
+        })
+    }
+}
+
+/// Where a layer's shadow rays leave from: the pieces grouped by the quadrant of the beam's
+/// cross-section they lie in, each group from its coverage-weighted mean point (each piece's
+/// point nearest the axis within half its radius) and normal. Light seen through a pixel
+/// varies across it; one shadow ray from the layer's mean point starts inside creases, and
+/// one a piece costs a ray a piece (the dragon at 16 diagonals: 30.6 dB inside with one, 32.4
+/// with one a piece, 33.2 with four; `docs/RESULTS.md`).
+pub fn shadow_origins(footprint: &Footprint, layer: &Layer) -> ArrayVec<ShadowOrigin, 4> {
+    let beam = &footprint.beam;
+    let (e1, e2) = crate::math::orthonormal_basis(beam.dir);
+    let mut groups = [ShadowOrigin { weight: 0.0, point: Vec3::ZERO, normal: Vec3::ZERO, width: 0.0 }; 4];
+    for p in &footprint.pieces[layer.pieces.clone()] {
+        let axis = beam.origin + p.t * beam.dir;
+        let off = axis - p.center;
+        let off = off - p.normal * off.dot(p.normal);
+        let len = off.length();
+        let point = if len > 0.0 { p.center + off * (len.min(0.5 * p.radius) / len) } else { p.center };
+        let side = point - axis;
+        let g = &mut groups[usize::from(side.dot(e1) > 0.0) + 2 * usize::from(side.dot(e2) > 0.0)];
+        g.weight += p.coverage;
+        g.point += p.coverage * point;
+        g.normal += p.coverage * p.normal;
+        g.width = g.width.max(p.size);
+    }
+    groups
+        .into_iter()
+        .filter(|g| g.weight > 0.0)
+        .map(|g| ShadowOrigin { point: g.point / g.weight, normal: g.normal.normalize_or_zero(), ..g })
+        .collect()
+}
+
+/// One of a layer's shadow rays' origins: its weight (the coverage it stands for), point,
+/// normal and the width of the beam it starts.
+#[derive(Clone, Copy, Debug)]
+pub struct ShadowOrigin {
+    pub weight: f32,
+    pub point: Vec3,
+    pub normal: Vec3,
+    pub width: f32,
+}
+
+/// How many disks cover a point of the surface, on average, in `accel` (at least 1): at the
+/// centre of each of `samples` (some of its disks), the disks whose radius reaches it (the
+/// dragon: 8.5; at random points of the disks instead of their centres, 8.5 too).
+pub fn coverage_density<A: Accel>(accel: &A, samples: impl Iterator<Item = Splat>) -> f32 {
+    let reach = accel.wide_radius();
+    let mut stats = TraversalStats::uncounted();
+    let (mut covering, mut count) = (0u64, 0u64);
+    for s in samples {
+        accel.for_each_near(s.center, reach, &mut stats, |_, d| {
+            covering += u64::from((d.center - s.center).length_squared() <= d.radius * d.radius);
+        });
+        count += 1;
+    }
+    (covering as f32 / count.max(1) as f32).max(1.0)
+}
+
+/// Disks an accelerator's build passes to [`coverage_density`], spread over the cloud.
+pub const DENSITY_SAMPLES: usize = 4096;

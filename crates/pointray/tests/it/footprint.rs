@@ -1,0 +1,167 @@
+//! The footprint prefilter (`splat::footprint`): what a pixel's beam gathers on analytic
+//! surfaces, the BVH's walk against brute force, and the renderer's use of it.
+
+use glam::Vec3;
+use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, TraversalStats};
+use pointray::camera::{Camera, Region};
+use pointray::math::{Ray, RayCone};
+use pointray::render::{RenderConfig, render};
+use pointray::shading::Environment;
+use pointray::splat::footprint::{Footprint, Layer};
+use pointray::splat::{Splat, pack_color};
+
+use crate::util::{plane_splats, random_rays, sphere_splats, torus_splats};
+
+/// A ray from `origin` towards `target` whose footprint is `width` wide at `target`.
+fn beam_ray(origin: Vec3, target: Vec3, width: f32) -> Ray {
+    let spread = width / (target - origin).length();
+    Ray::new(origin, target - origin, RayCone { width0: 0.0, spread })
+}
+
+/// The first layer `ray`'s footprint meets in `accel` at threshold `tau` (0: full detail).
+fn first_layer(accel: &impl Accel, ray: &Ray, tau: f32) -> Option<Layer> {
+    let mut footprint = Footprint::new(accel, ray, f32::INFINITY);
+    footprint.gather(accel, tau, &mut TraversalStats::default());
+    footprint.layers().next()
+}
+
+#[test]
+fn a_plane_covers_the_footprint_whole_with_its_own_colour_and_normal() {
+    let splats = plane_splats(20_000, 3);
+    let bvh = Bvh::build(splats.clone(), &BvhParams::standard());
+    let color = Vec3::from(splats[0].color_linear());
+    // A footprint some ten disks wide, straight down and at 45°, at full detail and with the
+    // representatives of subtrees up to its width.
+    for origin in [Vec3::new(0.1, -0.2, 3.0), Vec3::new(2.1, -0.2, 2.0)] {
+        for tau in [0.0, 1.0] {
+            let ray = beam_ray(origin, Vec3::new(0.1, -0.2, 0.0), 0.15);
+            let layer = first_layer(&bvh, &ray, tau).expect("the plane");
+            assert!(layer.coverage > 0.97, "{origin} τ {tau}: coverage {}", layer.coverage);
+            assert!(layer.normal.normalize().dot(Vec3::Z) > 0.999 && layer.normal.length() > 0.99, "{layer:?}");
+            assert!((layer.color - color).abs().max_element() < 1e-3, "{layer:?}");
+            let depth = (ray.origin + layer.t * ray.dir).z;
+            assert!(depth.abs() < 0.02, "the layer lies on the plane: {depth}");
+        }
+    }
+}
+
+#[test]
+fn a_footprint_on_the_planes_edge_is_half_covered_and_one_past_it_not_at_all() {
+    // The square [−1, 1]²: a footprint centred on its edge x = 1 sees half of it.
+    let bvh = Bvh::build(plane_splats(20_000, 5), &BvhParams::standard());
+    for tau in [0.0, 1.0] {
+        let edge = first_layer(&bvh, &beam_ray(Vec3::new(1.0, 0.3, 3.0), Vec3::new(1.0, 0.3, 0.0), 0.3), tau);
+        let coverage = edge.expect("half the plane").coverage;
+        // The density's calibration overstates coverage by 1/0.8 where it is below 1 (the
+        // price of inside pixels covered whole; `footprint::DENSITY_CALIBRATION`).
+        let expected = 0.5 / pointray::splat::footprint::DENSITY_CALIBRATION;
+        assert!((coverage - expected).abs() < 0.08, "τ {tau}: coverage {coverage}, expected {expected}");
+        let past = first_layer(&bvh, &beam_ray(Vec3::new(1.5, 0.3, 3.0), Vec3::new(1.5, 0.3, 0.0), 0.3), tau);
+        assert!(past.is_none(), "τ {tau}: {past:?}");
+    }
+}
+
+#[test]
+fn normals_that_spread_give_a_shorter_mean_normal() {
+    // A plane whose disks tilt ±30° about y in turn: the pixel's mean normal is cos 30° long.
+    let mut splats = plane_splats(20_000, 9);
+    let tilt = 30f32.to_radians();
+    for (i, s) in splats.iter_mut().enumerate() {
+        let sign = if i % 2 == 0 { 1.0 } else { -1.0 };
+        s.normal = Vec3::new(sign * tilt.sin(), 0.0, tilt.cos());
+    }
+    let bvh = Bvh::build(splats, &BvhParams::standard());
+    for tau in [0.0, 1.0] {
+        let layer = first_layer(&bvh, &beam_ray(Vec3::new(0.0, 0.0, 3.0), Vec3::ZERO, 0.2), tau).expect("the plane");
+        let agreement = layer.normal.length();
+        assert!((agreement - tilt.cos()).abs() < 0.03, "τ {tau}: {agreement}");
+        assert!(layer.normal.normalize().dot(Vec3::Z) > 0.99, "{layer:?}");
+    }
+}
+
+#[test]
+fn the_bvh_gathers_what_brute_force_gathers_at_full_detail() {
+    for (name, splats) in [("sphere", sphere_splats(3_000, 1.0, 11)), ("torus", torus_splats(3_000, 12))] {
+        let bvh = Bvh::build(splats.clone(), &BvhParams::standard());
+        let brute = BruteForce::new(splats);
+        assert_eq!(bvh.coverage_density().to_bits(), brute.coverage_density().to_bits(), "{name}");
+        let mut met = 0;
+        for (i, ray) in random_rays(300, &brute.bounds(), 21).iter().enumerate() {
+            let ray = Ray { cone: RayCone { width0: 0.0, spread: 0.02 }, ..*ray };
+            match (first_layer(&brute, &ray, 0.0), first_layer(&bvh, &ray, 0.0)) {
+                (None, None) => {}
+                (Some(a), Some(b)) => {
+                    met += 1;
+                    let close = |x: f32, y: f32| (x - y).abs() <= 1e-5 * (1.0 + x.abs());
+                    assert!(close(a.coverage, b.coverage) && close(a.t, b.t), "{name} ray {i}: {a:?} vs {b:?}");
+                    assert!((a.color - b.color).abs().max_element() < 1e-5, "{name} ray {i}");
+                    assert!((a.normal - b.normal).abs().max_element() < 1e-5, "{name} ray {i}");
+                    assert_eq!(a.pieces.len(), b.pieces.len(), "{name} ray {i}");
+                }
+                (a, b) => panic!("{name} ray {i}: brute {a:?} vs BVH {b:?}"),
+            }
+        }
+        assert!(met > 50, "{name}: the rays must meet the surface ({met})");
+    }
+}
+
+/// A torus's render through the prefilter, with a light and shadows.
+fn prefiltered(threads: usize, config: &RenderConfig, bvh: &Bvh, cam: &Camera) -> pointray::film::Film {
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+    pool.install(|| render(bvh, cam, config, &|_| {})).0
+}
+
+#[test]
+fn a_prefiltered_render_is_the_same_with_any_threads_and_its_edges_partly_covered() {
+    let bvh = Bvh::build(torus_splats(60_000, 7), &BvhParams::standard());
+    // Far enough that a pixel holds many disks: level of detail, and the prefilter, apply.
+    let bounds = pointray::math::Aabb::new(Vec3::splat(-1.4), Vec3::splat(1.4));
+    let cam = Camera::orbit(&bounds, Vec3::new(0.4, 0.9, 1.0), Vec3::Y, 4.0, 30.0, 96, 72);
+    let config = RenderConfig {
+        lights: vec![pointray::demo::demo_light()],
+        environment: Environment::Uniform { color: [0.1, 0.1, 0.1] },
+        lod_threshold: 1.0,
+        prefilter: true,
+        ..crate::util::render_config(Region::full(96, 72), 1)
+    };
+    let (a, b) = (prefiltered(1, &config, &bvh, &cam), prefiltered(2, &config, &bvh, &cam));
+    assert!(a.rgb.iter().zip(&b.rgb).all(|(x, y)| x.map(f32::to_bits) == y.map(f32::to_bits)));
+    let coverage = &a.first_hits.as_ref().expect("recorded").coverage;
+    let partly = coverage.iter().filter(|&&c| c > 0.05 && c < 0.95).count();
+    let whole = coverage.iter().filter(|&&c| c >= 0.99).count();
+    assert!(partly > 20 && whole > 100, "edges blend, insides are covered: {partly} partly, {whole} whole");
+    // Without the prefilter every pixel is a hit or a miss.
+    let plain = prefiltered(2, &RenderConfig { prefilter: false, ..config.clone() }, &bvh, &cam);
+    let hard = &plain.first_hits.as_ref().expect("recorded").coverage;
+    assert!(hard.iter().all(|&c| c == 0.0 || c == 1.0));
+    // And the two images agree but where they should not: within a few levels on the whole.
+    let mean = |f: &pointray::film::Film| f.rgb.iter().map(|p| Vec3::from(*p)).sum::<Vec3>() / f.rgb.len() as f32;
+    assert!((mean(&a) - mean(&plain)).abs().max_element() < 0.02, "{} vs {}", mean(&a), mean(&plain));
+}
+
+#[test]
+fn a_mirror_in_the_footprint_is_traced_as_a_ray() {
+    // Splats of material 1, a mirror: the prefilter leaves them to the ray (and its image is
+    // the unfiltered one's).
+    let mut splats: Vec<Splat> = torus_splats(20_000, 4);
+    for s in &mut splats {
+        s.color = pack_color([0.8, 0.8, 0.8]);
+        s.set_material(1);
+    }
+    let bvh = Bvh::build(splats, &BvhParams::standard());
+    let bounds = pointray::math::Aabb::new(Vec3::splat(-1.4), Vec3::splat(1.4));
+    let cam = Camera::orbit(&bounds, Vec3::new(0.4, 0.9, 1.0), Vec3::Y, 6.0, 30.0, 32, 24);
+    let config = RenderConfig {
+        materials: vec![
+            pointray::material::Material::standard(),
+            pointray::material::Material::Mirror { tint: [0.9; 3] },
+        ],
+        environment: Environment::Uniform { color: [0.3, 0.5, 0.7] },
+        lod_threshold: 1.0,
+        prefilter: true,
+        ..crate::util::render_config(Region::full(32, 24), 1)
+    };
+    let a = prefiltered(1, &config, &bvh, &cam);
+    let b = prefiltered(1, &RenderConfig { prefilter: false, ..config.clone() }, &bvh, &cam);
+    assert!(a.rgb.iter().zip(&b.rgb).all(|(x, y)| x == y));
+}
