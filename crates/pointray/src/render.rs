@@ -215,29 +215,14 @@ pub fn render_into_until<A: Accel>(
             stats.traversal = TraversalStats::uncounted();
         }
         let y0 = region.y0 + b as u32 * rows_per_band;
-        let rows = (rgb.len() / width) as u32;
-        let mut centres: Option<RayLanes<RAY_BATCH>> = None;
-        for tx in (region.x0..region.x1).step_by(TILE as usize) {
-            for y in y0..y0 + rows {
-                for x in tx..(tx + TILE).min(region.x1) {
-                    let i = (y - y0) as usize * width + (x - region.x0) as usize;
-                    // One sample a pixel through a pinhole: the rays through the centres of
-                    // this pixel and the next made at once (`Camera::rays`; the dragon's first
-                    // hits 693 → 650 instructions a pixel, callgrind, and 10 % more rays a
-                    // second, the 1M torus 13 %, alternating runs).
-                    let lane = (x - tx) as usize % RAY_BATCH;
-                    if lane == 0 && primary.centre_rays {
-                        let xs = std::array::from_fn(|i| (x + i as u32) as f32 + 0.5);
-                        centres = Some(camera.rays(xs, [y as f32 + 0.5; RAY_BATCH]));
-                    }
-                    let centre = centres.as_ref().map(|rays| rays.ray(lane));
-                    let pixel = render_pixel(accel, camera, config, &primary, (x, y, centre), &mut stats);
-                    (rgb[i], nodes[i]) = (pixel.rgb, pixel.nodes);
-                    if let Some((normal, albedo, depth, coverage)) = &mut first_hits {
-                        (normal[i], albedo[i], depth[i], coverage[i]) = pixel.first.means();
-                    }
-                }
-            }
+        let rows = Rows { region, y0, width, primary: &primary };
+        // The prefilter's frames in an instance of their own: a check per ray for it cost the
+        // dragon's first hits 8 instructions a pixel, one per pixel choosing between two
+        // instances of `render_pixel` 4 (callgrind).
+        if primary.prefilter {
+            render_rows::<A, true>(accel, camera, config, &rows, (rgb, nodes, &mut first_hits), &mut stats);
+        } else {
+            render_rows::<A, false>(accel, camera, config, &rows, (rgb, nodes, &mut first_hits), &mut stats);
         }
         progress(rgb.len() as u64);
         stats
@@ -264,6 +249,50 @@ pub fn render_into_until<A: Accel>(
         }
         None if config.first_hit_aovs => panic!("a film without the first hits' channels (see `film_for`)"),
         _ => bands.map(|(b, (rgb, nodes))| render_band(b, rgb, nodes, None)).reduce(RenderStats::default, sum),
+    }
+}
+
+/// Where a band's pixels go: its first row and the region's.
+struct Rows<'a> {
+    region: Region,
+    y0: u32,
+    width: usize,
+    primary: &'a PrimaryRays,
+}
+
+/// A band's pixels, tile by tile, into its rows of the film.
+fn render_rows<A: Accel, const PREFILTER: bool>(
+    accel: &A,
+    camera: &Camera,
+    config: &RenderConfig,
+    rows_at: &Rows,
+    (rgb, nodes, first_hits): (&mut [[f32; 3]], &mut [u32], &mut Option<BandFirstHits>),
+    stats: &mut RenderStats,
+) {
+    let Rows { region, y0, width, primary } = *rows_at;
+    let rows = (rgb.len() / width) as u32;
+    let mut centres: Option<RayLanes<RAY_BATCH>> = None;
+    for tx in (region.x0..region.x1).step_by(TILE as usize) {
+        for y in y0..y0 + rows {
+            for x in tx..(tx + TILE).min(region.x1) {
+                let i = (y - y0) as usize * width + (x - region.x0) as usize;
+                // One sample a pixel through a pinhole: the rays through the centres of
+                // this pixel and the next made at once (`Camera::rays`; the dragon's first
+                // hits 693 → 650 instructions a pixel, callgrind, and 10 % more rays a
+                // second, the 1M torus 13 %, alternating runs).
+                let lane = (x - tx) as usize % RAY_BATCH;
+                if lane == 0 && primary.centre_rays {
+                    let xs = std::array::from_fn(|i| (x + i as u32) as f32 + 0.5);
+                    centres = Some(camera.rays(xs, [y as f32 + 0.5; RAY_BATCH]));
+                }
+                let centre = centres.as_ref().map(|rays| rays.ray(lane));
+                let pixel = render_pixel::<A, PREFILTER>(accel, camera, config, primary, (x, y, centre), stats);
+                (rgb[i], nodes[i]) = (pixel.rgb, pixel.nodes);
+                if let Some((normal, albedo, depth, coverage)) = first_hits {
+                    (normal[i], albedo[i], depth[i], coverage[i]) = pixel.first.means();
+                }
+            }
+        }
     }
 }
 
@@ -365,8 +394,9 @@ impl PrimaryRays {
 const RAY_BATCH: usize = 8;
 
 /// The pixel (`x`, `y`), given the ray through its centre where it takes one sample through
-/// a pinhole (`PrimaryRays::centre_rays`).
-fn render_pixel<A: Accel>(
+/// a pinhole (`PrimaryRays::centre_rays`); its camera rays through the footprint prefilter if
+/// `PREFILTER`.
+fn render_pixel<A: Accel, const PREFILTER: bool>(
     accel: &A,
     camera: &Camera,
     config: &RenderConfig,
@@ -406,7 +436,7 @@ fn render_pixel<A: Accel>(
         // pixel (callgrind).
         let rng = SampleRng::new(config.seed, x, y, 0, None);
         let ray = primary.finish(centre, stats);
-        sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.camera_radiance(&ray, primary);
+        sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.camera_radiance::<PREFILTER>(&ray);
     } else if primary.sample_batches {
         // Pinhole rays through the R2 points, which draw no numbers, made a batch at a time
         // and traced in order (`Camera::rays`: the dragon's distant samples, 64 a pixel, 1,233
@@ -422,8 +452,8 @@ fn render_pixel<A: Accel>(
             for i in 0..(range.end - start).min(RAY_BATCH as u32) {
                 let rng = SampleRng::new(config.seed, x, y, start + i, low_discrepancy);
                 let ray = primary.finish(rays.ray(i as usize), stats);
-                sum +=
-                    Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.camera_radiance(&ray, primary);
+                sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }
+                    .camera_radiance::<PREFILTER>(&ray);
             }
         }
     } else {
@@ -436,7 +466,8 @@ fn render_pixel<A: Accel>(
             };
             let lens = if camera.lens_radius > 0.0 { [rng.next(), rng.next()] } else { [0.5; 2] };
             let ray = primary.finish(camera.lens_ray(x as f32 + dx, y as f32 + dy, lens), stats);
-            sum += Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.camera_radiance(&ray, primary);
+            sum +=
+                Tracer { accel, config, rng, first: &mut first, stats: &mut *stats }.camera_radiance::<PREFILTER>(&ray);
         }
     }
     let nodes = (stats.traversal.nodes_visited - nodes_before).min(u32::MAX as u64) as u32;
@@ -575,10 +606,11 @@ struct Tracer<'a, A> {
 
 impl<A: Accel> Tracer<'_, A> {
     /// Radiance arriving along a camera ray: through the footprint prefilter where the frame
-    /// asks for it and the ray's footprint is wide enough for level of detail.
+    /// asks for it (`PREFILTER`, [`PrimaryRays::prefilter`]) and the ray's footprint is wide
+    /// enough for level of detail.
     #[inline(always)]
-    fn camera_radiance(&mut self, ray: &Ray, primary: &PrimaryRays) -> Vec3 {
-        if primary.prefilter
+    fn camera_radiance<const PREFILTER: bool>(&mut self, ray: &Ray) -> Vec3 {
+        if PREFILTER
             && self.accel.may_stop_at_representatives(ray)
             && let Some(radiance) = self.footprint_radiance(ray)
         {
