@@ -201,6 +201,39 @@ fn pixels_do_not_depend_on_thread_count() {
 }
 
 #[test]
+fn the_prefilter_renders_a_distant_demo_and_is_refused_where_it_cannot_apply() {
+    let dir = temp_dir();
+    // A sphere with outward normals, far enough for a pixel to hold a dozen of its points.
+    let ball = write_file(dir.path(), "ball.ply", ascii_ply_with_normals(&sphere_points(20_000)));
+    let ball = ball.to_str().expect("a UTF-8 path");
+    let args = [ball, "--distance", "8", "--prefilter", "--aov", "alpha"];
+    let mut images = Vec::new();
+    for threads in ["1", "2"] {
+        let out = format!("pf{threads}.png");
+        let mut a = vec!["-o", out.as_str(), "--threads", threads];
+        a.extend_from_slice(&args);
+        let run = render_in(dir.path(), &a);
+        run.assert_success();
+        assert!(!run.stderr.contains("rendering without it"), "{}", run.stderr);
+        images.push(read_png(&dir.path().join(&out)));
+    }
+    assert!(images[0] == images[1], "1 and 2 threads give different pixels");
+    // Edges blend: the coverage channel has levels between empty and whole.
+    let alpha = read_png(&dir.path().join("pf1.alpha.png"));
+    assert!(alpha.rgb.iter().any(|&v| v > 20 && v < 235), "no partly covered pixel");
+    for (flags, why) in [
+        (&["--accel", "kdtree"][..], "needs the BVH"),
+        (&["--integrator", "path"][..], "whitted and eye-light"),
+        (&["--lod", "off"][..], "needs level of detail"),
+    ] {
+        let mut a = vec!["-o", "refused.png", "--prefilter"];
+        a.extend_from_slice(flags);
+        render_in(dir.path(), &a).assert_failure(2).assert_stderr_contains(why);
+        assert!(!dir.path().join("refused.png").exists());
+    }
+}
+
+#[test]
 fn same_seed_same_image_different_seed_different_image() {
     let dir = temp_dir();
     let base = ["--demo-points", "20000", "--spp", "2"];

@@ -324,6 +324,7 @@ impl Settings {
             "applies to the whitted and eye-light integrators",
         )?;
         check(!self.prefilter || self.accel == AccelKind::Bvh, "prefilter", "needs the BVH (--accel bvh)")?;
+        check(!self.prefilter || tau > 0.0, "prefilter", "needs level of detail (a threshold above 0)")?;
         check(self.ior > 0.0 && finite(self.ior), "ior", "must be a positive number")?;
         check(self.lens_radius >= 0.0 && finite(self.lens_radius), "lens_radius", "must be non-negative")?;
         let lens = self.lens_radius == 0.0 || self.projection == Projection::Perspective;

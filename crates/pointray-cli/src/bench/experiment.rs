@@ -128,6 +128,14 @@ pub struct Matrix {
     /// Samples a pixel (default: one).
     #[serde(default = "one_sample")]
     pub spp: Vec<u32>,
+    /// The footprint prefilter off, on, or both (default: off; on is left out at threshold 0,
+    /// full detail, where it does not apply).
+    #[serde(default = "prefilter_off")]
+    pub prefilter: Vec<bool>,
+}
+
+fn prefilter_off() -> Vec<bool> {
+    vec![false]
 }
 
 fn one_sample() -> Vec<u32> {
@@ -205,6 +213,7 @@ pub struct Point {
     pub distance: f32,
     pub lod_threshold: f32,
     pub spp: u32,
+    pub prefilter: bool,
 }
 
 /// Reads and checks the experiment at `path`; errors name it.
@@ -252,6 +261,7 @@ fn check(e: &Experiment) -> anyhow::Result<()> {
         ensure!(m.lod_threshold.iter().all(|t| *t >= 0.0 && t.is_finite()), "{}: thresholds must be ≥ 0", which());
         ensure!(m.distance.iter().all(|d| *d > 0.0 && d.is_finite()), "{}: distances must be positive", which());
         ensure!(m.spp.iter().all(|n| (1..=MAX_SPP).contains(n)), "{}: spp must be 1 to {MAX_SPP}", which());
+        ensure!(!m.prefilter.is_empty(), "{}: every list needs at least one value", which());
     }
     ensure!(e.converged_spp.is_none_or(|n| (1..=MAX_SPP).contains(&n)), "converged_spp must be 1 to {MAX_SPP}");
     Ok(())
@@ -260,7 +270,7 @@ fn check(e: &Experiment) -> anyhow::Result<()> {
 impl Experiment {
     /// The points of every matrix that covers `model`, each once, in the order they are
     /// measured: by accelerator and the disks its bounds hold (one build each), distance,
-    /// scheme, threshold, then samples a pixel.
+    /// scheme, threshold, samples a pixel, then the prefilter.
     pub fn points(&self, model: &str) -> Vec<Point> {
         let mut points = Vec::new();
         for m in self.matrices.iter().filter(|m| m.models.as_ref().is_none_or(|ms| ms.iter().any(|n| n == model))) {
@@ -268,9 +278,10 @@ impl Experiment {
                 for &distance in &m.distance {
                     for &surface in &m.surface {
                         for &lod_threshold in &m.lod_threshold {
-                            for &spp in &m.spp {
-                                let p = Point { accel, surface, distance, lod_threshold, spp };
-                                if !points.contains(&p) {
+                            for (&spp, &prefilter) in m.spp.iter().flat_map(|s| m.prefilter.iter().map(move |f| (s, f)))
+                            {
+                                let p = Point { accel, surface, distance, lod_threshold, spp, prefilter };
+                                if !points.contains(&p) && !(prefilter && lod_threshold == 0.0) {
                                     points.push(p);
                                 }
                             }
@@ -280,8 +291,8 @@ impl Experiment {
             }
         }
         points.sort_by(|a, b| {
-            (a.accel, a.surface.shape(), a.distance, a.surface, a.lod_threshold, a.spp)
-                .partial_cmp(&(b.accel, b.surface.shape(), b.distance, b.surface, b.lod_threshold, b.spp))
+            (a.accel, a.surface.shape(), a.distance, a.surface, a.lod_threshold, a.spp, a.prefilter)
+                .partial_cmp(&(b.accel, b.surface.shape(), b.distance, b.surface, b.lod_threshold, b.spp, b.prefilter))
                 .expect("finite")
         });
         points
@@ -328,6 +339,28 @@ spp = [1, 4]
         assert_eq!(b[0].accel, AccelVariant::Bvh(NodeBounds::Boxes));
         assert!(b.iter().any(|p| p.accel.name() == "bvh-mixed-3" && p.surface == SurfaceKind::Rfd));
         assert!(matches!(e.models[1].source(Path::new("x")).unwrap(), Source::Mesh { points: 1000, .. }));
+    }
+
+    #[test]
+    fn the_prefilter_is_a_point_of_its_own_where_level_of_detail_is_on() {
+        let text = SMALL.replace("lod_threshold = [0, 1]\n", "lod_threshold = [0, 1]\nprefilter = [false, true]\n");
+        let e: Experiment = toml::from_str(&text).unwrap();
+        check(&e).unwrap();
+        let a = e.points("a");
+        // 2 accelerators × 2 distances × (threshold 0; threshold 1 plain and prefiltered).
+        assert_eq!(a.len(), 12);
+        assert!(a.iter().filter(|p| p.prefilter).all(|p| p.lod_threshold == 1.0));
+        assert_eq!(a.iter().filter(|p| p.prefilter).count(), 4);
+        fails_with(
+            &SMALL.replace("lod_threshold = [0, 1]\n", "lod_threshold = [0, 1]\nprefilter = []\n"),
+            "at least one value",
+        );
+    }
+
+    fn fails_with(text: &str, fragment: &str) {
+        let e: Experiment = toml::from_str(text).unwrap();
+        let message = format!("{:#}", check(&e).unwrap_err());
+        assert!(message.contains(fragment), "{message}");
     }
 
     #[test]

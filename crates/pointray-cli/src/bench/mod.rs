@@ -88,6 +88,9 @@ pub struct PointRecord {
     /// Samples a pixel (runs before the key have one).
     #[serde(default = "one_sample")]
     pub spp: u32,
+    /// Through the footprint prefilter.
+    #[serde(default)]
+    pub prefilter: bool,
     /// Pixels traced (the model's projected box, when cropped).
     pub pixels: u64,
     pub rays: u64,
@@ -163,7 +166,8 @@ fn run_experiment(a: &BenchArgs, e: &Experiment, threads: usize, quiet: bool) ->
             for p in e.points(&m.name) {
                 let (accel, surface) = (p.accel.name(), p.surface.name());
                 let (lod, distance, spp) = (p.lod_threshold, p.distance, p.spp);
-                println!("{} {accel} {surface} lod {lod} distance {distance} spp {spp}", m.name);
+                let prefilter = if p.prefilter { " prefilter" } else { "" };
+                println!("{} {accel} {surface} lod {lod} distance {distance} spp {spp}{prefilter}", m.name);
             }
         }
         println!("{planned} points");
@@ -338,6 +342,7 @@ fn settings(e: &Experiment, model: &Model, p: &Point) -> Settings {
         sphere_from_level: p.accel.node_bounds(),
         surface: p.surface,
         lod_threshold: p.lod_threshold,
+        prefilter: p.prefilter,
         spp: p.spp,
         view_dir: Some(model.view_dir),
         up: Some(model.up),
@@ -378,7 +383,7 @@ impl FullDetail {
     /// Renders what `p` is compared with and has not been rendered yet: its scheme's full
     /// detail at its samples a pixel, the reference scheme's, and the converged images.
     fn render_for(&mut self, e: &Experiment, model: &Model, p: &Point, scene: &Scene) -> anyhow::Result<()> {
-        let full = |surface, spp| Point { surface, spp, lod_threshold: 0.0, ..*p };
+        let full = |surface, spp| Point { surface, spp, lod_threshold: 0.0, prefilter: false, ..*p };
         let distance = p.distance.to_bits();
         // The reference scheme's disks are oriented (`experiment::check`), which every
         // accelerator's bounds hold.
@@ -469,7 +474,9 @@ fn measure_point(
 
     let (accel, surface) = (p.accel.name(), p.surface.name());
     let samples = if p.spp == 1 { String::new() } else { format!("_spp{}", p.spp) };
-    let image_name = format!("{}_{accel}_{surface}_d{}_t{}{samples}.png", model.name, p.distance, p.lod_threshold);
+    let prefilter = if p.prefilter { "_prefilter" } else { "" };
+    let image_name =
+        format!("{}_{accel}_{surface}_d{}_t{}{samples}{prefilter}.png", model.name, p.distance, p.lod_threshold);
     pointray_io::write_png(&out.join("images").join(&image_name), w, h, &image)?;
     let per_ray = |n: u64| n as f64 / stats.rays.max(1) as f64;
     Ok(PointRecord {
@@ -481,6 +488,7 @@ fn measure_point(
         lod_threshold: p.lod_threshold,
         distance: p.distance,
         spp: p.spp,
+        prefilter: p.prefilter,
         pixels: region.pixel_count(),
         rays: stats.rays,
         frames,

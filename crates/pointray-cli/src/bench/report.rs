@@ -162,7 +162,8 @@ fn models(md: &mut String, run: &Run) {
 /// The points of one model, accelerator and scheme at one sample a pixel (the thesis's
 /// experiments; more samples are the quality experiments').
 fn select<'a>(run: &'a Run, model: &str, accel: &str, surface: SurfaceKind) -> Vec<&'a PointRecord> {
-    let of = |p: &&PointRecord| p.model == model && p.accel == accel && p.surface == surface && p.spp == 1;
+    let of =
+        |p: &&PointRecord| p.model == model && p.accel == accel && p.surface == surface && p.spp == 1 && !p.prefilter;
     run.points.iter().filter(of).collect()
 }
 
@@ -504,8 +505,11 @@ fn embree_seconds(p: &PointRecord) -> Option<f64> {
 
 /// Thesis ch. 2 and 4: SJ against RFD and PSS, at full detail.
 fn schemes(md: &mut String, run: &Run) {
-    let points: Vec<&PointRecord> =
-        run.points.iter().filter(|p| p.accel == "bvh" && p.lod_threshold == 0.0 && p.spp == 1).collect();
+    let points: Vec<&PointRecord> = run
+        .points
+        .iter()
+        .filter(|p| p.accel == "bvh" && p.lod_threshold == 0.0 && p.spp == 1 && !p.prefilter)
+        .collect();
     let kinds: BTreeSet<SurfaceKind> = points.iter().map(|p| p.surface).collect();
     if kinds.len() < 2 {
         return;
@@ -561,41 +565,44 @@ fn converged_quality(md: &mut String, run: &Run) {
         md,
         "Each image against full detail at {converged} samples a pixel of the same scheme and view, over the \
          traced pixels: PSNR dB and, in brackets, FLIP (0 for the same image); then the median frame in ms. Full \
-         detail at 1, 2, 4, … samples a pixel beside level of detail at one: level of detail as prefiltering is \
-         as good as the full-detail column it matches, at its own cost.\n"
+         detail at 1, 2, 4, … samples a pixel beside level of detail at one, plain or prefiltered (`--prefilter`: \
+         each pixel's footprint gathered): level of detail as prefiltering is as good as the full-detail column \
+         it matches, at its own cost.\n"
     );
     for m in &run.models {
         let points: Vec<&PointRecord> =
             // (An image equal to the converged one has no PSNR, but a FLIP of 0.)
             run.points.iter().filter(|p| p.model == m.model && p.flip_converged.is_some()).collect();
-        let mut columns: Vec<(String, SurfaceKind, f32, u32)> = Vec::new();
+        let mut columns: Vec<(String, SurfaceKind, f32, u32, bool)> = Vec::new();
         for p in &points {
-            let column = (p.accel.clone(), p.surface, p.lod_threshold, p.spp);
+            let column = (p.accel.clone(), p.surface, p.lod_threshold, p.spp, p.prefilter);
             if !columns.contains(&column) {
                 columns.push(column);
             }
         }
-        columns.sort_by(|a, b| (&a.0, a.1, a.2, a.3).partial_cmp(&(&b.0, b.1, b.2, b.3)).expect("finite"));
+        columns.sort_by(|a, b| (&a.0, a.1, a.2, a.3, a.4).partial_cmp(&(&b.0, b.1, b.2, b.3, b.4)).expect("finite"));
         if columns.is_empty() {
             continue;
         }
         let _ = writeln!(md, "### {} ({} points)\n", m.model, thousands(m.points as u64));
         let mut head = "| distance | pixels |".to_string();
-        for (accel, surface, lod, spp) in &columns {
+        for (accel, surface, lod, spp, prefilter) in &columns {
             let detail = if *lod == 0.0 { "full detail".to_string() } else { format!("τ = {lod}") };
-            head += &format!(" {accel} {}, {detail}, {spp} spp |", surface.name());
+            let prefilter = if *prefilter { ", prefiltered" } else { "" };
+            head += &format!(" {accel} {}, {detail}, {spp} spp{prefilter} |", surface.name());
         }
         let _ = writeln!(md, "{head}\n|---:|---:|{}", "---|".repeat(columns.len()));
         for d in sorted_set(points.iter().map(|p| p.distance)) {
             let mut row = String::new();
             let mut pixels = 0;
-            for (accel, surface, lod, spp) in &columns {
+            for (accel, surface, lod, spp, prefilter) in &columns {
                 let p = points.iter().find(|p| {
                     p.distance == d
                         && p.accel == *accel
                         && p.surface == *surface
                         && p.lod_threshold == *lod
                         && p.spp == *spp
+                        && p.prefilter == *prefilter
                 });
                 row += &p.map_or(" – |".into(), |p| {
                     pixels = p.pixels;

@@ -28,7 +28,7 @@ impl<A: Accel> Tracer<'_, A> {
         let ground = config.ground.as_ref().and_then(|g| g.intersect(ray, f32::INFINITY).map(|hit| (g, hit)));
         let t_max = ground.as_ref().map_or(f32::INFINITY, |(_, hit)| hit.t);
         let mut footprint = Footprint::new(self.accel, ray, t_max);
-        footprint.gather(self.accel, ray.lod_threshold, &mut self.stats.traversal);
+        footprint.gather(self.accel, 1.0, &mut self.stats.traversal);
         let mut layers: ArrayVec<(Layer, Phong), MAX_LAYERS> = ArrayVec::new();
         let mut transmit = 1.0;
         for layer in footprint.layers().take(MAX_LAYERS) {

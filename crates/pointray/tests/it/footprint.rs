@@ -18,7 +18,7 @@ fn beam_ray(origin: Vec3, target: Vec3, width: f32) -> Ray {
     Ray::new(origin, target - origin, RayCone { width0: 0.0, spread })
 }
 
-/// The first layer `ray`'s footprint meets in `accel` at threshold `tau` (0: full detail).
+/// The first layer `ray`'s footprint meets in `accel`, at full detail (`tau` 0) or not (1).
 fn first_layer(accel: &impl Accel, ray: &Ray, tau: f32) -> Option<Layer> {
     let mut footprint = Footprint::new(accel, ray, f32::INFINITY);
     footprint.gather(accel, tau, &mut TraversalStats::default());

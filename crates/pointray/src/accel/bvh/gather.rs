@@ -73,8 +73,10 @@ pub(super) fn gather<V: FootprintVisitor>(
 }
 
 /// Leaves stand as their representatives up to this many times the threshold: opened, a leaf
-/// hands the gather its 8 to 16 disks one by one. On the dragon at 16 diagonals: 6.6 ms a frame
-/// and 34.9 dB without (against 256 rays a pixel), 2.8 ms and 34.8 dB with (`docs/RESULTS.md`).
+/// hands the gather its 8 to 16 disks one by one. The dragon against 256 rays a pixel, at 16
+/// diagonals: 6.6 ms a frame and 35.0 dB without, 2.8 ms and 34.7 dB at 1.5, 2.1 ms and 34.2 dB
+/// at 2.5; at 8 diagonals: 19.0 ms and 36.2 dB at 1.5, 7.7 and 35.6 at 2.5, 5.4 and 35.1 at 4
+/// (`docs/RESULTS.md`). 1.5 keeps the dragon at 16 diagonals as close as 8 rays a pixel.
 const LEAF_SLACK: f32 = 1.5;
 
 /// For node `k`'s children: where their spheres begin along the beam, those the beam enters
