@@ -280,8 +280,10 @@ impl Experiment {
                         for &lod_threshold in &m.lod_threshold {
                             for (&spp, &prefilter) in m.spp.iter().flat_map(|s| m.prefilter.iter().map(move |f| (s, f)))
                             {
+                                // At full detail the prefilter does not apply.
+                                let applies = !prefilter || lod_threshold > 0.0;
                                 let p = Point { accel, surface, distance, lod_threshold, spp, prefilter };
-                                if !points.contains(&p) && !(prefilter && lod_threshold == 0.0) {
+                                if applies && !points.contains(&p) {
                                     points.push(p);
                                 }
                             }
