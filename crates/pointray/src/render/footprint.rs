@@ -29,11 +29,38 @@ impl<A: Accel> Tracer<'_, A> {
         let t_max = ground.as_ref().map_or(f32::INFINITY, |(_, hit)| hit.t);
         let mut footprint = Footprint::new(self.accel, ray, t_max);
         footprint.gather(self.accel, 1.0, &mut self.stats.traversal);
-        let mut layers: ArrayVec<(Layer, Phong), MAX_LAYERS> = ArrayVec::new();
+        let layers = self.phong_layers(&footprint)?;
+        self.stats.rays += 1;
+        self.stats.primary_hits += u64::from(!layers.is_empty());
+        let mut radiance = Vec3::ZERO;
+        let mut transmit = 1.0;
+        for (i, (layer, phong)) in layers.iter().enumerate() {
+            let weight = transmit * layer.coverage;
+            let (hit, agreement) = layer_hit(ray, &footprint, layer);
+            self.record_first(&hit, weight, layer.color, layer.t, i == 0);
+            radiance += weight * self.shade_layer(ray, &footprint, layer, &hit, phong, agreement);
+            transmit *= 1.0 - layer.coverage;
+        }
+        let behind = match ground {
+            Some((plane, hit)) => {
+                // The ground covers what the layers leave.
+                self.record_first(&hit, transmit, Vec3::from(hit.color), hit.t, layers.is_empty());
+                self.shade(ray, &hit, plane.material, 0, false)
+            }
+            None => self.missed(ray, 0, 0.0),
+        };
+        Some(radiance + transmit * behind)
+    }
+
+    /// The layers up to the first opaque one, each with its material, or `None` where one is
+    /// not Phong.
+    fn phong_layers(&self, footprint: &Footprint) -> Option<ArrayVec<(Layer, Phong), MAX_LAYERS>> {
+        let materials = &self.config.materials;
+        let mut layers = ArrayVec::new();
         let mut transmit = 1.0;
         for layer in footprint.layers().take(MAX_LAYERS) {
             let index = usize::from(self.accel.splat(layer.index).material());
-            let Some(Material::Phong(phong)) = config.materials.get(index).or(config.materials.first()).copied() else {
+            let Some(Material::Phong(phong)) = materials.get(index).or(materials.first()).copied() else {
                 return None;
             };
             transmit *= 1.0 - layer.coverage;
@@ -42,32 +69,21 @@ impl<A: Accel> Tracer<'_, A> {
                 break;
             }
         }
-        self.stats.rays += 1;
-        self.stats.primary_hits += u64::from(!layers.is_empty());
-        let mut radiance = Vec3::ZERO;
-        let mut transmit = 1.0;
-        for (layer, phong) in &layers {
-            let weight = transmit * layer.coverage;
-            let (hit, agreement) = layer_hit(ray, &footprint, layer);
-            if config.first_hit_aovs {
-                self.first.normal += weight * hit.normal;
-                self.first.albedo += weight * layer.color;
-                self.first.covered += weight;
-            }
-            radiance += weight * self.shade_layer(ray, &footprint, layer, &hit, phong, agreement);
-            transmit *= 1.0 - layer.coverage;
+        Some(layers)
+    }
+
+    /// Adds a share `weight` of the pixel seeing `hit` (albedo `albedo`) to the film's first
+    /// hits, its depth `t` too if it is the `front`.
+    fn record_first(&mut self, hit: &SurfaceHit, weight: f32, albedo: Vec3, t: f32, front: bool) {
+        if !self.config.first_hit_aovs {
+            return;
         }
-        if config.first_hit_aovs
-            && let Some((front, _)) = layers.first()
-        {
-            self.first.depth += front.t;
-            self.first.hits += 1;
+        let first = &mut *self.first;
+        (first.normal, first.albedo, first.covered) =
+            (first.normal + weight * hit.normal, first.albedo + weight * albedo, first.covered + weight);
+        if front {
+            (first.depth, first.hits) = (first.depth + t, first.hits + 1);
         }
-        let behind = match ground {
-            Some((plane, hit)) => self.shade(ray, &hit, plane.material, 0, false),
-            None => self.missed(ray, 0, 0.0),
-        };
-        Some(radiance + transmit * behind)
     }
 
     /// What `layer` sends back along `ray`: Phong with its albedo darkened and its highlight

@@ -54,8 +54,8 @@ pub(super) fn gather<V: FootprintVisitor>(
             let index = bvh.representative_index(k, i);
             visitor.add(index, &bvh.representatives[k].splat(i), bvh.aggregates[k].get(i));
         }
-        // Farthest pushed first, so that the nearest is walked next (an insertion sort by
-        // hand: the library's sort cost 15,000 instructions a pixel, callgrind).
+        // Farthest pushed first, so that the nearest is walked next: an insertion sort of at
+        // most eight, by hand, as `Footprint` sorts its pieces.
         let first = stack.len();
         while enter != 0 {
             let i = enter.trailing_zeros() as usize;
