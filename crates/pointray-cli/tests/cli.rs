@@ -225,6 +225,7 @@ fn the_prefilter_renders_a_distant_demo_and_is_refused_where_it_cannot_apply() {
         (&["--accel", "kdtree"][..], "needs the BVH"),
         (&["--integrator", "path"][..], "whitted and eye-light"),
         (&["--lod", "off"][..], "needs level of detail"),
+        (&["--spp", "4"][..], "one ray a pixel"),
     ] {
         let mut a = vec!["-o", "refused.png", "--prefilter"];
         a.extend_from_slice(flags);

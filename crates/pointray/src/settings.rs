@@ -325,6 +325,10 @@ impl Settings {
         )?;
         check(!self.prefilter || self.accel == AccelKind::Bvh, "prefilter", "needs the BVH (--accel bvh)")?;
         check(!self.prefilter || tau > 0.0, "prefilter", "needs level of detail (a threshold above 0)")?;
+        // A sample's beam is its share of the pixel: four of them gathered the dragon at 16
+        // diagonals 6× slower than one beam, and further from the converged image (32.9 dB
+        // against 34.7).
+        check(!self.prefilter || self.spp == 1, "prefilter", "is one ray a pixel (--spp 1): it replaces samples")?;
         check(self.ior > 0.0 && finite(self.ior), "ior", "must be a positive number")?;
         check(self.lens_radius >= 0.0 && finite(self.lens_radius), "lens_radius", "must be non-negative")?;
         let lens = self.lens_radius == 0.0 || self.projection == Projection::Perspective;

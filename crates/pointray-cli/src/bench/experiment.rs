@@ -129,7 +129,7 @@ pub struct Matrix {
     #[serde(default = "one_sample")]
     pub spp: Vec<u32>,
     /// The footprint prefilter off, on, or both (default: off; on is left out at threshold 0,
-    /// full detail, where it does not apply).
+    /// full detail, and at more than one sample a pixel, where it does not apply).
     #[serde(default = "prefilter_off")]
     pub prefilter: Vec<bool>,
 }
@@ -280,8 +280,8 @@ impl Experiment {
                         for &lod_threshold in &m.lod_threshold {
                             for (&spp, &prefilter) in m.spp.iter().flat_map(|s| m.prefilter.iter().map(move |f| (s, f)))
                             {
-                                // At full detail the prefilter does not apply.
-                                let applies = !prefilter || lod_threshold > 0.0;
+                                // The prefilter is one ray a pixel at a level of detail.
+                                let applies = !prefilter || (lod_threshold > 0.0 && spp == 1);
                                 let p = Point { accel, surface, distance, lod_threshold, spp, prefilter };
                                 if applies && !points.contains(&p) {
                                     points.push(p);
