@@ -212,9 +212,12 @@ fn the_prefilter_renders_a_distant_demo_and_is_refused_where_it_cannot_apply() {
         let out = format!("pf{threads}.png");
         let mut a = vec!["-o", out.as_str(), "--threads", threads];
         a.extend_from_slice(&args);
+        let stats = format!("pf{threads}.json");
+        a.extend_from_slice(&["--stats", &stats]);
         let run = render_in(dir.path(), &a);
         run.assert_success();
         assert!(!run.stderr.contains("rendering without it"), "{}", run.stderr);
+        assert_eq!(read_stats(&dir.path().join(&stats))["prefilter"], true);
         images.push(read_png(&dir.path().join(&out)));
     }
     assert!(images[0] == images[1], "1 and 2 threads give different pixels");

@@ -242,6 +242,9 @@ pub struct FrameReport {
     pub pss_fallback_fraction: f64,
     /// Level-of-detail threshold in pixels; null at full detail.
     pub lod_threshold: Option<f32>,
+    /// Whether camera rays went through the footprint prefilter: asked for, and the normals
+    /// point outwards (else it warns and renders without).
+    pub prefilter: bool,
     pub culling: CullingReport,
     pub node_bounds: NodeBounds,
     pub nodes: usize,

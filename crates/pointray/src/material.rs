@@ -66,23 +66,13 @@ impl Phong {
             + self.glossy(hit.normal, view, to_light, irradiance)
     }
 
-    /// [`Self::direct`] for a patch whose normals spread, `agreement` the length of their mean
-    /// (1: a smooth patch, the same as `direct`): the lobe widened as Toksvig (2005) widens it,
-    /// s' = s·a / (a + s(1 − a)), its energy kept, (1 + s') / (1 + s) as bright at its peak.
-    pub fn direct_rough(&self, hit: &SurfaceHit, view: Vec3, to_light: Vec3, irradiance: f32, agreement: f32) -> Vec3 {
-        let n_dot_l = hit.normal.dot(to_light);
-        if n_dot_l <= 0.0 {
-            return Vec3::ZERO;
-        }
-        let diffuse = Vec3::from(hit.color) * (n_dot_l * irradiance * (1.0 - self.ambient));
-        if self.specular <= 0.0 {
-            return diffuse;
-        }
+    /// The material as a patch whose normals spread looks, `agreement` the length of their
+    /// mean (1: a smooth patch, the material itself): the lobe widened as Toksvig (2005) widens
+    /// it, s' = s·a / (a + s(1 − a)), its energy kept, (1 + s') / (1 + s) as bright at its peak.
+    pub fn rough(&self, agreement: f32) -> Phong {
         let a = agreement.clamp(0.0, 1.0);
-        let s = self.shininess * a / (a + self.shininess * (1.0 - a)).max(f32::MIN_POSITIVE);
-        let h = (to_light + view).normalize_or_zero();
-        let peak = self.specular * irradiance * (1.0 + s) / (1.0 + self.shininess);
-        diffuse + Vec3::splat(peak * h.dot(hit.normal).max(0.0).powf(s))
+        let shininess = self.shininess * a / (a + self.shininess * (1.0 - a)).max(f32::MIN_POSITIVE);
+        Phong { shininess, specular: self.specular * (1.0 + shininess) / (1.0 + self.shininess), ..*self }
     }
 
     /// The specular lobe alone (Blinn–Phong, white): what one light at `irradiance` along
@@ -133,6 +123,19 @@ pub fn fresnel_dielectric(cos_i: f32, eta: f32) -> f32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_rough_patch_widens_and_lowers_the_highlight() {
+        let smooth = Phong::standard();
+        let same = smooth.rough(1.0);
+        assert_eq!((same.shininess, same.specular, same.ambient), (smooth.shininess, smooth.specular, smooth.ambient));
+        let rough = smooth.rough(0.9);
+        // s' = 40·0.9 / (0.9 + 40·0.1) = 7.35; the peak scaled by (1 + s') / (1 + s).
+        assert!((rough.shininess - 36.0 / 4.9).abs() < 1e-4, "{}", rough.shininess);
+        assert!((rough.specular - smooth.specular * (1.0 + rough.shininess) / 41.0).abs() < 1e-6);
+        assert_eq!(rough.ambient, smooth.ambient);
+        assert_eq!(smooth.rough(0.0).shininess, 0.0, "normals every way: no highlight's shape left");
+    }
 
     #[test]
     fn fresnel_matches_known_values() {

@@ -736,6 +736,7 @@ impl RenderJob<'_> {
             pss_steps_per_hit: per_hit(stats.traversal.pss_steps),
             pss_fallback_fraction: per_hit(stats.traversal.pss_fallbacks),
             lod_threshold: (config.lod_threshold > 0.0).then_some(config.lod_threshold),
+            prefilter: config.prefilter,
             culling: crate::frame::CullingReport {
                 mode: s.cull,
                 enabled: config.cull_backfaces,

@@ -353,16 +353,12 @@ spp = [1, 4]
         assert_eq!(a.len(), 12);
         assert!(a.iter().filter(|p| p.prefilter).all(|p| p.lod_threshold == 1.0));
         assert_eq!(a.iter().filter(|p| p.prefilter).count(), 4);
-        fails_with(
-            &SMALL.replace("lod_threshold = [0, 1]\n", "lod_threshold = [0, 1]\nprefilter = []\n"),
-            "at least one value",
-        );
-    }
-
-    fn fails_with(text: &str, fragment: &str) {
-        let e: Experiment = toml::from_str(text).unwrap();
-        let message = format!("{:#}", check(&e).unwrap_err());
-        assert!(message.contains(fragment), "{message}");
+        // Nor at more than one sample a pixel.
+        let text = text.replace("distance = [1, 4]\n", "distance = [1, 4]\nspp = [1, 2]\n");
+        let e: Experiment = toml::from_str(&text).unwrap();
+        let a = e.points("a");
+        assert_eq!((a.len(), a.iter().filter(|p| p.prefilter).count()), (20, 4));
+        assert!(a.iter().filter(|p| p.prefilter).all(|p| p.spp == 1));
     }
 
     #[test]
@@ -380,6 +376,7 @@ spp = [1, 4]
         fails(&SMALL.replace("name = \"b\"", "name = \"a\""), "two models named \"a\"");
         fails(&SMALL.replace("points = 1000", "points = 1_000_000_000"), "model b: at most");
         fails(&SMALL.replace("lod_threshold = [0]", "lod_threshold = []"), "at least one value");
+        fails(&SMALL.replace("lod_threshold = [0]", "lod_threshold = [0]\nprefilter = []"), "at least one value");
         fails(&format!("reference = \"rfd\"\n{SMALL}"), "the reference must be sj, pss or first-hit");
         fails(&SMALL.replace("spp = [1, 4]", "spp = [0]"), "spp must be 1 to 65536");
         fails(&format!("converged_spp = 0\n{SMALL}"), "converged_spp must be 1 to 65536");

@@ -1,6 +1,6 @@
 use super::{Accel, SplatVisitor, TraversalStats};
 use crate::math::{Aabb, Ray};
-use crate::splat::footprint::{Aggregate, Beam, DENSITY_SAMPLES, FootprintVisitor, coverage_density};
+use crate::splat::footprint::{Aggregate, Beam, FootprintVisitor, coverage_density};
 use crate::splat::{DiskShape, Splat};
 use glam::Vec3;
 
@@ -50,10 +50,7 @@ impl Accel for BruteForce {
     }
 
     fn coverage_density(&self) -> f32 {
-        *self.coverage_density.get_or_init(|| {
-            let step = (self.splats.len() / DENSITY_SAMPLES).max(1);
-            coverage_density(self, self.splats.iter().step_by(step).copied())
-        })
+        *self.coverage_density.get_or_init(|| coverage_density(self, self.splats.iter().copied()))
     }
 
     const GATHERS: bool = true;

@@ -10,14 +10,11 @@ use crate::material::{Material, Phong};
 use crate::math::{Ray, RayCone};
 use crate::render::Integrator;
 use crate::shading::Light;
-use crate::splat::footprint::{Footprint, Layer, shadow_origins};
+use crate::splat::footprint::{Footprint, Layer, OPAQUE, shadow_origins};
 use crate::splat::scheme::SurfaceHit;
 
 /// Layers shaded at most; light past them is what lies behind.
 const MAX_LAYERS: usize = 16;
-
-/// Layers letting less than this through hide what lies behind.
-const OPAQUE: f32 = 0.01;
 
 impl<A: Accel> Tracer<'_, A> {
     /// The radiance of `ray`'s pixel footprint, or `None` where a layer is not of a Phong
@@ -102,7 +99,8 @@ impl<A: Accel> Tracer<'_, A> {
             // The mean of |n·d| over the pixel, as many rays would see it.
             return layer.color * layer.normal.dot(ray.dir).abs();
         }
-        let mut color = self.ambient(phong, hit);
+        let phong = phong.rough(agreement);
+        let mut color = self.ambient(&phong, hit);
         for light in &config.lights {
             let (to_light, _, irradiance) = light.towards(hit.position);
             if hit.normal.dot(to_light) <= 0.0 {
@@ -110,7 +108,7 @@ impl<A: Accel> Tracer<'_, A> {
             }
             let seen = if config.shadows { self.layer_visibility(footprint, layer, light) } else { 1.0 };
             if seen > 0.0 {
-                color += seen * phong.direct_rough(hit, -ray.dir, to_light, irradiance, agreement);
+                color += seen * phong.direct(hit, -ray.dir, to_light, irradiance);
             }
         }
         color

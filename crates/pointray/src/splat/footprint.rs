@@ -1,4 +1,4 @@
-//! The footprint prefilter: level of detail as a prefilter (issue 21), one beam a pixel.
+//! The footprint prefilter: level of detail as a prefilter, one beam a pixel.
 //!
 //! A camera ray stands for its pixel: a beam about the ray, as wide as the pixel's footprint
 //! (a disk of the pixel's area). Instead of the first disk the ray meets, the beam gathers
@@ -39,8 +39,9 @@ pub const GATHER_TAU: f32 = 0.35;
 /// join the layer.
 const LAYER_DEPTH: f32 = 2.0;
 
-/// Light passing layers below this share is gone: the beam stops.
-const OPAQUE: f32 = 0.01;
+/// Light passing layers below this share is gone: the beam stops, and what lies behind is
+/// neither gathered nor shaded.
+pub const OPAQUE: f32 = 0.01;
 
 /// The most pieces a beam keeps; past it, the farthest go (pixels of the dragon at 16
 /// diagonals filled 96 with every leaf opened at a finer cut, and lost coverage).
@@ -192,7 +193,8 @@ impl Footprint {
         &self.pieces
     }
 
-    /// The surfaces the beam met, nearest first, up to the first opaque one.
+    /// The surfaces the beam met, nearest first (the gather left out what lies some way behind
+    /// the first opaque ones, [`OPAQUE`]).
     pub fn layers(&self) -> Layers<'_> {
         Layers { pieces: &self.pieces, beam: &self.beam, next: 0 }
     }
@@ -413,9 +415,10 @@ pub struct ShadowOrigin {
 }
 
 /// How many disks cover a point of the surface, on average, in `accel` (at least 1): at the
-/// centre of each of `samples` (some of its disks), the disks whose radius reaches it (the
-/// dragon: 8.5; at random points of the disks instead of their centres, 8.5 too).
-pub fn coverage_density<A: Accel>(accel: &A, samples: impl Iterator<Item = Splat>) -> f32 {
+/// centres of [`DENSITY_SAMPLES`] of its `disks` spread over them, the disks whose radius
+/// reaches it (the dragon: 8.5; at random points of the disks instead of their centres, 8.5 too).
+pub fn coverage_density<A: Accel>(accel: &A, disks: impl Iterator<Item = Splat>) -> f32 {
+    let samples = disks.step_by((accel.splat_count() / DENSITY_SAMPLES).max(1));
     let reach = accel.wide_radius();
     let mut stats = TraversalStats::uncounted();
     let (mut covering, mut count) = (0u64, 0u64);
@@ -428,8 +431,8 @@ pub fn coverage_density<A: Accel>(accel: &A, samples: impl Iterator<Item = Splat
     (covering as f32 / count.max(1) as f32).max(1.0)
 }
 
-/// Disks an accelerator's build passes to [`coverage_density`], spread over the cloud.
-pub const DENSITY_SAMPLES: usize = 4096;
+/// Disks [`coverage_density`] looks at.
+const DENSITY_SAMPLES: usize = 4096;
 
 #[cfg(test)]
 mod tests {

@@ -164,4 +164,9 @@ fn a_mirror_in_the_footprint_is_traced_as_a_ray() {
     let a = prefiltered(1, &config, &bvh, &cam);
     let b = prefiltered(1, &RenderConfig { prefilter: false, ..config.clone() }, &bvh, &cam);
     assert!(a.rgb.iter().zip(&b.rgb).all(|(x, y)| x == y));
+    // The same view of Phong splats is prefiltered: the view is one where it applies.
+    let phong = RenderConfig { materials: vec![pointray::material::Material::standard()], ..config.clone() };
+    let c = prefiltered(1, &phong, &bvh, &cam);
+    let d = prefiltered(1, &RenderConfig { prefilter: false, ..phong.clone() }, &bvh, &cam);
+    assert!(c.rgb.iter().zip(&d.rgb).any(|(x, y)| x != y), "the prefilter did not apply to this view");
 }

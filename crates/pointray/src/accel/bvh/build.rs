@@ -11,7 +11,6 @@ use super::{Bvh, MAX_LEAF_SIZE, MAX_SPLATS, MEDIAN_SPLIT_DEPTH, Node, NodeBounds
 use crate::accel::block::{BLOCK, SplatBlock, grid_step, leaf_span, snap};
 use crate::accel::representative::{LOD_FLOOR_QUANTILE, radius_quantile, wide_radius};
 use crate::math::Aabb;
-use crate::splat::footprint;
 use crate::splat::{DiskShape, Splat};
 
 /// Build parameters, with named presets (as in obvhs).
@@ -278,12 +277,10 @@ impl Bvh {
             node_bounds: NodeBounds::Boxes,
             lod_floor,
             wide_radius,
-            coverage_density: 1.0,
+            coverage_density: std::sync::OnceLock::new(),
             shape: params.shape,
         };
         bvh.set_node_bounds(params.node_bounds);
-        let step = (splat_count / footprint::DENSITY_SAMPLES).max(1);
-        bvh.coverage_density = footprint::coverage_density(&bvh, bvh.splats().step_by(step).map(|(_, s)| s));
         (bvh, ids)
     }
 }
