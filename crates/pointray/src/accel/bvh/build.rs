@@ -277,7 +277,7 @@ impl Bvh {
             node_bounds: NodeBounds::Boxes,
             lod_floor,
             wide_radius,
-            coverage_density: std::sync::OnceLock::new(),
+            coverage_density: Box::default(),
             shape: params.shape,
         };
         bvh.set_node_bounds(params.node_bounds);
