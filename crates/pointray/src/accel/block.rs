@@ -240,7 +240,11 @@ impl SplatBlock {
     /// Component `k` of the eight normals.
     #[inline(always)]
     pub(crate) fn normal_lanes(&self, k: usize) -> [f32; BLOCK] {
-        self.normal[k].map(unit)
+        let mut lanes = [0.0; BLOCK];
+        for (x, &q) in lanes.iter_mut().zip(&self.normal[k]) {
+            *x = unit(q);
+        }
+        lanes
     }
 
     /// [`Self::center_lanes`] for every axis, in f64 (the level-of-detail build's sums).

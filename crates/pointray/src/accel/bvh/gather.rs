@@ -9,9 +9,10 @@
 use arrayvec::ArrayVec;
 
 use super::lanes::{Lanes, Wide, dot3};
-use super::{Bvh, LEAF, MAX_DEPTH, SLOTS, WIDTH, leaf_splats};
-use crate::accel::{Accel, TraversalStats};
-use crate::splat::footprint::{Aggregate, Beam, FootprintVisitor};
+use super::{Bvh, LEAF, MAX_DEPTH, SLOTS, WIDTH, leaf_blocks, leaf_splats};
+use crate::accel::TraversalStats;
+use crate::accel::block::{BLOCK, SplatBlock};
+use crate::splat::footprint::{Aggregate, Beam, Candidates, FootprintVisitor};
 
 /// Children waiting, with the depth where their spheres begin: each level pushes at most
 /// WIDTH, and no tree is deeper than [`MAX_DEPTH`].
@@ -34,11 +35,7 @@ pub(super) fn gather<V: FootprintVisitor>(
             continue;
         }
         if child & LEAF != 0 {
-            for index in leaf_splats(child) {
-                stats.splat_tests += 1;
-                let s = bvh.splat(index);
-                visitor.add(index, &s, Aggregate::disk(s.radius));
-            }
+            leaf(bvh, child, visitor, stats);
             continue;
         }
         let k = child as usize;
@@ -48,6 +45,9 @@ pub(super) fn gather<V: FootprintVisitor>(
         let mut reps = coarse & enter;
         enter &= !coarse;
         stats.lod_stops += u64::from(reps.count_ones());
+        if reps != 0 {
+            reps &= visitor.screen(&candidates(&bvh.representatives[k], bvh.aggregates[k].area_radius.to_array()));
+        }
         while reps != 0 {
             let i = reps.trailing_zeros() as usize;
             reps &= reps - 1;
@@ -70,6 +70,33 @@ pub(super) fn gather<V: FootprintVisitor>(
             stack[at] = entry;
         }
     }
+}
+
+/// Hands `visitor` the disks of leaf `child` that pass its screen.
+fn leaf<V: FootprintVisitor>(bvh: &Bvh, child: u32, visitor: &mut V, stats: &mut TraversalStats) {
+    let splats = leaf_splats(child);
+    stats.splat_tests += u64::from(splats.end - splats.start);
+    for b in leaf_blocks(child) {
+        let block = &bvh.blocks[b];
+        let first = (b * BLOCK) as u32;
+        let used = (splats.end - first).min(BLOCK as u32);
+        let mut lanes = visitor.screen(&candidates(block, *block.radii())) & ((1 << used) - 1);
+        while lanes != 0 {
+            let i = lanes.trailing_zeros() as usize;
+            lanes &= lanes - 1;
+            let s = block.splat(i);
+            visitor.add(first + i as u32, &s, Aggregate::disk(s.radius));
+        }
+    }
+}
+
+/// A block's eight lanes as the visitor screens them.
+#[inline(always)]
+fn candidates(block: &SplatBlock, area_radius: [f32; BLOCK]) -> Candidates {
+    // Written out: `array::map` here was a call per candidate block (callgrind).
+    let center = [block.center_lanes(0), block.center_lanes(1), block.center_lanes(2)];
+    let normal = [block.normal_lanes(0), block.normal_lanes(1), block.normal_lanes(2)];
+    Candidates { center, normal, area_radius }
 }
 
 /// Leaves stand as their representatives up to this many times the threshold: opened, a leaf
