@@ -224,8 +224,13 @@ fn the_prefilter_renders_a_distant_demo_and_is_refused_where_it_cannot_apply() {
     // Edges blend: the coverage channel has levels between empty and whole.
     let alpha = read_png(&dir.path().join("pf1.alpha.png"));
     assert!(alpha.rgb.iter().any(|&v| v > 20 && v < 235), "no partly covered pixel");
+    // The kd-tree gathers too.
+    let mut a = vec!["-o", "kd.png", "--accel", "kdtree", "--stats", "kd.json"];
+    a.extend_from_slice(&args);
+    render_in(dir.path(), &a).assert_success();
+    assert_eq!(read_stats(&dir.path().join("kd.json"))["prefilter"], true);
+    assert!(read_png(&dir.path().join("kd.alpha.png")).rgb.iter().any(|&v| v > 20 && v < 235));
     for (flags, why) in [
-        (&["--accel", "kdtree"][..], "needs the BVH"),
         (&["--integrator", "path"][..], "whitted and eye-light"),
         (&["--lod", "off"][..], "needs level of detail"),
         (&["--spp", "4"][..], "one ray a pixel"),

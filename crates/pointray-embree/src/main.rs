@@ -66,6 +66,10 @@ struct Args {
     /// frame, as `pointray render` writes it, to compare with `pointray compare`).
     #[arg(long)]
     images: Option<PathBuf>,
+    /// Trace a shadow ray from each hit towards the headlight, as pointray does with shadows
+    /// on, so that frames with shadows are timed against the same work.
+    #[arg(long)]
+    shadows: bool,
 }
 
 #[derive(Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -124,11 +128,11 @@ fn run(a: &Args) -> anyhow::Result<()> {
     for &distance in &a.dist {
         let camera = Camera::orbit(&bounds, view, up, distance, a.fov, width, height);
         let region = if a.crop { camera.region_of(&bounds) } else { Region::full(width, height) };
-        let (image, hits) = pool.install(|| trace(&scene, &splats, &camera, region));
+        let (image, hits) = pool.install(|| trace(&scene, &splats, &camera, region, a.shadows));
         let mut times: Vec<f64> = (0..a.reps)
             .map(|_| {
                 let t = Instant::now();
-                let _ = pool.install(|| trace(&scene, &splats, &camera, region));
+                let _ = pool.install(|| trace(&scene, &splats, &camera, region, a.shadows));
                 t.elapsed().as_secs_f64()
             })
             .collect();
@@ -160,6 +164,7 @@ fn run(a: &Args) -> anyhow::Result<()> {
             "width": width,
             "height": height,
             "crop": a.crop,
+            "shadows": a.shadows,
             "rays": rays,
             "fov_deg": a.fov,
             "k": distance,
@@ -211,9 +216,9 @@ fn build<'a>(device: &Device, splats: &[Splat], geom: Geom) -> anyhow::Result<(S
 }
 
 /// One frame of `region`, shaded as pointray shades a first hit (standard Phong under the
-/// headlight, the splat's colour, the default background): linear RGB, as pointray's film
-/// holds it, and the hit count.
-fn trace(scene: &Scene, splats: &[Splat], camera: &Camera, region: Region) -> (Vec<[f32; 3]>, u64) {
+/// headlight, the splat's colour, the default background; with `shadows`, the headlight seen
+/// through a shadow ray): linear RGB, as pointray's film holds it, and the hit count.
+fn trace(scene: &Scene, splats: &[Splat], camera: &Camera, region: Region, shadows: bool) -> (Vec<[f32; 3]>, u64) {
     let phong = Phong::standard();
     let light = Light::headlight(camera, 1.0);
     let background = Vec3::from(Environment::BACKGROUND.flat_color());
@@ -246,7 +251,9 @@ fn trace(scene: &Scene, splats: &[Splat], camera: &Camera, region: Region) -> (V
                         blended: 1,
                     };
                     let (to_light, _, irradiance) = light.towards(hit.position);
-                    phong.ambient(&hit) + phong.direct(&hit, -ray.dir, to_light, irradiance)
+                    let lit = !shadows || !occluded(scene, &mut context, &hit, to_light);
+                    let direct = if lit { phong.direct(&hit, -ray.dir, to_light, irradiance) } else { Vec3::ZERO };
+                    phong.ambient(&hit) + direct
                 };
                 row.push(color.to_array());
             }
@@ -255,4 +262,16 @@ fn trace(scene: &Scene, splats: &[Splat], camera: &Camera, region: Region) -> (V
         .collect();
     let hits = rows.iter().map(|(_, h)| h).sum();
     (rows.into_iter().flat_map(|(row, _)| row).collect(), hits)
+}
+
+/// Whether the light along `to_light` is hidden from `hit`: a shadow ray as pointray starts
+/// one from an oriented disc (one radius off the surface on the light's side, crossings within
+/// a radius of its origin ignored).
+fn occluded(scene: &Scene, context: &mut IntersectContext, hit: &SurfaceHit, to_light: Vec3) -> bool {
+    if hit.normal.dot(to_light) <= 0.0 {
+        return true;
+    }
+    let origin = hit.position + hit.normal * hit.radius;
+    let mut ray = Ray::segment(origin.to_array(), to_light.to_array(), hit.radius, f32::INFINITY);
+    scene.occluded(context, &mut ray)
 }

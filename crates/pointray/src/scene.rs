@@ -577,10 +577,11 @@ impl Scene {
     }
 
     fn backfacing_fraction(&self) -> Option<f64> {
+        // Only the BVH culls; the prefilter asks of every accelerator.
         *self.backfacing.get_or_init(|| match &self.accel {
             Accelerator::Bvh(a) => backfacing_fraction(a, CULL_CHECK_RAYS, 0),
-            // Only the BVH culls.
-            Accelerator::KdTree(_) | Accelerator::Brute(_) => None,
+            Accelerator::KdTree(a) => backfacing_fraction(a, CULL_CHECK_RAYS, 0),
+            Accelerator::Brute(a) => backfacing_fraction(a, CULL_CHECK_RAYS, 0),
         })
     }
 

@@ -323,7 +323,6 @@ impl Settings {
             "prefilter",
             "applies to the whitted and eye-light integrators",
         )?;
-        check(!self.prefilter || self.accel == AccelKind::Bvh, "prefilter", "needs the BVH (--accel bvh)")?;
         check(!self.prefilter || tau > 0.0, "prefilter", "needs level of detail (a threshold above 0)")?;
         // A sample's beam is its share of the pixel: four of them gathered the dragon at 16
         // diagonals 6× slower than one beam, and further from the converged image (32.9 dB

@@ -32,7 +32,7 @@ pub struct Experiment {
     pub retries: u32,
     #[serde(default)]
     pub camera: CameraSpec,
-    /// Shadow rays from a headlight (off: primary rays only, as Embree's bench traces).
+    /// Shadow rays from a headlight, Embree's too (off: primary rays only).
     #[serde(default)]
     pub shadows: bool,
     /// The surface scheme of the reference image every point is also compared with (full

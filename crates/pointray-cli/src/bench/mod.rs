@@ -602,6 +602,10 @@ fn run_embree(
     if e.camera.crop_to_model {
         command.arg("--crop");
     }
+    if e.shadows {
+        // The same work as pointray's frames: a shadow ray from each hit.
+        command.arg("--shadows");
+    }
     let load = LoadSample::now();
     let output = command.output().with_context(|| format!("{}: cannot run", bench.display()))?;
     let other_load_cores = load.other_cores_since();

@@ -538,7 +538,7 @@ mod tests {
         use rand::{RngExt, SeedableRng};
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(21);
         let beam = Beam { origin: Vec3::new(0.1, -0.2, 0.0), dir: Vec3::new(0.3, 0.1, 1.0).normalize(), ..beam() };
-        let mut f = Footprint {
+        let f = Footprint {
             beam,
             size_scale: 0.4,
             pieces: ArrayVec::new(),

@@ -2,7 +2,7 @@
 //! surfaces, the BVH's walk against brute force, and the renderer's use of it.
 
 use glam::Vec3;
-use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, TraversalStats};
+use pointray::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, TraversalStats};
 use pointray::camera::{Camera, Region};
 use pointray::math::{Ray, RayCone};
 use pointray::render::{RenderConfig, render};
@@ -28,19 +28,24 @@ fn first_layer(accel: &impl Accel, ray: &Ray, tau: f32) -> Option<Layer> {
 #[test]
 fn a_plane_covers_the_footprint_whole_with_its_own_colour_and_normal() {
     let splats = plane_splats(20_000, 3);
-    let bvh = Bvh::build(splats.clone(), &BvhParams::standard());
     let color = Vec3::from(splats[0].color_linear());
+    covers_the_plane(&Bvh::build(splats.clone(), &BvhParams::standard()), color);
+    covers_the_plane(&KdTree::build(splats, &KdTreeParams::standard()), color);
+}
+
+fn covers_the_plane(accel: &impl Accel, color: Vec3) {
     // A footprint some ten disks wide, straight down and at 45°, at full detail and with the
     // representatives of subtrees up to its width.
     for origin in [Vec3::new(0.1, -0.2, 3.0), Vec3::new(2.1, -0.2, 2.0)] {
         for tau in [0.0, 1.0] {
             let ray = beam_ray(origin, Vec3::new(0.1, -0.2, 0.0), 0.15);
-            let layer = first_layer(&bvh, &ray, tau).expect("the plane");
-            assert!(layer.coverage > 0.97, "{origin} τ {tau}: coverage {}", layer.coverage);
+            let name = accel.name();
+            let layer = first_layer(accel, &ray, tau).expect("the plane");
+            assert!(layer.coverage > 0.97, "{name} {origin} τ {tau}: coverage {}", layer.coverage);
             assert!(layer.normal.normalize().dot(Vec3::Z) > 0.999 && layer.normal.length() > 0.99, "{layer:?}");
-            assert!((layer.color - color).abs().max_element() < 1e-3, "{layer:?}");
+            assert!((layer.color - color).abs().max_element() < 1e-3, "{name} {layer:?}");
             let depth = (ray.origin + layer.t * ray.dir).z;
-            assert!(depth.abs() < 0.02, "the layer lies on the plane: {depth}");
+            assert!(depth.abs() < 0.02, "{name}: the layer lies on the plane: {depth}");
         }
     }
 }
@@ -80,35 +85,40 @@ fn normals_that_spread_give_a_shorter_mean_normal() {
 }
 
 #[test]
-fn the_bvh_gathers_what_brute_force_gathers_at_full_detail() {
+fn the_bvh_and_the_kd_tree_gather_what_brute_force_gathers_at_full_detail() {
     for (name, splats) in [("sphere", sphere_splats(3_000, 1.0, 11)), ("torus", torus_splats(3_000, 12))] {
-        let bvh = Bvh::build(splats.clone(), &BvhParams::standard());
-        let brute = BruteForce::new(splats);
-        assert_eq!(bvh.coverage_density().to_bits(), brute.coverage_density().to_bits(), "{name}");
-        let mut met = 0;
-        for (i, ray) in random_rays(300, &brute.bounds(), 21).iter().enumerate() {
-            let ray = Ray { cone: RayCone { width0: 0.0, spread: 0.02 }, ..*ray };
-            match (first_layer(&brute, &ray, 0.0), first_layer(&bvh, &ray, 0.0)) {
-                (None, None) => {}
-                (Some(a), Some(b)) => {
-                    met += 1;
-                    let close = |x: f32, y: f32| (x - y).abs() <= 1e-5 * (1.0 + x.abs());
-                    assert!(close(a.coverage, b.coverage) && close(a.t, b.t), "{name} ray {i}: {a:?} vs {b:?}");
-                    assert!((a.color - b.color).abs().max_element() < 1e-5, "{name} ray {i}");
-                    assert!((a.normal - b.normal).abs().max_element() < 1e-5, "{name} ray {i}");
-                    assert_eq!(a.pieces.len(), b.pieces.len(), "{name} ray {i}");
-                }
-                (a, b) => panic!("{name} ray {i}: brute {a:?} vs BVH {b:?}"),
-            }
-        }
-        assert!(met > 50, "{name}: the rays must meet the surface ({met})");
+        let brute = BruteForce::new(splats.clone());
+        gathers_as_brute_force(&Bvh::build(splats.clone(), &BvhParams::standard()), &brute, name);
+        gathers_as_brute_force(&KdTree::build(splats, &KdTreeParams::standard()), &brute, name);
     }
 }
 
+fn gathers_as_brute_force(accel: &impl Accel, brute: &BruteForce, surface: &str) {
+    let name = format!("{surface}, {}", accel.name());
+    assert_eq!(accel.coverage_density().to_bits(), brute.coverage_density().to_bits(), "{name}");
+    let mut met = 0;
+    for (i, ray) in random_rays(300, &brute.bounds(), 21).iter().enumerate() {
+        let ray = Ray { cone: RayCone { width0: 0.0, spread: 0.02 }, ..*ray };
+        match (first_layer(brute, &ray, 0.0), first_layer(accel, &ray, 0.0)) {
+            (None, None) => {}
+            (Some(a), Some(b)) => {
+                met += 1;
+                let close = |x: f32, y: f32| (x - y).abs() <= 1e-5 * (1.0 + x.abs());
+                assert!(close(a.coverage, b.coverage) && close(a.t, b.t), "{name} ray {i}: {a:?} vs {b:?}");
+                assert!((a.color - b.color).abs().max_element() < 1e-5, "{name} ray {i}");
+                assert!((a.normal - b.normal).abs().max_element() < 1e-5, "{name} ray {i}");
+                assert_eq!(a.pieces.len(), b.pieces.len(), "{name} ray {i}");
+            }
+            (a, b) => panic!("{name} ray {i}: brute {a:?} vs {b:?}"),
+        }
+    }
+    assert!(met > 50, "{name}: the rays must meet the surface ({met})");
+}
+
 /// A torus's render through the prefilter, with a light and shadows.
-fn prefiltered(threads: usize, config: &RenderConfig, bvh: &Bvh, cam: &Camera) -> pointray::film::Film {
+fn prefiltered(threads: usize, config: &RenderConfig, accel: &impl Accel, cam: &Camera) -> pointray::film::Film {
     let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
-    pool.install(|| render(bvh, cam, config, &|_| {})).0
+    pool.install(|| render(accel, cam, config, &|_| {})).0
 }
 
 #[test]
@@ -137,6 +147,17 @@ fn a_prefiltered_render_is_the_same_with_any_threads_and_its_edges_partly_covere
     // And the two images agree but where they should not: within a few levels on the whole.
     let mean = |f: &pointray::film::Film| f.rgb.iter().map(|p| Vec3::from(*p)).sum::<Vec3>() / f.rgb.len() as f32;
     assert!((mean(&a) - mean(&plain)).abs().max_element() < 0.02, "{} vs {}", mean(&a), mean(&plain));
+    // The kd-tree's prefilter: the same on any threads, and close to the BVH's (their
+    // representatives differ: a kd-tree cell's stand for the disks centred in it).
+    let kdtree = KdTree::build(torus_splats(60_000, 7), &KdTreeParams::standard());
+    let (k1, k2) = (prefiltered(1, &config, &kdtree, &cam), prefiltered(2, &config, &kdtree, &cam));
+    assert!(k1.rgb.iter().zip(&k2.rgb).all(|(x, y)| x.map(f32::to_bits) == y.map(f32::to_bits)));
+    let kd_coverage = &k1.first_hits.as_ref().expect("recorded").coverage;
+    assert!(kd_coverage.iter().filter(|&&c| c > 0.05 && c < 0.95).count() > 20, "the kd-tree's edges blend too");
+    let rms = (a.rgb.iter().zip(&k1.rgb).map(|(x, y)| (Vec3::from(*x) - Vec3::from(*y)).length_squared()).sum::<f32>()
+        / a.rgb.len() as f32)
+        .sqrt();
+    assert!(rms < 0.03, "the kd-tree's prefiltered image strays from the BVH's: RMS {rms}");
 }
 
 #[test]

@@ -112,7 +112,21 @@ impl KdTree {
         if splats.is_empty() {
             let (nodes, refs, reps, disks) = (Vec::new(), Vec::new(), Vec::new(), with_padding(splats));
             let (lod_floor, wide_radius) = (f32::INFINITY, f32::INFINITY);
-            return Self { nodes, refs, disks, reps, lod_floor, wide_radius, bounds, depth: 0, shape: params.shape };
+            let shape = params.shape;
+            let (coverage_density, gather_data) = Default::default();
+            return Self {
+                nodes,
+                refs,
+                disks,
+                reps,
+                lod_floor,
+                wide_radius,
+                bounds,
+                depth: 0,
+                shape,
+                coverage_density,
+                gather_data,
+            };
         }
         let n = splats.len();
         let max_depth =
@@ -129,7 +143,9 @@ impl KdTree {
         let lod_floor = radius_quantile(radii, LOD_FLOOR_QUANTILE);
         let wide_radius = wide_radius(&splats);
         let disks = with_padding(splats);
-        Self { nodes, refs, disks, reps, lod_floor, wide_radius, bounds, depth, shape: params.shape }
+        let (coverage_density, gather_data) = Default::default();
+        let shape = params.shape;
+        Self { nodes, refs, disks, reps, lod_floor, wide_radius, bounds, depth, shape, coverage_density, gather_data }
     }
 }
 

@@ -13,6 +13,7 @@
 //! bound its disks) tests it instead of descending, the BVH's rule.
 
 mod build;
+mod gather;
 mod traverse;
 
 pub use build::{KdTreeParams, MAX_BINS};
@@ -20,6 +21,7 @@ pub use build::{KdTreeParams, MAX_BINS};
 use crate::accel::packet::LANES;
 use crate::accel::{Accel, SplatVisitor, TraversalStats};
 use crate::math::{Aabb, Ray};
+use crate::splat::footprint::{Beam, FootprintVisitor, coverage_density};
 use crate::splat::{DiskShape, Splat};
 use glam::Vec3;
 
@@ -99,6 +101,10 @@ pub struct KdTree {
     depth: usize,
     /// The disks the cells hold.
     shape: DiskShape,
+    /// See [`Accel::coverage_density`]; found when first asked, as the prefilter's other
+    /// needs ([`gather::GatherData`]), which renders without it never pay for.
+    coverage_density: std::sync::OnceLock<f32>,
+    gather_data: std::sync::OnceLock<gather::GatherData>,
 }
 
 impl KdTree {
@@ -127,6 +133,17 @@ impl KdTree {
 
     pub fn depth(&self) -> usize {
         self.depth
+    }
+
+    /// Whether `cell` holds the point `p`: cells are half-open, [min, max) (a centre on a plane
+    /// belongs above it, and the build references it there), except at the root's far faces,
+    /// so that each centre lies in one leaf's cell.
+    fn owns(&self, cell: &Aabb, p: Vec3) -> bool {
+        (0..3).all(|a| p[a] >= cell.min[a] && (p[a] < cell.max[a] || cell.max[a] == self.bounds.max[a]))
+    }
+
+    fn gather_data(&self) -> &gather::GatherData {
+        self.gather_data.get_or_init(|| gather::GatherData::of(self))
     }
 }
 
@@ -176,11 +193,7 @@ impl Accel for KdTree {
         }
         let r2 = radius * radius;
         // A splat straddling cells is listed in each; it is reported from the one cell that
-        // holds its centre. Cells are half-open, [min, max) (a centre on a plane belongs above
-        // it, and the build references it there), except at the root's far faces.
-        let owns = |cell: &Aabb, p: Vec3| {
-            (0..3).all(|a| p[a] >= cell.min[a] && (p[a] < cell.max[a] || cell.max[a] == self.bounds.max[a]))
-        };
+        // holds its centre.
         let mut stack = vec![(0usize, self.bounds)];
         while let Some((k, cell)) = stack.pop() {
             let n = self.nodes[k];
@@ -188,7 +201,7 @@ impl Accel for KdTree {
                 for &r in &self.refs[n.padded_refs()][..n.ref_count()] {
                     let s = self.disks[r as usize];
                     stats.splat_tests += 1;
-                    if (s.center - center).length_squared() <= r2 && owns(&cell, s.center) {
+                    if (s.center - center).length_squared() <= r2 && self.owns(&cell, s.center) {
                         f(r, s);
                     }
                 }
@@ -206,6 +219,16 @@ impl Accel for KdTree {
                 stack.push((n.above(), Aabb { min: with(cell.min, a, split), ..cell }));
             }
         }
+    }
+
+    fn coverage_density(&self) -> f32 {
+        *self.coverage_density.get_or_init(|| coverage_density(self, self.splats().iter().copied()))
+    }
+
+    const GATHERS: bool = true;
+
+    fn gather<V: FootprintVisitor>(&self, beam: &Beam, tau: f32, visitor: &mut V, stats: &mut TraversalStats) {
+        gather::gather(self, beam, tau, visitor, stats);
     }
 
     fn memory_bytes(&self) -> usize {
