@@ -100,10 +100,12 @@ fn candidates(block: &SplatBlock, area_radius: [f32; BLOCK]) -> Candidates {
 }
 
 /// Leaves stand as their representatives up to this many times the threshold: opened, a leaf
-/// hands the gather its 8 to 16 disks one by one. The dragon against 256 rays a pixel, at 16
-/// diagonals: 6.6 ms a frame and 35.0 dB without, 2.8 ms and 34.7 dB at 1.5, 2.1 ms and 34.2 dB
-/// at 2.5; at 8 diagonals: 19.0 ms and 36.2 dB at 1.5, 7.7 and 35.6 at 2.5, 5.4 and 35.1 at 4
-/// (`docs/RESULTS.md`). 1.5 keeps the dragon at 16 diagonals as close as 8 rays a pixel.
+/// hands the gather its 8 to 16 disks (screened eight at once). The dragon against 256 rays a
+/// pixel, at 16 diagonals: 5.2 ms a frame and 34.8 dB at 1, 2.4 ms and 34.7 dB at 1.5, 1.9 ms
+/// and 34.2 dB at 2.5; at 8 diagonals 13.6 ms and 36.5 dB, 12.0 and 36.2, 6.0 and 35.6. Whole
+/// leaves (6, with a cut of 0.2) made 8 diagonals 2.4× cheaper at 35.3 dB, but the Happy Buddha,
+/// whose sparse leaves span pixels, fell from 27.5 to 24.4 dB at 16 (`docs/RESULTS.md`). 1.5
+/// keeps the dragon at 16 diagonals as close as 8 rays a pixel.
 const LEAF_SLACK: f32 = 1.5;
 
 /// For node `k`'s children: where their spheres begin along the beam, those the beam enters

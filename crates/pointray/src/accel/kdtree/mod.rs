@@ -10,7 +10,8 @@
 //! Level of detail: every inner node carries a representative splat of the disks that reach
 //! into its cell (`accel::representative`, as for the BVH's nodes); a ray whose footprint,
 //! scaled by the threshold, is wider than the representative's own radius (a cell does not
-//! bound its disks) tests it instead of descending, the BVH's rule.
+//! bound its disks) tests it instead of descending, the BVH's rule. The footprint prefilter's
+//! beams walk it too (`gather.rs`), with what they need found when first asked.
 
 mod build;
 mod gather;
