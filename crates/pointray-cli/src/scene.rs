@@ -76,6 +76,7 @@ pub fn settings(path: &Path, scene: &Settings, a: &RenderArgs) -> anyhow::Result
         "no_shadows" => shadows;
         "color_by" => color_by;
         "edl" => edl;
+        "prefilter" => prefilter;
     }
     // `lod_threshold = 0` is full detail, as `--lod off` is; `--lod` and `--lod-threshold`
     // each override their own half.
@@ -116,6 +117,7 @@ mod tests {
             "no_shadows",
             "color_by",
             "edl",
+            "prefilter",
             "lod_threshold",
             "lod",
         ];
@@ -132,7 +134,6 @@ mod tests {
             "shadow_offset",
             "diffuse_spread",
             "cull",
-            "prefilter",
             "sphere_from_level",
             "classes",
             "exclude_classes",

@@ -230,6 +230,19 @@ fn the_prefilter_renders_a_distant_demo_and_is_refused_where_it_cannot_apply() {
     render_in(dir.path(), &a).assert_success();
     assert_eq!(read_stats(&dir.path().join("kd.json"))["prefilter"], true);
     assert!(read_png(&dir.path().join("kd.alpha.png")).rgb.iter().any(|&v| v > 20 && v < 235));
+    // A scene file asks for it in `[render]` (one ray a pixel there too).
+    let scene = |spp: u32| {
+        format!(
+            "[camera]\neye = [0.0, 0.0, 24.0]\nlook_at = [0.0, 0.0, 0.0]\n\n[render]\nwidth = 64\nheight = 48\n\
+             spp = {spp}\nlod_threshold = 1.0\nprefilter = true\n\n[[cloud]]\nfile = \"ball.ply\"\n"
+        )
+    };
+    write_file(dir.path(), "far.toml", &scene(1));
+    render_in(dir.path(), &["far.toml", "-o", "scene.png", "--stats", "scene.json"]).assert_success();
+    assert_eq!(read_stats(&dir.path().join("scene.json"))["prefilter"], true);
+    write_file(dir.path(), "far4.toml", &scene(4));
+    render_in(dir.path(), &["far4.toml", "-o", "scene4.png"]).assert_failure(2).assert_stderr_contains("prefilter");
+    assert!(!dir.path().join("scene4.png").exists());
     for (flags, why) in [
         (&["--integrator", "path"][..], "whitted and eye-light"),
         (&["--lod", "off"][..], "needs level of detail"),

@@ -226,6 +226,8 @@ pub struct RenderSpec {
     /// the scene's bounding-box diagonal).
     pub ao_distance: Option<f32>,
     pub lod_threshold: f32,
+    /// Level of detail as a prefilter (`--prefilter`; one ray a pixel: `spp = 1`).
+    pub prefilter: bool,
     pub shadows: bool,
     /// What the points' colours show (`auto`, `rgb`, `intensity`, `classification`, ...).
     pub color_by: pointray::color_by::ColorBy,
@@ -249,6 +251,7 @@ impl Default for RenderSpec {
             exposure: 0.0,
             ao_distance: None,
             lod_threshold: 0.5,
+            prefilter: false,
             shadows: true,
             color_by: pointray::color_by::ColorBy::Auto,
             edl: 0.0,

@@ -231,6 +231,7 @@ fn scene_settings(spec: &SceneFile) -> Settings {
         exposure: r.exposure,
         shadows: r.shadows,
         lod_threshold: r.lod_threshold,
+        prefilter: r.prefilter,
         color_by: r.color_by,
         edl: r.edl,
         ..Settings::default()
