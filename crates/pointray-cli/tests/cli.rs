@@ -237,10 +237,10 @@ fn the_prefilter_renders_a_distant_demo_and_is_refused_where_it_cannot_apply() {
              spp = {spp}\nlod_threshold = 1.0\nprefilter = true\n\n[[cloud]]\nfile = \"ball.ply\"\n"
         )
     };
-    write_file(dir.path(), "far.toml", &scene(1));
+    write_file(dir.path(), "far.toml", scene(1));
     render_in(dir.path(), &["far.toml", "-o", "scene.png", "--stats", "scene.json"]).assert_success();
     assert_eq!(read_stats(&dir.path().join("scene.json"))["prefilter"], true);
-    write_file(dir.path(), "far4.toml", &scene(4));
+    write_file(dir.path(), "far4.toml", scene(4));
     render_in(dir.path(), &["far4.toml", "-o", "scene4.png"]).assert_failure(2).assert_stderr_contains("prefilter");
     assert!(!dir.path().join("scene4.png").exists());
     for (flags, why) in [
