@@ -112,6 +112,7 @@ impl Moments {
         Aggregate {
             area_radius: self.area.sqrt() as f32,
             agreement: (self.normal.length() / self.area).min(1.0) as f32,
+            disk: false,
         }
     }
 

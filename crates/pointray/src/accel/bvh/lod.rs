@@ -55,7 +55,7 @@ pub(crate) struct NodeAggregate {
 
 impl NodeAggregate {
     pub(crate) fn get(&self, slot: usize) -> Aggregate {
-        Aggregate { area_radius: self.area_radius[slot], agreement: self.agreement[slot] }
+        Aggregate { area_radius: self.area_radius[slot], agreement: self.agreement[slot], disk: false }
     }
 }
 

@@ -34,7 +34,7 @@ impl GatherData {
     /// One pass up the tree: a leaf's disks' moments, merged into their ancestors'.
     pub(super) fn of(tree: &KdTree) -> Self {
         let n = tree.nodes.len();
-        let aggregates = vec![Aggregate { area_radius: 0.0, agreement: 1.0 }; n];
+        let aggregates = vec![Aggregate { area_radius: 0.0, agreement: 1.0, disk: false }; n];
         let mut data = Self { aggregates, centres: vec![Aabb::EMPTY; n], widest: vec![0.0; n] };
         if n > 0 {
             data.moments(tree, 0, tree.bounds);
