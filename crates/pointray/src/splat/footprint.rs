@@ -6,8 +6,9 @@
 //! [`Piece`]: the share of the beam's cross-section the disks cover, their mean colour and
 //! their mean normal, whose length says how much the normals below spread. Pieces at one depth
 //! make a [`Layer`], a surface seen through the pixel: the share of the pixel they cover
-//! together, attributes averaged by each one's share. Layers composite front to back, so a pixel the model covers in part blends with
-//! what lies behind, and a rough patch shades darker and with a wider highlight (Toksvig).
+//! together, attributes averaged by each one's share. Layers composite front to back, so a
+//! pixel the model covers in part blends with what lies behind, and a rough patch shades
+//! darker and with a wider highlight (Toksvig).
 //! One beam a pixel then approaches the mean of many rays a pixel (`docs/RESULTS.md`).
 //!
 //! Coverage. A layer covers the share of [`SAMPLES`] points of the beam's cross-section that
@@ -606,6 +607,22 @@ mod tests {
         let same = [piece(1.0, 0.5, red, Vec3::Z, 0), piece(1.05, 0.5, blue, Vec3::Y, 0)];
         let layer = Layers { pieces: &same, beam: &beam(), next: 0 }.next().expect("a layer");
         assert_eq!(layer.coverage, 0.5);
+    }
+
+    /// A disk covers the sample points within it: all of a beam it contains, about its area's
+    /// share of those of a beam it partly covers, none of a beam it misses.
+    #[test]
+    fn a_disk_covers_the_sample_points_within_it() {
+        let f = footprint(beam(), 1.0, f32::INFINITY);
+        let (e1, e2) = f.across;
+        let share = |at: Vec3, r: f32| f.sample_mask(at, 1.0, r).count_ones() as f32 / SAMPLES as f32;
+        assert_eq!(share(Vec3::ZERO, 1.01), 1.0);
+        assert_eq!(share(2.0 * e1, 0.9), 0.0);
+        for (at, r) in [(Vec3::ZERO, 0.5), (0.5 * e2, 0.7), (e1 - e2 * 0.2, 1.0), (0.8 * e1, 0.3)] {
+            // The lens of the two disks over the beam's area.
+            let expected = lens_area(at.length(), r, 1.0) / std::f32::consts::PI;
+            assert!((share(at, r) - expected).abs() < 0.05, "{at} {r}: {} against {expected}", share(at, r));
+        }
     }
 
     /// The screen keeps every candidate that makes a piece (else the BVH would miss pieces
