@@ -251,6 +251,7 @@ fn encode(f: &ProgressiveFrame, settings: &Settings, shared: &Shared) -> Encoded
     let meta = serde_json::json!({
         "kind": "frame", "generation": f.generation, "samples": f.samples, "scale": f.scale,
         "width": frame.width, "height": frame.height, "seconds": f.seconds, "lod_threshold": f.lod_threshold,
+        "prefilter": settings.prefilter,
         "mrays_per_second": stats.rays as f64 / f.seconds.max(1e-9) / 1e6,
         "nodes_per_ray": stats.traversal.nodes_visited as f64 / stats.rays.max(1) as f64,
     });

@@ -118,3 +118,23 @@ def test_the_model_appears_and_a_drag_turns_it(viewer, browser, tmp_path):
     differ, most, values, canvas_values = browser.execute_async_script(COMPARE, base64.b64encode(out.read_bytes()).decode())
     print(f"the command line's image against the page's: {differ} of {values} values differ by more than 1 (most {most})")
     assert values == canvas_values and differ <= values // 200, command
+
+
+@pytest.mark.skipif(not BIN, reason="POINTRAY_BIN not set")
+def test_the_prefilter_box_draws_what_the_command_line_draws(viewer, browser, tmp_path):
+    browser.get(viewer)
+    wait_for(lambda: (s := browser.execute_script(SNAPSHOT))[2] > 0 and s[1] > 500 and s)
+    # Ticked, the prefilter takes the view down to one ray a pixel.
+    browser.find_element(By.ID, "prefilter").click()
+    done = lambda: (m := browser.execute_script("return window.pointrayMeta()")) and m["prefilter"] and \
+        m["samples"] == 1 and m["scale"] == 1
+    wait_for(done)
+    time.sleep(0.5)  # the frame's PNG follows its line
+    assert "error" not in browser.find_element(By.ID, "error").text
+    command = browser.execute_script("return window.pointrayCommand()")
+    assert "--prefilter" in command and "--spp 1" in command, command
+    out = tmp_path / "view.png"
+    args = [BIN, "-q", *[str(out) if a == "view.png" else a for a in shlex.split(command)[1:]]]
+    subprocess.run(args, check=True)
+    differ, most, values, canvas_values = browser.execute_async_script(COMPARE, base64.b64encode(out.read_bytes()).decode())
+    assert values == canvas_values and differ <= values // 200, command
