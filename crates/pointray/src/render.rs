@@ -350,7 +350,7 @@ struct PrimaryRays {
     /// found once a frame: per pixel, with the mean's divisor, it cost the dragon's first hits
     /// 702 → 699 instructions a pixel (callgrind).
     samples: std::ops::Range<u32>,
-    /// The footprint prefilter: asked for, at a level of detail, by an accelerator that gathers.
+    /// The footprint prefilter: asked for, at a level of detail.
     prefilter: bool,
 }
 
@@ -375,7 +375,7 @@ impl PrimaryRays {
         let sample_batches = pinhole && config.samples > 1 && config.sampler == Sampler::R2;
         let n = config.samples.max(1);
         let samples = config.sample_range.as_ref().map_or(0..n, |r| r.start.min(n)..r.end.clamp(r.start.min(n), n));
-        let prefilter = config.prefilter && tau > 0.0 && A::GATHERS;
+        let prefilter = config.prefilter && tau > 0.0;
         Self { tau, footprint_scale, cull_backfaces, centre_rays, sample_batches, samples, prefilter }
     }
 

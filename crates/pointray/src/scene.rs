@@ -578,11 +578,7 @@ impl Scene {
 
     fn backfacing_fraction(&self) -> Option<f64> {
         // Only the BVH culls; the prefilter asks of every accelerator.
-        *self.backfacing.get_or_init(|| match &self.accel {
-            Accelerator::Bvh(a) => backfacing_fraction(a, CULL_CHECK_RAYS, 0),
-            Accelerator::KdTree(a) => backfacing_fraction(a, CULL_CHECK_RAYS, 0),
-            Accelerator::Brute(a) => backfacing_fraction(a, CULL_CHECK_RAYS, 0),
-        })
+        *self.backfacing.get_or_init(|| on_accel!(&self.accel, a => backfacing_fraction(a, CULL_CHECK_RAYS, 0)))
     }
 
     /// Nodes, the nodes that test spheres, and bytes per node (none for brute force).

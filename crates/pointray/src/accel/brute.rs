@@ -53,8 +53,6 @@ impl Accel for BruteForce {
         *self.coverage_density.get_or_init(|| coverage_density(self, self.splats.iter().copied()))
     }
 
-    const GATHERS: bool = true;
-
     /// Every disk, at full detail.
     fn gather<V: FootprintVisitor>(&self, _beam: &Beam, _tau: f32, visitor: &mut V, stats: &mut TraversalStats) {
         for (i, s) in self.splats.iter().enumerate() {

@@ -169,22 +169,17 @@ pub trait Accel: Send + Sync {
     fn wide_radius(&self) -> f32;
     /// How many disks cover a point of the surface, on average (≥ 1): what turns the disks'
     /// summed area into the area they cover, for the footprint prefilter.
-    fn coverage_density(&self) -> f32 {
-        1.0
-    }
-    /// Whether [`Self::gather`] gathers (the footprint prefilter needs it).
-    const GATHERS: bool = false;
+    fn coverage_density(&self) -> f32;
     /// Hands `visitor` every disk, or representative of disks narrower than `tau` times the
     /// beam's radius, that `beam` may overlap before `visitor.t_cut()`, nearest subtrees
-    /// first (`splat::footprint`). Nothing where [`Self::GATHERS`] is false.
+    /// first (`splat::footprint`).
     fn gather<V: crate::splat::footprint::FootprintVisitor>(
         &self,
-        _beam: &crate::splat::footprint::Beam,
-        _tau: f32,
-        _visitor: &mut V,
-        _stats: &mut TraversalStats,
-    ) {
-    }
+        beam: &crate::splat::footprint::Beam,
+        tau: f32,
+        visitor: &mut V,
+        stats: &mut TraversalStats,
+    );
     /// Whether `traverse` may hand this ray level-of-detail representatives. A representative
     /// may reach outside its subtree's bounds, so a walk that starts past `t_min` can miss one
     /// that crosses the ray later; the SJ window's completing walk asks.

@@ -178,7 +178,8 @@ fn a_prefiltered_render_is_the_same_with_any_threads_and_its_edges_partly_covere
     let rms = (a.rgb.iter().zip(&k1.rgb).map(|(x, y)| (Vec3::from(*x) - Vec3::from(*y)).length_squared()).sum::<f32>()
         / a.rgb.len() as f32)
         .sqrt();
-    assert!(rms < 0.03, "the kd-tree's prefiltered image strays from the BVH's: RMS {rms}");
+    // Measured 0.0012.
+    assert!(rms < 0.005, "the kd-tree's prefiltered image strays from the BVH's: RMS {rms}");
 }
 
 #[test]

@@ -183,7 +183,7 @@ impl Bvh {
     }
 
     /// Bytes per node: its boxes and child references, its spheres and cones, and its
-    /// children's representative splats.
+    /// children's representative splats and aggregates.
     pub const NODE_BYTES: usize =
         size_of::<Node>() + size_of::<lod::NodeLod>() + size_of::<SplatBlock>() + size_of::<lod::NodeAggregate>();
 
@@ -252,8 +252,6 @@ impl super::Accel for Bvh {
     fn coverage_density(&self) -> f32 {
         *self.coverage_density.get_or_init(|| coverage_density(self, self.splats().map(|(_, s)| s)))
     }
-
-    const GATHERS: bool = true;
 
     fn gather<V: FootprintVisitor>(&self, beam: &Beam, tau: f32, visitor: &mut V, stats: &mut super::TraversalStats) {
         gather::gather(self, beam, tau, visitor, stats);

@@ -226,8 +226,6 @@ impl Accel for KdTree {
         *self.coverage_density.get_or_init(|| coverage_density(self, self.splats().iter().copied()))
     }
 
-    const GATHERS: bool = true;
-
     fn gather<V: FootprintVisitor>(&self, beam: &Beam, tau: f32, visitor: &mut V, stats: &mut TraversalStats) {
         gather::gather(self, beam, tau, visitor, stats);
     }
