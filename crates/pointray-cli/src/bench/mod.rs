@@ -564,7 +564,10 @@ fn beside_embree(
         r.embree_rays = Some(run.rays);
         r.embree_build_seconds = Some(run.build_seconds);
         r.embree_other_load_cores = run.other_load_cores;
-        r.speed_vs_embree = Some(r.mrays_per_second / run.mrays_per_second);
+        // Camera rays a second against Embree's (it counts only those, its shadow rays timed
+        // with them): pointray's rays count its shadow rays too.
+        let camera_rays = (r.pixels * u64::from(r.spp)) as f64;
+        r.speed_vs_embree = Some(camera_rays / r.render_seconds / 1e6 / run.mrays_per_second);
         r.embree_version.clone_from(&run.version);
     }
     Ok(())

@@ -61,6 +61,7 @@ pub fn write_report(results: &Path, report: &Path, figures: &Path, command: &str
     bounding_volumes(&mut md, &run);
     schemes(&mut md, &run);
     converged_quality(&mut md, &run);
+    equal_quality(&mut md, &run);
     image_pairs(&mut md, &run, results, figures, &link)?;
     let kept = std::fs::read_to_string(report)
         .ok()
@@ -500,7 +501,8 @@ fn bounding_volumes(md: &mut String, run: &Run) {
 
 /// Embree's time for a frame of `p`'s pixels, from its rate.
 fn embree_seconds(p: &PointRecord) -> Option<f64> {
-    p.embree_mrays_per_second.map(|r| p.rays as f64 / (r * 1e6))
+    // Embree's rays are its camera rays, one a pixel (its shadow rays timed with them).
+    p.embree_mrays_per_second.zip(p.embree_rays).map(|(r, rays)| rays as f64 / (r * 1e6))
 }
 
 /// Thesis ch. 2 and 4: SJ against RFD and PSS, at full detail.
@@ -614,6 +616,66 @@ fn converged_quality(md: &mut String, run: &Run) {
         }
         md.push('\n');
     }
+}
+
+/// The prefilter's speed-up against Embree at equal quality: the most samples a pixel of full
+/// detail (BVH, the same scheme) that its one-sample image is at least as close to the converged
+/// image as, times Embree's one-sample frame over its own.
+fn equal_quality(md: &mut String, run: &Run) {
+    let prefiltered: Vec<&PointRecord> =
+        run.points.iter().filter(|p| p.prefilter && p.psnr_converged_db.is_some()).collect();
+    if prefiltered.is_empty() {
+        return;
+    }
+    let _ = writeln!(
+        md,
+        "## Equal quality against Embree
+"
+    );
+    let _ = writeln!(
+        md,
+        "Each prefiltered image beside the most samples a pixel of full detail (BVH, same scheme and view) it is at \
+         least as close to the converged image as (PSNR); Embree's one-sample frame on the same pixels; the speed-up \
+         at equal quality is those samples × Embree's frame / the prefilter's (– where it is not as close as one \
+         sample).\n"
+    );
+    let _ = writeln!(
+        md,
+        "| model | accel | distance | prefiltered dB, ms | full detail it matches | Embree 1 spp ms | speed-up |"
+    );
+    let _ = writeln!(md, "|---|---|---:|---|---|---:|---:|");
+    for p in prefiltered {
+        let full: Vec<&PointRecord> = run
+            .points
+            .iter()
+            .filter(|f| {
+                (f.model == p.model && f.distance == p.distance && f.surface == p.surface)
+                    && (f.accel == "bvh" && f.lod_threshold == 0.0 && !f.prefilter)
+            })
+            .collect();
+        let matched = full
+            .iter()
+            .filter(|f| f.psnr_converged_db.is_some_and(|db| db <= p.psnr_converged_db.unwrap_or(f64::INFINITY)))
+            .max_by_key(|f| f.spp);
+        let embree = full.iter().find(|f| f.spp == 1).and_then(|f| embree_seconds(f));
+        let matches = matched.map_or("–".into(), |f| {
+            format!("{} spp ({} dB, {} ms)", f.spp, psnr(f.psnr_converged_db), ms(f.render_seconds))
+        });
+        let speed_up = matched
+            .zip(embree)
+            .map_or("–".into(), |(f, e)| format!("{:.1}×", f64::from(f.spp) * e / p.render_seconds));
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} | {}, {} | {matches} | {} | {speed_up} |",
+            p.model,
+            p.accel,
+            p.distance,
+            psnr(p.psnr_converged_db),
+            ms(p.render_seconds),
+            embree.map_or("–".into(), ms)
+        );
+    }
+    md.push('\n');
 }
 
 /// What level of detail does to the picture: full detail beside the largest threshold, for

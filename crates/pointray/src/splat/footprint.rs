@@ -225,6 +225,12 @@ impl Footprint {
         self.sort();
     }
 
+    /// The share of the beam's cross-section that the pieces cover between them: for a
+    /// shadow beam, the share of the light its layer does not see.
+    pub fn blocked(&self) -> f32 {
+        self.covered.count_ones() as f32 / SAMPLES as f32
+    }
+
     pub fn pieces(&self) -> &[Piece] {
         &self.pieces
     }
@@ -482,44 +488,36 @@ impl Iterator for Layers<'_> {
     }
 }
 
-/// Where a layer's shadow rays leave from: the pieces grouped by the quadrant of the beam's
-/// cross-section they lie in, each group from its coverage-weighted mean point (each piece's
-/// point nearest the axis within half its radius) and normal. Light seen through a pixel
-/// varies across it; one shadow ray from the layer's mean point starts inside creases, and
-/// one a piece costs a ray a piece (the dragon at 16 diagonals: 30.6 dB inside with one, 32.4
-/// with one a piece, 33.2 with four; `docs/RESULTS.md`).
-pub fn shadow_origins(footprint: &Footprint, layer: &Layer) -> ArrayVec<ShadowOrigin, 4> {
+/// Where a layer's shadow beam leaves from: the coverage-weighted mean of its pieces' points
+/// nearest the beam's axis (each in its plane, within half its radius of its centre), so that
+/// a partly covered layer's beam leaves from its pieces, not from the axis beside them; and
+/// their disks' mean radius, at most the beam's.
+pub fn shadow_origin(footprint: &Footprint, layer: &Layer) -> ShadowOrigin {
     let beam = &footprint.beam;
-    let (e1, e2) = crate::math::orthonormal_basis(beam.dir);
-    let mut groups = [ShadowOrigin { weight: 0.0, point: Vec3::ZERO, normal: Vec3::ZERO, width: 0.0 }; 4];
+    let (mut weight, mut point, mut radius) = (0.0, Vec3::ZERO, 0.0);
     for p in &footprint.pieces[layer.pieces.clone()] {
         let axis = beam.origin + p.t * beam.dir;
         let off = axis - p.center;
         let off = off - p.normal * off.dot(p.normal);
         let len = off.length();
-        let point = if len > 0.0 { p.center + off * (len.min(0.5 * p.radius) / len) } else { p.center };
-        let side = point - axis;
-        let g = &mut groups[usize::from(side.dot(e1) > 0.0) + 2 * usize::from(side.dot(e2) > 0.0)];
-        g.weight += p.coverage;
-        g.point += p.coverage * point;
-        g.normal += p.coverage * p.normal;
-        g.width = g.width.max(p.size);
+        let nearest = if len > 0.0 { p.center + off * (len.min(0.5 * p.radius) / len) } else { p.center };
+        weight += p.coverage;
+        point += p.coverage * nearest;
+        radius += p.coverage * p.radius;
     }
-    groups
-        .into_iter()
-        .filter(|g| g.weight > 0.0)
-        .map(|g| ShadowOrigin { point: g.point / g.weight, normal: g.normal.normalize_or_zero(), ..g })
-        .collect()
+    let width = beam.radius(layer.t);
+    if weight > 0.0 {
+        ShadowOrigin { point: point / weight, disk_radius: (radius / weight).min(width) }
+    } else {
+        ShadowOrigin { point: beam.origin + layer.t * beam.dir, disk_radius: width }
+    }
 }
 
-/// One of a layer's shadow rays' origins: its weight (the coverage it stands for), point,
-/// normal and the width of the beam it starts.
+/// [`shadow_origin`]'s answer.
 #[derive(Clone, Copy, Debug)]
 pub struct ShadowOrigin {
-    pub weight: f32,
     pub point: Vec3,
-    pub normal: Vec3,
-    pub width: f32,
+    pub disk_radius: f32,
 }
 
 /// How many disks cover a point of the surface, on average, in `accel` (at least 1): at the

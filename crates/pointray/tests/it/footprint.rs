@@ -70,6 +70,37 @@ fn a_footprint_on_the_planes_edge_covers_what_its_disks_cover_and_one_past_it_no
     }
 }
 
+/// A shadow beam (`render::footprint`'s, one a layer) is blocked by the share of its
+/// cross-section that surfaces facing it cover: whole under a sheet, as much as the disks
+/// cover under its edge, not at all past it; a surface facing away (the layer's own, which
+/// faces the light) does not block.
+#[test]
+fn a_shadow_beam_is_blocked_by_the_share_of_it_that_a_sheet_facing_it_covers() {
+    let sheet = plane_splats(20_000, 5);
+    // The sheet at z = 1 facing down, over a ground at z = 0 facing up.
+    let over = sheet.iter().map(|s| Splat { center: s.center + Vec3::Z, normal: -Vec3::Z, ..*s });
+    let bvh = Bvh::build(over.chain(plane_splats(20_000, 6)).collect(), &BvhParams::standard());
+    let width = 0.15;
+    let blocked = |from: Vec3, tau: f32| {
+        let ray = Ray::new(from, Vec3::Z, RayCone { width0: width, spread: 0.0 });
+        let mut beam = Footprint::new(&bvh, &ray, 10.0);
+        beam.gather(&bvh, tau, &mut TraversalStats::default());
+        beam.blocked()
+    };
+    let edge = Vec3::new(1.0, 0.3, 0.0);
+    let union = disks_cover(&sheet, edge, width * pointray::splat::footprint::FOOTPRINT_RADIUS);
+    for tau in [0.0, 1.0] {
+        let under = blocked(Vec3::new(0.1, 0.3, 0.02), tau);
+        assert!(under > 0.97, "τ {tau}: {under} under the sheet");
+        let at_edge = blocked(edge + 0.02 * Vec3::Z, tau);
+        assert!((at_edge - union).abs() < 0.06, "τ {tau}: {at_edge} under the edge, the disks' union {union}");
+        assert_eq!(blocked(Vec3::new(1.5, 0.3, 0.02), tau), 0.0, "τ {tau}: past the edge");
+        // From under the ground, through it (it faces away) and past the sheet's edge.
+        assert_eq!(blocked(Vec3::new(1.5, 0.3, -0.5), tau), 0.0, "τ {tau}: the ground faces away");
+        assert!(blocked(Vec3::new(0.1, 0.3, -0.5), tau) > 0.97, "τ {tau}: through the ground to the sheet");
+    }
+}
+
 /// The share of the disk of `radius` about `center` in the plane z = 0 that `disks` (in that
 /// plane) cover, on a fine grid.
 fn disks_cover(disks: &[Splat], center: Vec3, radius: f32) -> f32 {
