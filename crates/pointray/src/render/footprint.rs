@@ -10,7 +10,7 @@ use crate::material::{Material, Phong};
 use crate::math::{Ray, RayCone};
 use crate::render::Integrator;
 use crate::shading::Light;
-use crate::splat::footprint::{FOOTPRINT_RADIUS, Footprint, Layer, OPAQUE, shadow_origin};
+use crate::splat::footprint::{Footprint, Layer, OPAQUE, ShadowBeam, shadow_origin};
 use crate::splat::scheme::SurfaceHit;
 
 /// Layers shaded at most; light past them is what lies behind.
@@ -105,7 +105,7 @@ impl<A: Accel> Tracer<'_, A> {
         for light in &config.lights {
             let (to_light, _, irradiance) = light.towards(hit.position);
             let Some(lambert) = lambert(footprint, layer, to_light) else { continue };
-            let seen = if config.shadows { self.layer_visibility(footprint, layer, hit, light) } else { 1.0 };
+            let seen = if config.shadows { self.layer_visibility(footprint, layer, light) } else { 1.0 };
             if seen > 0.0 {
                 let diffuse = lambert * (irradiance * (1.0 - phong.ambient));
                 color += seen * (diffuse + phong.glossy(hit.normal, -ray.dir, to_light, irradiance));
@@ -114,35 +114,31 @@ impl<A: Accel> Tracer<'_, A> {
         color
     }
 
-    /// The share of `layer` that sees `light`: what a beam as wide as the pixel's footprint,
-    /// from the layer towards the light, finds unblocked ([`Footprint::blocked`]: the union of
-    /// the occluders' pieces over its cross-section, a fraction where shadow rays give a
-    /// step per ray). It leaves [`shadow_origin`] `shadow_offset` beam radii along the light,
-    /// past the layer's own neighbourhood, and [`SHADOW_LIFT`] of that in disk radii off the
-    /// surface, as a shadow ray leaves a disk. Its gather leaves out pieces facing away, as the
-    /// camera's does: the layer's own surface, which faces the light, and the far sides of
-    /// occluders, whose near sides block; but so also the back of a sheet scanned from one
-    /// side (a roof seen from the ground below it). Backs counted above the layer's plane cost
-    /// the Happy Buddha 1.5 to 3 dB (`docs/RESULTS.md`).
-    fn layer_visibility(&mut self, footprint: &Footprint, layer: &Layer, hit: &SurfaceHit, light: &Light) -> f32 {
+    /// The share of `layer` that sees `light`: the share of its sample points whose shadow
+    /// rays nothing blocks, found by one gather along the light ([`ShadowBeam`]). Each ray
+    /// leaves the layer where its sample meets it, [`SHADOW_LIFT`] of `shadow_offset` disk
+    /// radii off the surface, and ignores what lies within a disk radius, as a shadow ray from
+    /// a disk does. The gather leaves out pieces facing away, as the camera's does: the layer's
+    /// own surface, which faces the light, and the far sides of occluders, whose near sides
+    /// block; but so also the back of a sheet scanned from one side (a roof seen from the
+    /// ground below it). Backs counted cost the Happy Buddha 1.5 to 3 dB (`docs/RESULTS.md`).
+    fn layer_visibility(&mut self, footprint: &Footprint, layer: &Layer, light: &Light) -> f32 {
         let config = self.config;
         let origin = shadow_origin(footprint, layer);
         let u = if light.is_area() { [self.rng.next(), self.rng.next()] } else { [0.5; 2] };
-        let (direction, distance) = light.shadow_target(origin.point, u);
-        let width = footprint.beam.radius(layer.t);
-        let along = config.shadow_offset * width;
-        let lift = SHADOW_LIFT * config.shadow_offset * origin.disk_radius;
-        let start = origin.point + direction * along + hit.normal * lift;
-        let cone = RayCone { width0: width / FOOTPRINT_RADIUS, spread: 0.0 };
-        let ray = Ray::new(start, direction, cone);
-        let t_max = distance - along;
+        let (direction, distance) = light.shadow_target(origin, u);
         self.stats.rays += 1;
         self.stats.shadow_rays += 1;
-        if config.ground.is_some_and(|ground| ground.blocks(&ray, t_max)) {
+        let axis = Ray::new(origin, direction, RayCone::default());
+        if config.ground.is_some_and(|ground| ground.blocks(&axis, distance)) {
             return 0.0;
         }
-        let mut beam = Footprint::new(self.accel, &ray, t_max);
-        beam.gather(self.accel, 1.0, &mut self.stats.traversal);
+        let reach = config.scheme.self_hit_radii();
+        let lift = SHADOW_LIFT * config.shadow_offset * reach;
+        let Some(mut beam) = ShadowBeam::new(footprint, layer, direction, distance, lift, reach) else {
+            return 1.0;
+        };
+        beam.gather(self.accel, &mut self.stats.traversal);
         1.0 - beam.blocked()
     }
 }
@@ -165,10 +161,11 @@ fn lambert(footprint: &Footprint, layer: &Layer, to_light: Vec3) -> Option<Vec3>
     (lit && weight > 0.0).then(|| sum / weight)
 }
 
-/// A layer's shadow beam starts this share of `shadow_offset` disk radii off its surface (and
-/// `shadow_offset` beam radii along the light). The dragon at 16 diagonals from three views and
-/// the Happy Buddha from two, against 256 rays a pixel: 0, ½ and 1 gave 36.9 / 36.3 / 35.0 /
-/// 28.2 / 27.9, 37.2 / 36.5 / 35.0 / 29.6 / 29.4 and 36.9 / 36.6 / 33.9 / 30.2 / 30.4 dB
+/// A layer's shadow rays start this share of `shadow_offset` disk radii off its surface (a
+/// shadow ray from a disk: all of it). The dragon at 16 diagonals from three views and the
+/// Happy Buddha from two, against 256 rays a pixel: ¼, ½, ¾ and 1 gave 39.2 / 39.1 / 38.7 /
+/// 30.4 / 29.5, 39.7 / 39.3 / 39.1 / 31.1 / 30.2, 39.8 / 39.5 / 38.1 / 31.4 / 31.0 and 39.7 /
+/// 39.5 / 36.7 / 31.4 / 31.4 dB: a representative's disk, wider than its disks, lifts too far
 /// (`docs/RESULTS.md`).
 const SHADOW_LIFT: f32 = 0.5;
 

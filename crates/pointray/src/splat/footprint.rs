@@ -28,6 +28,9 @@ use crate::color::srgb8_to_linear_table;
 use crate::math::Ray;
 use crate::splat::{Splat, color_linear_in};
 
+mod shadow;
+pub use shadow::ShadowBeam;
+
 /// The beam's radius as a share of the pixel's width: a disk of the pixel's area (1/√π).
 pub const FOOTPRINT_RADIUS: f32 = 0.564_189_6;
 
@@ -225,12 +228,6 @@ impl Footprint {
         self.sort();
     }
 
-    /// The share of the beam's cross-section that the pieces cover between them: for a
-    /// shadow beam, the share of the light its layer does not see.
-    pub fn blocked(&self) -> f32 {
-        self.covered.count_ones() as f32 / SAMPLES as f32
-    }
-
     pub fn pieces(&self) -> &[Piece] {
         &self.pieces
     }
@@ -294,18 +291,7 @@ impl Footprint {
     /// The sample points within `radius` of a point `across` the axis, in a beam `w` wide.
     #[inline(always)]
     fn sample_mask(&self, across: Vec3, w: f32, radius: f32) -> u64 {
-        let (x, y, r) = (across.dot(self.across.0) / w, across.dot(self.across.1) / w, radius / w);
-        let (cx, cy, r2) = (Vec4::splat(x), Vec4::splat(y), Vec4::splat(r * r));
-        // Four points at a time, in SSE lanes (glam's). The dragon at 16 diagonals, a frame:
-        // a scalar test of every point, 6,500 instructions a pixel; in lanes, 1,600 and 2.59 ms;
-        // the points sorted by y and only the fours in the disk's rows tested, 2,000 fewer
-        // instructions but 2.79 ms (its branches mispredicted).
-        let mut mask = 0;
-        for (i, (px, py)) in self.points.x.iter().zip(&self.points.y).enumerate() {
-            let (dx, dy) = (*px - cx, *py - cy);
-            mask |= u64::from((dx * dx + dy * dy).cmple(r2).bitmask()) << (4 * i);
-        }
-        mask
+        self.points.within(across.dot(self.across.0) / w, across.dot(self.across.1) / w, radius / w)
     }
 
     fn insert(&mut self, p: Piece) {
@@ -357,9 +343,33 @@ impl Footprint {
 
 /// [`SAMPLES`] points spread evenly over the unit disk (a Vogel spiral: radius √((i + ½)/n),
 /// the golden angle apart), four to a vector.
+#[derive(Clone, Copy)]
 struct SamplePoints {
     x: [Vec4; SAMPLES / 4],
     y: [Vec4; SAMPLES / 4],
+}
+
+impl SamplePoints {
+    /// The points within `r` of (`x`, `y`), bit i for point i.
+    #[inline(always)]
+    fn within(&self, x: f32, y: f32, r: f32) -> u64 {
+        let (cx, cy, r2) = (Vec4::splat(x), Vec4::splat(y), Vec4::splat(r * r));
+        // Four points at a time, in SSE lanes (glam's). The dragon at 16 diagonals, a frame:
+        // a scalar test of every point, 6,500 instructions a pixel; in lanes, 1,600 and 2.59 ms;
+        // the points sorted by y and only the fours in the disk's rows tested, 2,000 fewer
+        // instructions but 2.79 ms (its branches mispredicted).
+        let mut mask = 0;
+        for (i, (px, py)) in self.x.iter().zip(&self.y).enumerate() {
+            let (dx, dy) = (*px - cx, *py - cy);
+            mask |= u64::from((dx * dx + dy * dy).cmple(r2).bitmask()) << (4 * i);
+        }
+        mask
+    }
+
+    /// Point `i`.
+    fn get(&self, i: usize) -> (f32, f32) {
+        (self.x[i / 4][i % 4], self.y[i / 4][i % 4])
+    }
 }
 
 fn sample_points() -> &'static SamplePoints {
@@ -397,32 +407,36 @@ impl FootprintVisitor for Footprint {
         }
     }
 
-    /// [`Self::piece`]'s tests for eight at once, each with a margin for rounding (lanes sum
-    /// in another order): facing the beam, within its depths, and no farther from its axis
-    /// than the covered disk's radius plus the beam's. Two in three of the dragon's candidates
-    /// at 16 diagonals failed them one by one in `piece`, at some 70 instructions each.
     #[inline(always)]
     fn screen(&self, c: &Candidates) -> u32 {
-        let b = &self.beam;
-        let (t_lo, t_hi) = (b.t_min - SCREEN_MARGIN * b.t_min.abs(), self.t_cut + SCREEN_MARGIN * self.t_cut.abs());
-        let (o, d) = (b.origin, b.dir);
-        // Lane by lane over plain arrays, which the compiler turns into vector code.
-        let mut keep = [false; 8];
-        for (i, keep) in keep.iter_mut().enumerate() {
-            let oc = [c.center[0][i] - o.x, c.center[1][i] - o.y, c.center[2][i] - o.z];
-            let cos = c.normal[0][i] * d.x + c.normal[1][i] * d.y + c.normal[2][i] * d.z;
-            let t = oc[0] * d.x + oc[1] * d.y + oc[2] * d.z;
-            let off = [oc[0] - t * d.x, oc[1] - t * d.y, oc[2] - t * d.z];
-            let off2 = off[0] * off[0] + off[1] * off[1] + off[2] * off[2];
-            let size = c.area_radius[i] * self.size_scale * (-cos).max(MIN_COS).sqrt();
-            let reach = (size + b.r0 + b.spread * t.max(0.0)) * (1.0 + SCREEN_MARGIN);
-            *keep = (cos <= SCREEN_MARGIN) & (t >= t_lo) & (t <= t_hi) & (off2 <= reach * reach);
-        }
-        keep.iter().enumerate().fold(0, |mask, (i, &k)| mask | u32::from(k) << i)
+        screen(&self.beam, self.t_cut, self.size_scale, c)
     }
 }
 
-/// [`Footprint::screen`]'s relative margin.
+/// [`Footprint::piece`]'s tests for eight at once, each with a margin for rounding (lanes sum
+/// in another order): facing the beam, within its depths (to `t_cut`), and no farther from its
+/// axis than the covered disk's radius plus the beam's. Two in three of the dragon's candidates
+/// at 16 diagonals failed them one by one in `piece`, at some 70 instructions each.
+#[inline(always)]
+fn screen(b: &Beam, t_cut: f32, size_scale: f32, c: &Candidates) -> u32 {
+    let (t_lo, t_hi) = (b.t_min - SCREEN_MARGIN * b.t_min.abs(), t_cut + SCREEN_MARGIN * t_cut.abs());
+    let (o, d) = (b.origin, b.dir);
+    // Lane by lane over plain arrays, which the compiler turns into vector code.
+    let mut keep = [false; 8];
+    for (i, keep) in keep.iter_mut().enumerate() {
+        let oc = [c.center[0][i] - o.x, c.center[1][i] - o.y, c.center[2][i] - o.z];
+        let cos = c.normal[0][i] * d.x + c.normal[1][i] * d.y + c.normal[2][i] * d.z;
+        let t = oc[0] * d.x + oc[1] * d.y + oc[2] * d.z;
+        let off = [oc[0] - t * d.x, oc[1] - t * d.y, oc[2] - t * d.z];
+        let off2 = off[0] * off[0] + off[1] * off[1] + off[2] * off[2];
+        let size = c.area_radius[i] * size_scale * (-cos).max(MIN_COS).sqrt();
+        let reach = (size + b.r0 + b.spread * t.max(0.0)) * (1.0 + SCREEN_MARGIN);
+        *keep = (cos <= SCREEN_MARGIN) & (t >= t_lo) & (t <= t_hi) & (off2 <= reach * reach);
+    }
+    keep.iter().enumerate().fold(0, |mask, (i, &k)| mask | u32::from(k) << i)
+}
+
+/// [`screen`]'s relative margin.
 const SCREEN_MARGIN: f32 = 1e-4;
 
 /// Pieces at one depth: a surface as the pixel sees it.
@@ -488,13 +502,13 @@ impl Iterator for Layers<'_> {
     }
 }
 
-/// Where a layer's shadow beam leaves from: the coverage-weighted mean of its pieces' points
-/// nearest the beam's axis (each in its plane, within half its radius of its centre), so that
-/// a partly covered layer's beam leaves from its pieces, not from the axis beside them; and
-/// their disks' mean radius, at most the beam's.
-pub fn shadow_origin(footprint: &Footprint, layer: &Layer) -> ShadowOrigin {
+/// A point of `layer` to aim its shadow rays from (the light's direction and distance): the
+/// coverage-weighted mean of its pieces' points nearest the beam's axis (each in its plane,
+/// within half its radius of its centre), so that a partly covered layer's lies on its
+/// pieces, not on the axis beside them.
+pub fn shadow_origin(footprint: &Footprint, layer: &Layer) -> Vec3 {
     let beam = &footprint.beam;
-    let (mut weight, mut point, mut radius) = (0.0, Vec3::ZERO, 0.0);
+    let (mut weight, mut point) = (0.0, Vec3::ZERO);
     for p in &footprint.pieces[layer.pieces.clone()] {
         let axis = beam.origin + p.t * beam.dir;
         let off = axis - p.center;
@@ -503,21 +517,8 @@ pub fn shadow_origin(footprint: &Footprint, layer: &Layer) -> ShadowOrigin {
         let nearest = if len > 0.0 { p.center + off * (len.min(0.5 * p.radius) / len) } else { p.center };
         weight += p.coverage;
         point += p.coverage * nearest;
-        radius += p.coverage * p.radius;
     }
-    let width = beam.radius(layer.t);
-    if weight > 0.0 {
-        ShadowOrigin { point: point / weight, disk_radius: (radius / weight).min(width) }
-    } else {
-        ShadowOrigin { point: beam.origin + layer.t * beam.dir, disk_radius: width }
-    }
-}
-
-/// [`shadow_origin`]'s answer.
-#[derive(Clone, Copy, Debug)]
-pub struct ShadowOrigin {
-    pub point: Vec3,
-    pub disk_radius: f32,
+    if weight > 0.0 { point / weight } else { beam.origin + layer.t * beam.dir }
 }
 
 /// How many disks cover a point of the surface, on average, in `accel` (at least 1): at the

@@ -7,7 +7,7 @@ use pointray::camera::{Camera, Region};
 use pointray::math::{Ray, RayCone};
 use pointray::render::{RenderConfig, render};
 use pointray::shading::Environment;
-use pointray::splat::footprint::{Footprint, Layer};
+use pointray::splat::footprint::{Footprint, Layer, ShadowBeam};
 use pointray::splat::{Splat, pack_color};
 
 use crate::util::{plane_splats, random_rays, sphere_splats, torus_splats};
@@ -70,35 +70,44 @@ fn a_footprint_on_the_planes_edge_covers_what_its_disks_cover_and_one_past_it_no
     }
 }
 
-/// A shadow beam (`render::footprint`'s, one a layer) is blocked by the share of its
-/// cross-section that surfaces facing it cover: whole under a sheet, as much as the disks
-/// cover under its edge, not at all past it; a surface facing away (the layer's own, which
-/// faces the light) does not block.
+/// A layer's shadow rays, gathered as one beam ([`ShadowBeam`]): a sheet facing the ground
+/// shadows the ground behind it from a light at 45°, past its edge the ground is lit, the
+/// ground's own disks (facing the light) block nothing, and the edge falls between; at full
+/// detail and with representatives, in the BVH and the kd-tree.
 #[test]
-fn a_shadow_beam_is_blocked_by_the_share_of_it_that_a_sheet_facing_it_covers() {
+fn a_layers_shadow_rays_are_blocked_where_a_sheet_stands_between_it_and_the_light() {
+    // The ground [−1, 1]² at z = 0 facing up; the sheet [1.5, 3.5] × [−1, 1] at z = 1 facing
+    // down. From the ground, the light along (1, 0, 1) meets the sheet past x = 0.5.
     let sheet = plane_splats(20_000, 5);
-    // The sheet at z = 1 facing down, over a ground at z = 0 facing up.
-    let over = sheet.iter().map(|s| Splat { center: s.center + Vec3::Z, normal: -Vec3::Z, ..*s });
-    let bvh = Bvh::build(over.chain(plane_splats(20_000, 6)).collect(), &BvhParams::standard());
-    let width = 0.15;
-    let blocked = |from: Vec3, tau: f32| {
-        let ray = Ray::new(from, Vec3::Z, RayCone { width0: width, spread: 0.0 });
-        let mut beam = Footprint::new(&bvh, &ray, 10.0);
-        beam.gather(&bvh, tau, &mut TraversalStats::default());
-        beam.blocked()
-    };
-    let edge = Vec3::new(1.0, 0.3, 0.0);
-    let union = disks_cover(&sheet, edge, width * pointray::splat::footprint::FOOTPRINT_RADIUS);
-    for tau in [0.0, 1.0] {
-        let under = blocked(Vec3::new(0.1, 0.3, 0.02), tau);
-        assert!(under > 0.97, "τ {tau}: {under} under the sheet");
-        let at_edge = blocked(edge + 0.02 * Vec3::Z, tau);
-        assert!((at_edge - union).abs() < 0.06, "τ {tau}: {at_edge} under the edge, the disks' union {union}");
-        assert_eq!(blocked(Vec3::new(1.5, 0.3, 0.02), tau), 0.0, "τ {tau}: past the edge");
-        // From under the ground, through it (it faces away) and past the sheet's edge.
-        assert_eq!(blocked(Vec3::new(1.5, 0.3, -0.5), tau), 0.0, "τ {tau}: the ground faces away");
-        assert!(blocked(Vec3::new(0.1, 0.3, -0.5), tau) > 0.97, "τ {tau}: through the ground to the sheet");
+    let over = sheet.iter().map(|s| Splat { center: s.center + Vec3::new(2.5, 0.0, 1.0), normal: -Vec3::Z, ..*s });
+    let splats: Vec<Splat> = over.chain(plane_splats(20_000, 6)).collect();
+    let light = Vec3::new(1.0, 0.0, 1.0).normalize();
+    let bvh = Bvh::build(splats.clone(), &BvhParams::standard());
+    let kdtree = KdTree::build(splats, &KdTreeParams::standard());
+    for (name, blocked) in [
+        ("bvh", &(|x: f32, tau: f32| shadow_of_ground(&bvh, x, tau, light)) as &dyn Fn(f32, f32) -> f32),
+        ("kd-tree", &|x: f32, tau: f32| shadow_of_ground(&kdtree, x, tau, light)),
+    ] {
+        for tau in [0.0, 1.0] {
+            assert_eq!(blocked(-0.3, tau), 0.0, "{name} τ {tau}: lit ground");
+            let under = blocked(0.8, tau);
+            assert!(under > 0.97, "{name} τ {tau}: {under} in the sheet's shadow");
+            let edge = blocked(0.5, tau);
+            assert!(edge > 0.2 && edge < 0.8, "{name} τ {tau}: {edge} at the shadow's edge");
+        }
     }
+}
+
+/// The blocked share of the ground's first layer under a beam straight down at (x, 0.3).
+fn shadow_of_ground(accel: &impl Accel, x: f32, tau: f32, light: Vec3) -> f32 {
+    let target = Vec3::new(x, 0.3, 0.0);
+    let ray = beam_ray(target + 3.0 * Vec3::Z, target, 0.15);
+    let mut footprint = Footprint::new(accel, &ray, f32::INFINITY);
+    footprint.gather(accel, tau, &mut TraversalStats::default());
+    let ground = footprint.layers().next().expect("the ground");
+    let mut beam = ShadowBeam::new(&footprint, &ground, light, 10.0, 0.5, 1.0).expect("points on the ground");
+    beam.gather(accel, &mut TraversalStats::default());
+    beam.blocked()
 }
 
 /// The share of the disk of `radius` about `center` in the plane z = 0 that `disks` (in that

@@ -108,6 +108,27 @@ fn candidates(block: &SplatBlock, area_radius: [f32; BLOCK]) -> Candidates {
 /// keeps the dragon at 16 diagonals as close as 8 rays a pixel.
 const LEAF_SLACK: f32 = 1.5;
 
+/// Node `k`'s children all of whose disks face away from the beam: their normal cones (about
+/// the representatives' normals, half-angle θ < 90°) lie within 90° − θ of its direction, so
+/// that every normal n below has n·d > 0 and the visitor would drop every piece they give. A
+/// shadow beam so skips the lit surface it leaves, a camera's the far side of what it meets.
+/// The dragon at 16 diagonals (callgrind, `footprint_radiance`, four frames): 345 → 321 million
+/// instructions, the same image.
+#[inline(always)]
+fn facing_away(bvh: &Bvh, k: usize, dir: &[Lanes; 3]) -> u32 {
+    let reps = &bvh.representatives[k];
+    let axis = [0, 1, 2].map(|a| reps.normal_node_lanes(a));
+    let (s, cos) = (dot3(&axis, dir), bvh.lod[k].cos_angle);
+    // s > sin θ, squared, with a margin for the normals' rounding.
+    let margin = Lanes::splat(FACING_MARGIN);
+    Lanes::bitmask(
+        s.cmpgt(Lanes::ZERO) & cos.cmpgt(Lanes::ZERO) & (s * s).cmpgt(Lanes::splat(1.0) - cos * cos + margin),
+    )
+}
+
+/// [`facing_away`]'s margin on sin²: some 0.06° near a cone's edge.
+const FACING_MARGIN: f32 = 1e-3;
+
 /// For node `k`'s children: where their spheres begin along the beam, those the beam enters
 /// before `t_cut`, and those narrower than `tau` beam radii that a representative may stand in
 /// for.
@@ -129,7 +150,8 @@ fn children(bvh: &Bvh, k: usize, beam: &Beam, tau: f32, t_cut: f32) -> ([f32; WI
             & Lanes::splat(beam.t_min).cmple(tc + radius)
             & entry.cmple(Lanes::splat(t_cut.min(beam.t_max))),
     ) & node.used
-        & SLOTS;
+        & SLOTS
+        & !facing_away(bvh, k, &dir);
     let narrow = Lanes::splat(tau) * (r0 + spread * tc.max(Lanes::ZERO));
     // Every child has a representative, small leaves too (which rays never take: their
     // disks cost a ray no more to test); to a beam, a leaf's disks are as many pieces.
