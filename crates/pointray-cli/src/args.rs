@@ -327,7 +327,8 @@ pub struct RenderArgs {
     /// Level of detail as a prefilter: where the pixel's footprint is wide enough for level
     /// of detail, the camera ray gathers what its pixel covers (partly covered pixels blended
     /// with what lies behind, rough patches shaded as such), so one ray a pixel looks like
-    /// many. One sample a pixel, Whitted and eye-light, outward normals.
+    /// many. One sample a pixel, Whitted and eye-light, normals facing the view (a closed
+    /// scan's outward, a range scan's or survey's seen from the side it was scanned from).
     #[arg(long)]
     pub prefilter: bool,
     /// Normal-cone backface culling for camera rays; auto turns it on when rays from around

@@ -243,6 +243,19 @@ fn the_prefilter_renders_a_distant_demo_and_is_refused_where_it_cannot_apply() {
     write_file(dir.path(), "far4.toml", scene(4));
     render_in(dir.path(), &["far4.toml", "-o", "scene4.png"]).assert_failure(2).assert_stderr_contains("prefilter");
     assert!(!dir.path().join("scene4.png").exists());
+    // A square scanned from above (normals up): the prefilter applies seen from above, and
+    // from below, where the view meets its back, it is left out.
+    let square: Vec<[f32; 3]> =
+        (0..10_000).map(|i| [(i % 100) as f32 / 50.0 - 1.0, (i / 100) as f32 / 50.0 - 1.0, 0.0]).collect();
+    write_file(dir.path(), "square.ply", ascii_ply_facing(&square, [0.0, 0.0, 1.0]));
+    for (view, applies) in [("0.1,0.2,1", true), ("0.1,0.2,-1", false)] {
+        let view = format!("--view-dir={view}");
+        let args =
+            ["square.ply", "-o", "square.png", "--distance", "8", "--prefilter", &view, "--stats", "square.json"];
+        let run = render_in(dir.path(), &args);
+        run.assert_success();
+        assert_eq!(read_stats(&dir.path().join("square.json"))["prefilter"], applies, "{view}");
+    }
     for (flags, why) in [
         (&["--integrator", "path"][..], "whitted and eye-light"),
         (&["--lod", "off"][..], "needs level of detail"),

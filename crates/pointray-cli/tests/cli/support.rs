@@ -235,14 +235,26 @@ pub fn ascii_ply(points: &[[f32; 3]], comments: usize) -> String {
 
 /// ASCII PLY with `x y z nx ny nz` (outward normals of a sphere centred at the origin).
 pub fn ascii_ply_with_normals(points: &[[f32; 3]]) -> String {
+    ascii_ply_normals(points, |p| {
+        let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
+        [p[0] / l, p[1] / l, p[2] / l]
+    })
+}
+
+/// ASCII PLY with `x y z nx ny nz`, every normal `normal`.
+pub fn ascii_ply_facing(points: &[[f32; 3]], normal: [f32; 3]) -> String {
+    ascii_ply_normals(points, |_| normal)
+}
+
+fn ascii_ply_normals(points: &[[f32; 3]], normal: impl Fn(&[f32; 3]) -> [f32; 3]) -> String {
     let mut s = format!(
         "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
          property float nx\nproperty float ny\nproperty float nz\nend_header\n",
         points.len()
     );
     for p in points {
-        let l = (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt();
-        writeln!(s, "{} {} {} {} {} {}", p[0], p[1], p[2], p[0] / l, p[1] / l, p[2] / l).unwrap();
+        let n = normal(p);
+        writeln!(s, "{} {} {} {} {} {}", p[0], p[1], p[2], n[0], n[1], n[2]).unwrap();
     }
     s
 }

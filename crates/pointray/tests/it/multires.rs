@@ -5,8 +5,8 @@ use glam::Vec3;
 use pointray::accel::{
     Accel, Bvh, BvhParams, Crossing, KdTree, KdTreeParams, NodeBounds, SplatVisitor, TraversalStats,
 };
-use pointray::camera::Camera;
-use pointray::culling::backfacing_fraction;
+use pointray::camera::{Camera, Region};
+use pointray::culling::{backfacing_fraction, backfacing_fraction_in_view};
 use pointray::math::Ray;
 use pointray::splat::Splat;
 use pointray::splat::scheme::{self, SurfaceScheme};
@@ -177,8 +177,18 @@ fn the_culling_check_tells_closed_surfaces_from_open_ones() {
     assert!(closed < 0.01, "closed sphere: {closed}");
     // The upper half of the sphere: seen from below, its inside faces away.
     let bowl: Vec<Splat> = sphere_splats(20_000, 1.0, 9).into_iter().filter(|s| s.center.z > 0.0).collect();
-    let open = backfacing_fraction(&Bvh::build(bowl, &BvhParams::standard()), 4096, 0).unwrap();
+    let bowl = Bvh::build(bowl, &BvhParams::standard());
+    let open = backfacing_fraction(&bowl, 4096, 0).unwrap();
     assert!(open > 0.1, "open bowl: {open}");
+    // The prefilter's check asks the view: the bowl's outside from above meets front faces,
+    // its inside from below back faces.
+    let bounds = pointray::math::Aabb::new(Vec3::splat(-1.0), Vec3::splat(1.0));
+    let seen_from = |dir: Vec3| {
+        let camera = Camera::orbit(&bounds, dir, Vec3::Y, 1.0, 40.0, 64, 64);
+        backfacing_fraction_in_view(&bowl, &camera, Region::full(64, 64), 1024, 0).expect("the bowl in view")
+    };
+    let (above, below) = (seen_from(Vec3::new(0.2, 0.1, 1.0)), seen_from(Vec3::new(0.2, 0.1, -1.0)));
+    assert!(above < 0.01 && below > 0.9, "the bowl from above {above}, from below {below}");
 }
 
 /// Where an accelerator says that no ray from a point with a given footprint can stop at a
