@@ -43,35 +43,25 @@ impl ShadowBeam {
     /// those radii, as a shadow ray from a disk does; none where the layer covers no point.
     pub fn new(footprint: &Footprint, layer: &Layer, light: Vec3, t_max: f32, lift: f32, reach: f32) -> Option<Self> {
         let across = crate::math::orthonormal_basis(light);
-        let mut o = sample_origins(footprint, layer, (across.0, across.1, light), lift);
+        let o = sample_origins(footprint, layer, (across.0, across.1, light), lift, reach);
         if o.covered == 0 {
             return None;
         }
-        // About the points' mean across the beam, as wide as the farthest.
-        let count = o.covered.count_ones() as f32;
-        let (mut cu, mut cv, mut nearest) = (0.0, 0.0, f32::INFINITY);
-        for k in bits(o.covered) {
-            (cu, cv, nearest) = (cu + o.u[k], cv + o.v[k], nearest.min(o.s[k]));
-        }
-        let (cu, cv) = (cu / count, cv / count);
-        let far = bits(o.covered).map(|k| (o.u[k] - cu).powi(2) + (o.v[k] - cv).powi(2)).fold(0.0, f32::max);
-        let radius = far.sqrt().max(1e-3 * footprint.beam.radius(layer.t));
-        let mut starts = [f32::INFINITY; SAMPLES];
-        for k in bits(o.covered) {
-            (o.u[k], o.v[k]) = ((o.u[k] - cu) / radius, (o.v[k] - cv) / radius);
-            starts[k] = o.s[k] - nearest + reach * o.radius[k];
-        }
-        let t_min = starts.iter().copied().fold(f32::INFINITY, f32::min);
+        // Points and depths stay in the light's frame (through the local origin): the beam's
+        // axis runs through the middle of their box across it, as wide as the box's corners.
+        let (lo, hi) = (o.low, o.high);
+        let (cu, cv) = (0.5 * (lo.0 + hi.0), 0.5 * (lo.1 + hi.1));
+        let radius = (0.5 * (hi.0 - lo.0).hypot(hi.1 - lo.1)).max(1e-3 * footprint.beam.radius(layer.t));
         let lanes = |a: &[f32; SAMPLES]| std::array::from_fn(|i| Vec4::from_slice(&a[4 * i..]));
-        let origin = across.0 * cu + across.1 * cv + light * nearest;
-        let beam = Beam { origin, dir: light, r0: radius, spread: 0.0, t_min, t_max };
+        let origin = across.0 * cu + across.1 * cv;
+        let beam = Beam { origin, dir: light, r0: radius, spread: 0.0, t_min: o.first_start, t_max };
         let pixel = footprint.beam.radius(layer.t) / FOOTPRINT_RADIUS;
         Some(Self {
             beam,
             size_scale: footprint.size_scale,
             across,
             points: SamplePoints { x: lanes(&o.u), y: lanes(&o.v) },
-            starts: lanes(&starts),
+            starts: lanes(&o.start),
             layer: o.covered,
             blocked: !o.covered,
             t_cut: t_max,
@@ -115,15 +105,15 @@ impl FootprintVisitor for ShadowBeam {
         if cos > 0.0 || t < b.t_min || t > self.t_cut {
             return;
         }
-        let across = oc - t * b.dir;
         let foreshortening = (-cos).max(MIN_COS).sqrt();
         let covered = if aggregate.disk {
             s.radius * foreshortening
         } else {
             REPRESENTATIVE_SPREAD * aggregate.area_radius * self.size_scale * foreshortening
         };
-        let (x, y) = (across.dot(self.across.0) / b.r0, across.dot(self.across.1) / b.r0);
-        self.blocked |= self.points.within(x, y, covered / b.r0) & self.started(t);
+        // The points are where they cross the plane through the local origin across the beam.
+        let (x, y) = (s.center.dot(self.across.0), s.center.dot(self.across.1));
+        self.blocked |= self.points.within(x, y, covered) & self.started(t);
         if self.blocked == u64::MAX {
             self.t_cut = f32::NEG_INFINITY;
         }
@@ -135,25 +125,31 @@ impl FootprintVisitor for ShadowBeam {
     }
 }
 
-/// The layer's sample points as shadow rays' origins, in the light's frame: across it (`u`,
-/// `v`) and along it (`s`), with the radius of the disk each leaves.
+/// The layer's sample points as shadow rays' origins, in the light's frame (through the local
+/// origin): across it (`u`, `v`), and where each ray starts along it.
 struct Origins {
     u: [f32; SAMPLES],
     v: [f32; SAMPLES],
-    s: [f32; SAMPLES],
-    radius: [f32; SAMPLES],
-    /// The points the layer covers (the others are left at 0).
+    /// +∞ for the points the layer does not cover.
+    start: [f32; SAMPLES],
+    /// The points the layer covers.
     covered: u64,
+    /// The corners of their box across the light, and the nearest start.
+    low: (f32, f32),
+    high: (f32, f32),
+    first_start: f32,
 }
 
 /// Where the line of each sample point of `footprint` that `layer` covers meets the layer: on
 /// the plane of the nearest piece covering it (within two beam radii of the piece's depth),
-/// lifted `lift` of the piece's radius along its normal; in the frame `axes` (across, across,
-/// along the light).
-fn sample_origins(footprint: &Footprint, layer: &Layer, axes: (Vec3, Vec3, Vec3), lift: f32) -> Origins {
+/// lifted `lift` of the piece's radius along its normal, its ray starting `reach` of that
+/// radius on; in the frame `axes` (across, across, along the light).
+fn sample_origins(footprint: &Footprint, layer: &Layer, axes: (Vec3, Vec3, Vec3), lift: f32, reach: f32) -> Origins {
     let b = &footprint.beam;
     let (a1, a2) = footprint.across;
-    let mut o = Origins { u: [0.0; SAMPLES], v: [0.0; SAMPLES], s: [0.0; SAMPLES], radius: [0.0; SAMPLES], covered: 0 };
+    let (u, v, start) = ([0.0; SAMPLES], [0.0; SAMPLES], [f32::INFINITY; SAMPLES]);
+    let (low, high) = ((f32::INFINITY, f32::INFINITY), (f32::NEG_INFINITY, f32::NEG_INFINITY));
+    let mut o = Origins { u, v, start, covered: 0, low, high, first_start: f32::INFINITY };
     for p in &footprint.pieces[layer.pieces.clone()] {
         let w = b.radius(p.t);
         let facing = p.normal.dot(b.dir).min(-MIN_COS);
@@ -167,7 +163,10 @@ fn sample_origins(footprint: &Footprint, layer: &Layer, axes: (Vec3, Vec3, Vec3)
             let (x, y) = footprint.points.get(k);
             let t = (t0 + x * dt1 + y * dt2).clamp(lo, hi);
             let at = lifted + x * x1 + y * x2 + t * b.dir;
-            (o.u[k], o.v[k], o.s[k], o.radius[k]) = (at.dot(axes.0), at.dot(axes.1), at.dot(axes.2), p.radius);
+            let (pu, pv, ps) = (at.dot(axes.0), at.dot(axes.1), at.dot(axes.2) + reach * p.radius);
+            (o.u[k], o.v[k], o.start[k]) = (pu, pv, ps);
+            (o.low, o.high) = ((o.low.0.min(pu), o.low.1.min(pv)), (o.high.0.max(pu), o.high.1.max(pv)));
+            o.first_start = o.first_start.min(ps);
         }
         o.covered |= p.mask;
     }
