@@ -59,7 +59,7 @@ pub fn backfacing_fraction_in_view<A: Accel + ?Sized>(
     first_hits_facing_away(accel, rays)
 }
 
-/// Of `rays`, the fraction of those that meet a disk whose first disk faces away from them.
+/// Of those of `rays` that meet a disk, the fraction whose first disk faces away from them.
 fn first_hits_facing_away<A: Accel + ?Sized>(accel: &A, rays: impl Iterator<Item = Ray>) -> Option<f64> {
     let (mut hits, mut back) = (0usize, 0usize);
     let mut stats = TraversalStats::default();

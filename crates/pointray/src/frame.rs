@@ -243,7 +243,7 @@ pub struct FrameReport {
     /// Level-of-detail threshold in pixels; null at full detail.
     pub lod_threshold: Option<f32>,
     /// Whether camera rays went through the footprint prefilter: asked for, and the normals
-    /// point outwards (else it warns and renders without).
+    /// face the view (else it warns and renders without).
     pub prefilter: bool,
     pub culling: CullingReport,
     pub node_bounds: NodeBounds,

@@ -385,7 +385,7 @@ impl Scene {
         if settings.prefilter && !outward {
             let share = in_view
                 .map_or(String::new(), |f| format!(" ({:.1} % of this view's rays meet a back face first)", 100.0 * f));
-            tracing::warn!("--prefilter needs normals that point outwards{share}: rendering without it");
+            tracing::warn!("--prefilter needs normals that face the view{share}: rendering without it");
         }
         let map = self.environment_map(settings)?;
         let content = self.content.clone().unwrap_or_else(|| self.lone_cloud_content(settings, &camera, map));

@@ -261,7 +261,7 @@ impl Footprint {
         let cos = s.normal.dot(beam.dir);
         // The far side of a closed surface, and subtrees whose normals face away on the
         // whole (a crease's other side shows through its own pieces, which face the beam):
-        // the normals must point outwards, which `RenderJob` checks (`Scene::job`). Taken as
+        // the normals must face the view, which `RenderJob` checks (`Scene::job`). Taken as
         // two-sided, as rays take disks, rim representatives leaning away stood in front of
         // the surface (the dragon at 16 diagonals: 34.7 → 29.9 dB).
         if cos > 0.0 {
