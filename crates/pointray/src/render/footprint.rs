@@ -138,7 +138,7 @@ impl<A: Accel> Tracer<'_, A> {
         let Some(mut beam) = ShadowBeam::new(footprint, layer, direction, distance, lift, reach) else {
             return 1.0;
         };
-        beam.gather(self.accel, &mut self.stats.traversal);
+        beam.gather(self.accel, 1.0, &mut self.stats.traversal);
         1.0 - beam.blocked()
     }
 }

@@ -281,7 +281,7 @@ impl Footprint {
         if coverage <= MIN_COVERAGE {
             return None;
         }
-        let covered = if aggregate.disk { s.radius * foreshortening } else { REPRESENTATIVE_SPREAD * size };
+        let covered = covered_radius(s, aggregate, size, foreshortening);
         let mask = self.sample_mask(across, w, covered);
         let color = Vec3::from(color_linear_in(s.color, srgb8_to_linear_table()));
         let (normal, agreement, center, radius) = (s.normal, aggregate.agreement, s.center, s.radius);
@@ -434,6 +434,13 @@ fn screen(b: &Beam, t_cut: f32, size_scale: f32, c: &Candidates) -> u32 {
         *keep = (cos <= SCREEN_MARGIN) & (t >= t_lo) & (t <= t_hi) & (off2 <= reach * reach);
     }
     keep.iter().enumerate().fold(0, |mask, (i, &k)| mask | u32::from(k) << i)
+}
+
+/// The radius of the disk a piece covers as a beam sees it, `size` its area's over ρ: a disk
+/// covers its own disk, a representative [`REPRESENTATIVE_SPREAD`] times `size`.
+#[inline(always)]
+fn covered_radius(s: &Splat, aggregate: Aggregate, size: f32, foreshortening: f32) -> f32 {
+    if aggregate.disk { s.radius * foreshortening } else { REPRESENTATIVE_SPREAD * size }
 }
 
 /// [`screen`]'s relative margin.

@@ -73,7 +73,7 @@ fn a_footprint_on_the_planes_edge_covers_what_its_disks_cover_and_one_past_it_no
 /// A layer's shadow rays, gathered as one beam ([`ShadowBeam`]): a sheet facing the ground
 /// shadows the ground behind it from a light at 45°, past its edge the ground is lit, the
 /// ground's own disks (facing the light) block nothing, and the edge falls between; at full
-/// detail and with representatives, in the BVH and the kd-tree.
+/// detail (as brute force) and with representatives, in the BVH and the kd-tree.
 #[test]
 fn a_layers_shadow_rays_are_blocked_where_a_sheet_stands_between_it_and_the_light() {
     // The ground [−1, 1]² at z = 0 facing up; the sheet [1.5, 3.5] × [−1, 1] at z = 1 facing
@@ -83,7 +83,19 @@ fn a_layers_shadow_rays_are_blocked_where_a_sheet_stands_between_it_and_the_ligh
     let splats: Vec<Splat> = over.chain(plane_splats(20_000, 6)).collect();
     let light = Vec3::new(1.0, 0.0, 1.0).normalize();
     let bvh = Bvh::build(splats.clone(), &BvhParams::standard());
-    let kdtree = KdTree::build(splats, &KdTreeParams::standard());
+    let kdtree = KdTree::build(splats.clone(), &KdTreeParams::standard());
+    // At full detail each accelerator blocks what brute force blocks, to a point of the 64: a
+    // beam square to the ground meets all its disks at one depth, and which of them comes first
+    // (and lifts a point by its radius) follows the order they are handed in.
+    let brute = BruteForce::new(splats);
+    for x in [-0.3, 0.45, 0.5, 0.55, 0.8] {
+        let all = shadow_of_ground(&brute, x, 0.0, light);
+        for (name, one) in
+            [("bvh", shadow_of_ground(&bvh, x, 0.0, light)), ("kd-tree", shadow_of_ground(&kdtree, x, 0.0, light))]
+        {
+            assert!((one - all).abs() <= 1.0 / 64.0, "{name} at {x}: {one} against brute force's {all}");
+        }
+    }
     for (name, blocked) in [
         ("bvh", &(|x: f32, tau: f32| shadow_of_ground(&bvh, x, tau, light)) as &dyn Fn(f32, f32) -> f32),
         ("kd-tree", &|x: f32, tau: f32| shadow_of_ground(&kdtree, x, tau, light)),
@@ -106,7 +118,7 @@ fn shadow_of_ground(accel: &impl Accel, x: f32, tau: f32, light: Vec3) -> f32 {
     footprint.gather(accel, tau, &mut TraversalStats::default());
     let ground = footprint.layers().next().expect("the ground");
     let mut beam = ShadowBeam::new(&footprint, &ground, light, 10.0, 0.5, 1.0).expect("points on the ground");
-    beam.gather(accel, &mut TraversalStats::default());
+    beam.gather(accel, tau, &mut TraversalStats::default());
     beam.blocked()
 }
 

@@ -11,8 +11,8 @@
 use glam::{Vec3, Vec4};
 
 use super::{
-    Aggregate, Beam, Candidates, FOOTPRINT_RADIUS, Footprint, FootprintVisitor, GATHER_TAU, Layer, MIN_COS,
-    REPRESENTATIVE_SPREAD, SAMPLES, SamplePoints, screen,
+    Aggregate, Beam, Candidates, FOOTPRINT_RADIUS, Footprint, FootprintVisitor, GATHER_TAU, Layer, MIN_COS, SAMPLES,
+    SamplePoints, covered_radius, screen,
 };
 use crate::accel::{Accel, TraversalStats};
 use crate::splat::Splat;
@@ -24,9 +24,10 @@ pub struct ShadowBeam {
     size_scale: f32,
     /// Unit vectors across the beam, the axes of `points`.
     across: (Vec3, Vec3),
-    /// The layer's points across the beam, over its radius.
+    /// The layer's points across the beam, in its frame through the local origin.
     points: SamplePoints,
-    /// Where each point's ray starts along the beam (+∞ for points the layer does not cover).
+    /// Where each point's ray starts along the beam, from that frame's origin (+∞ for points
+    /// the layer does not cover).
     starts: [Vec4; SAMPLES / 4],
     /// The points the layer covers.
     layer: u64,
@@ -69,11 +70,11 @@ impl ShadowBeam {
         })
     }
 
-    /// Gathers what lies ahead in `accel`, at the pixel's level of detail, until every point
-    /// is blocked.
-    pub fn gather<A: Accel>(&mut self, accel: &A, stats: &mut TraversalStats) {
+    /// Gathers what lies ahead in `accel`, at the pixel's level of detail (`tau_scale` times its
+    /// threshold, as [`Footprint::gather`]'s: 0 at full detail), until every point is blocked.
+    pub fn gather<A: Accel>(&mut self, accel: &A, tau_scale: f32, stats: &mut TraversalStats) {
         let beam = self.beam;
-        accel.gather(&beam, self.tau, self, stats);
+        accel.gather(&beam, tau_scale * self.tau, self, stats);
     }
 
     /// The share of the layer's points that something blocks.
@@ -106,11 +107,13 @@ impl FootprintVisitor for ShadowBeam {
             return;
         }
         let foreshortening = (-cos).max(MIN_COS).sqrt();
-        let covered = if aggregate.disk {
-            s.radius * foreshortening
-        } else {
-            REPRESENTATIVE_SPREAD * aggregate.area_radius * self.size_scale * foreshortening
-        };
+        let size = aggregate.area_radius * self.size_scale * foreshortening;
+        // As the screen and `Footprint::piece` keep it (its area's disk reaches the beam), so
+        // that every accelerator's gather, and brute force's, blocks the same points.
+        if (oc - t * b.dir).length() >= size + b.r0 {
+            return;
+        }
+        let covered = covered_radius(s, aggregate, size, foreshortening);
         // The points are where they cross the plane through the local origin across the beam.
         let (x, y) = (s.center.dot(self.across.0), s.center.dot(self.across.1));
         self.blocked |= self.points.within(x, y, covered) & self.started(t);
