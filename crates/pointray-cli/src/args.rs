@@ -466,7 +466,8 @@ impl PreprocessArgs {
 pub struct PrepareArgs {
     /// Point cloud (PLY, LAS/LAZ, E57, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf).
     pub input: PathBuf,
-    /// Output PLY (binary, with normals, radii and any colours; written atomically).
+    /// Output PLY (binary, with normals, radii and any colours; written atomically), or a
+    /// scene file (`.prs`: the BVH a default render builds, memory-mapped by `render`).
     #[arg(short, long)]
     pub output: PathBuf,
     #[command(flatten)]

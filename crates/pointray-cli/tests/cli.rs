@@ -734,6 +734,38 @@ fn prepare_adds_normals_and_radii_that_info_reports() {
     assert!(read_png(&dir.path().join("p.png")).count_not(background_srgb8()) > 100);
 }
 
+/// A scene file renders the image its cloud renders, without a build; it refuses settings
+/// that need another build, and damage, naming the file, with no output left behind.
+#[test]
+fn a_prepared_scene_file_renders_as_its_cloud_does() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    run_in(dir.path(), &["-q", "prepare", "sphere.ply", "-o", "prepared.ply"]).assert_success();
+    let run = run_in(dir.path(), &["prepare", "prepared.ply", "-o", "scene.prs"]);
+    run.assert_success().assert_stderr_contains("3000 points in a BVH").assert_stderr_contains("scene.prs");
+    run_in(dir.path(), &["info", "scene.prs"])
+        .assert_success()
+        .assert_stdout_contains("pointray scene file")
+        .assert_stdout_contains("points:      3000");
+    for flags in [&[][..], &["--spp", "2", "--crop-to-model"], &["--prefilter", "--lod-threshold", "1"]] {
+        let args = |input: &'static str, out: &'static str| [&[input, "-o", out][..], flags].concat();
+        render_in(dir.path(), &args("prepared.ply", "cloud.png")).assert_success();
+        render_in(dir.path(), &args("scene.prs", "file.png")).assert_success();
+        let (a, b) = (read_png(&dir.path().join("cloud.png")), read_png(&dir.path().join("file.png")));
+        assert!(a.count_not(background_srgb8()) > 100, "{flags:?}");
+        assert!(a == b, "{flags:?}: the scene file's image differs from its cloud's");
+    }
+    // As a colour flag the cloud cannot give: the input's (exit status 1).
+    render_in(dir.path(), &["scene.prs", "-o", "kd.png", "--accel", "kdtree"])
+        .assert_failure(1)
+        .assert_stderr_contains("render the cloud it was prepared from");
+    let mut bytes = std::fs::read(dir.path().join("scene.prs")).unwrap();
+    bytes.truncate(bytes.len() - 1);
+    write_file(dir.path(), "cut.prs", bytes);
+    render_in(dir.path(), &["cut.prs", "-o", "cut.png"]).assert_failure(1).assert_stderr_contains("cut.prs: truncated");
+    assert!(!dir.path().join("kd.png").exists() && !dir.path().join("cut.png").exists());
+}
+
 #[test]
 fn prepare_not_quiet_summarises_on_stderr() {
     let dir = temp_dir();

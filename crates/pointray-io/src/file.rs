@@ -5,6 +5,10 @@ use std::fs::File;
 use std::io::Read;
 use std::path::Path;
 
+use std::sync::Arc;
+
+use pointray::accel::stored::StableBytes;
+
 use crate::IoError;
 
 /// The whole content of a file: mapped where the system allows it, else read.
@@ -40,7 +44,7 @@ pub(crate) fn read_file(path: &Path, regular_only: bool) -> Result<FileBytes, Io
     if regular_only && !regular {
         return Err(IoError::invalid(path, "not a regular file"));
     }
-    let bytes = match regular.then(|| map(&file)).and_then(Result::ok) {
+    let bytes = match regular.then(|| map(&file, memmap2::Advice::Sequential)).and_then(Result::ok) {
         Some(map) => FileBytes::Mapped(map),
         None => {
             let mut bytes = Vec::new();
@@ -54,16 +58,48 @@ pub(crate) fn read_file(path: &Path, regular_only: bool) -> Result<FileBytes, Io
     Ok(bytes)
 }
 
+/// `path` memory-mapped for reading where it lies, as bytes a scene keeps (a `.prs` file's
+/// arrays), to be read through first (the kernel reads ahead); none where it is no regular
+/// file or cannot be mapped.
+pub(crate) fn map_stable(path: &Path) -> Result<Option<Arc<StableMap>>, IoError> {
+    let file = File::open(path).map_err(|e| IoError::io(path, e))?;
+    let regular = file.metadata().map_err(|e| IoError::io(path, e))?.is_file();
+    let map = regular.then(|| map(&file, memmap2::Advice::Sequential)).and_then(Result::ok);
+    Ok(map.map(|map| Arc::new(StableMap(map))))
+}
+
+/// A map lent to a scene as its arrays.
+pub(crate) struct StableMap(memmap2::Mmap);
+
+impl StableMap {
+    /// From now on read only the pages asked for, as a traversal asks for them.
+    pub(crate) fn read_as_asked(&self) {
+        #[cfg(unix)]
+        let _ = self.0.advise(memmap2::Advice::Random);
+    }
+}
+
+// SAFETY: a map's slice is the same address and length for as long as it lives (it is never
+// remapped), and it is read-only here; that no one else writes the file meanwhile is the
+// documented risk of `map` below, which a scene file shares with every mapped input.
 #[allow(unsafe_code)]
-fn map(file: &File) -> std::io::Result<memmap2::Mmap> {
+unsafe impl StableBytes for StableMap {
+    fn bytes(&self) -> &[u8] {
+        &self.0
+    }
+}
+
+#[allow(unsafe_code)]
+fn map(file: &File, advice: memmap2::Advice) -> std::io::Result<memmap2::Mmap> {
     // SAFETY: the slice is valid only while no one changes the file: another process writing
     // to it during a parse breaks the guarantees of `&[u8]` (undefined behaviour; in practice
     // wrong values), and truncating it ends this process with SIGBUS. pointray never writes
-    // a file it reads (outputs are new files renamed into place), and a map lives no longer
-    // than one parse; for everything else this is the documented risk of reading a file that
-    // another program is rewriting. (memmap2 maps an empty file as an empty slice.)
+    // a file it reads (outputs are new files renamed into place, so a scene file prepared
+    // again leaves the mapped one whole), and a map lives no longer than one parse, or a scene
+    // file's than its scene; for everything else this is the documented risk of reading a file
+    // that another program is rewriting. (memmap2 maps an empty file as an empty slice.)
     let map = unsafe { memmap2::Mmap::map(file) }?;
     #[cfg(unix)]
-    let _ = map.advise(memmap2::Advice::Sequential);
+    let _ = map.advise(advice);
     Ok(map)
 }

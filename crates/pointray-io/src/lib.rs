@@ -13,6 +13,7 @@ mod obj;
 mod off;
 mod pcd;
 pub mod ply;
+pub mod prs;
 mod scanset;
 pub mod scene;
 pub mod source;

@@ -53,6 +53,9 @@ pub fn load(
     if is_scene(path) {
         return load_scene(path, preprocess, stage);
     }
+    if crate::prs::is_prs(path) {
+        return load_prs(path, stage);
+    }
     let p = read_prepared(path, preprocess, read, stage)?;
     // A survey under its sun, and the sky round it for the light that bounces.
     let light = p.sun.map(|direction| Light::Directional { direction, intensity: 1.0 });
@@ -65,6 +68,18 @@ pub fn load(
         preprocess: p.preprocess,
         load_seconds: p.read_seconds,
     })
+}
+
+/// A prepared scene file, opened: built already, nothing to preprocess.
+fn load_prs(path: &Path, stage: &dyn Fn(&str)) -> Result<Source, IoError> {
+    let start = Instant::now();
+    stage("open");
+    let stored = crate::prs::open_prs(path)?;
+    let points_read = stored.meta().points;
+    let load_seconds = start.elapsed().as_secs_f64();
+    tracing::info!("opened the scene file {} ({points_read} points) in {load_seconds:.3} s", path.display());
+    let parts = SceneParts { stored: Some(stored), ..SceneParts::default() };
+    Ok(Source { parts, settings: None, points_read, preprocess: PreprocessStats::default(), load_seconds })
 }
 
 /// The environment map `settings.env_map` names, read, for [`pointray::Scene::set_environment_map`];

@@ -25,6 +25,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::PointCloud;
+use crate::accel::stored::Stored;
 use crate::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds};
 use crate::camera::{Camera, Region};
 use crate::clip::{ClipBox, ClipPlane};
@@ -61,6 +62,9 @@ const PREFILTER_CHECK_RAYS: usize = 1024;
 /// Rays of the `Cull::Auto` check (a few milliseconds on the BVH).
 const CULL_CHECK_RAYS: usize = 4096;
 
+mod stored;
+pub use stored::{SCENE_ARRAYS, SceneMeta, StoredScene, StoredSceneError};
+
 /// What a scene file brings beside its points: then the settings' light, material, sky and
 /// ground options, which dress a lone cloud, do not apply.
 #[derive(Clone, Debug)]
@@ -95,6 +99,9 @@ pub struct SceneParts {
     /// the dark background): a survey's sky, which bounced rays (the path tracer's, mirrors')
     /// see while camera rays still see the dark background.
     pub environment: Option<Environment>,
+    /// A scene read from a scene file (`.prs`), built already: then the cloud is empty and
+    /// the rest is the stored scene's.
+    pub stored: Option<StoredScene>,
 }
 
 impl From<PointCloud> for SceneParts {
@@ -119,6 +126,8 @@ pub enum SceneError {
     /// A colour or class filter the cloud cannot give (no such attribute, no point left).
     #[error(transparent)]
     Settings(#[from] SettingsError),
+    #[error("the stored scene: {0}")]
+    Stored(#[from] StoredSceneError),
 }
 
 /// The accelerators a scene can be built on; the render loop is monomorphised for each.
@@ -140,8 +149,8 @@ macro_rules! on_accel {
 }
 
 /// How a scene was built: what settings it can render with.
-#[derive(Clone, Debug, PartialEq)]
-struct Build {
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct Build {
     accel: AccelKind,
     node_bounds: NodeBounds,
     shape: DiskShape,
@@ -193,7 +202,9 @@ pub struct Scene {
     /// The accelerator's build alone (the splats made before it, the bounds after).
     build_seconds: f64,
     /// The input splat of each accelerator index where they differ (the BVH's blocks).
-    ids: Option<Vec<u32>>,
+    ids: Option<Stored<u32>>,
+    /// Read from a scene file (`.prs`): its build is the file's.
+    stored: bool,
     /// The `Cull::Auto` probe, run at the first render that asks.
     backfacing: OnceLock<Option<f64>>,
     /// The map `Settings::env_map` names, read from that file (see [`Scene::set_environment_map`]).
@@ -218,7 +229,12 @@ impl Scene {
     /// those of the settings' `classes` (less `exclude_classes`) inside their clip, coloured by
     /// `color_by`.
     pub fn build(parts: SceneParts, settings: &Settings) -> Result<Scene, SceneError> {
-        let SceneParts { mut cloud, mut point_materials, content, view, light, up, environment } = parts;
+        let SceneParts { mut cloud, mut point_materials, content, view, light, up, environment, stored } = parts;
+        if let Some(stored) = stored {
+            let scene = stored.scene()?;
+            scene.check_build(settings)?;
+            return Ok(scene);
+        }
         cloud.check_lengths().map_err(SceneError::Inconsistent)?;
         if point_materials.as_ref().is_some_and(|m| m.len() != cloud.len()) {
             return Err(SceneError::MaterialCount);
@@ -274,7 +290,8 @@ impl Scene {
                 Some(slots.iter().map(|&s| if s == u32::MAX { s } else { kept[s as usize] }).collect())
             }
             (ids, kept) => ids.or(kept),
-        };
+        }
+        .map(Stored::from);
         // The camera frames the points' bounds (the Embree bench's convention); a cloud of one
         // point, or of coincident points, has none, and then the disks' bounds serve.
         let bounds = if bounds.diagonal() > 0.0 { bounds } else { on_accel!(&accel, a => a.bounds()) };
@@ -298,6 +315,7 @@ impl Scene {
             mean_radius,
             build_seconds,
             ids,
+            stored: false,
             backfacing: OnceLock::new(),
             environment_map: None,
         })
@@ -427,8 +445,9 @@ impl Scene {
     /// or disks of another shape in the bounds.
     fn check_build(&self, settings: &Settings) -> Result<(), SettingsError> {
         let (built, asked) = (&self.build, Build::of(settings));
-        let problem =
-            |what: &str| format!("differs from the scene's build ({what}): prepare the scene with these settings");
+        let hint =
+            if self.stored { "render the cloud it was prepared from" } else { "prepare the scene with these settings" };
+        let problem = |what: &str| format!("differs from the scene's build ({what}): {hint}");
         // (Does it differ, the option, what of the build it changes.)
         let checks = [
             (built.accel != asked.accel, "accel", self.accel_name()),

@@ -12,7 +12,7 @@ use crate::env_map::{EnvFrame, EnvMap};
 /// term instead). Radiometrically that is an irradiance of π × `intensity` on the albedo/π
 /// BRDF, so the path tracer's lights and its sky (a radiance) add up physically, and a scene
 /// keeps its brightness when it changes integrator.
-#[derive(Clone, Copy, Debug, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case", tag = "kind")]
 pub enum Light {
     /// Light arriving from `direction` (pointing *towards* the light), from infinitely far.
@@ -103,7 +103,7 @@ impl Light {
 pub const SKY: [[f32; 3]; 3] = [[0.18, 0.32, 0.62], [0.75, 0.82, 0.90], [0.25, 0.24, 0.22]];
 
 /// What a ray that leaves the scene sees.
-#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case", tag = "kind")]
 pub enum Environment {
     /// The same linear radiance from every direction.
@@ -114,6 +114,7 @@ pub enum Environment {
     /// An HDR panorama placed in the world by its frame: seen by the rays that leave, and a
     /// light of its own (the path tracer samples it, Whitted's Phong takes its irradiance
     /// as the ambient term; see [`crate::env_map`]).
+    #[serde(skip_deserializing)]
     Map {
         #[serde(serialize_with = "shared")]
         map: Arc<EnvMap>,

@@ -5,6 +5,9 @@ use std::io::{self, Write};
 use crate::args::InfoArgs;
 
 pub fn run(a: &InfoArgs, quiet: bool) -> anyhow::Result<()> {
+    if pointray_io::prs::is_prs(&a.input) {
+        return scene_file(a);
+    }
     let (loaded, seconds) = super::load(&a.input, &a.read.options(), quiet)?;
     let (info, cloud) = (&loaded.info, &loaded.cloud);
     let mut out = io::stdout().lock();
@@ -43,6 +46,34 @@ pub fn run(a: &InfoArgs, quiet: bool) -> anyhow::Result<()> {
         writeln!(out, "bounds max:  {:.6} {:.6} {:.6}", hi.x, hi.y, hi.z)?;
         writeln!(out, "diagonal:    {:.6}", b.diagonal())?;
     }
+    out.flush()?;
+    Ok(())
+}
+
+/// What a scene file (`.prs`) holds, from its metadata (its arrays checked on the way).
+fn scene_file(a: &InfoArgs) -> anyhow::Result<()> {
+    let start = std::time::Instant::now();
+    let stored = pointray_io::prs::open_prs(&a.input)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let (meta, bytes) = (stored.meta(), std::fs::metadata(&a.input)?.len());
+    let mut out = io::stdout().lock();
+    writeln!(out, "file:        {}", a.input.display())?;
+    writeln!(out, "format:      pointray scene file, format {}", pointray_io::prs::VERSION)?;
+    writeln!(
+        out,
+        "size:        {bytes} bytes, {:.1} a point (opened and checked in {seconds:.3} s)",
+        bytes as f64 / meta.points.max(1) as f64
+    )?;
+    writeln!(out, "points:      {}", meta.points)?;
+    let b = &meta.build;
+    writeln!(out, "build:       {}", serde_json::to_string(b)?)?;
+    let [x, y, z] = meta.up;
+    writeln!(out, "up:          {x},{y},{z}")?;
+    let o = glam::DVec3::from(meta.origin);
+    let [lo, hi] = meta.bounds.map(|c| o + glam::Vec3::from(c).as_dvec3());
+    writeln!(out, "bounds min:  {:.6} {:.6} {:.6}", lo.x, lo.y, lo.z)?;
+    writeln!(out, "bounds max:  {:.6} {:.6} {:.6}", hi.x, hi.y, hi.z)?;
+    writeln!(out, "diagonal:    {:.6}", (hi - lo).length())?;
     out.flush()?;
     Ok(())
 }

@@ -1,5 +1,6 @@
 //! `pointray prepare`: preprocess once, write a binary PLY with normals, radii, colours, scan
-//! attributes, the data's up axis and its sun.
+//! attributes, the data's up axis and its sun; or, to a `.prs` output, the scene built from it
+//! (a BVH with its level of detail, `docs/prs.md`), which a render maps instead of building.
 
 use crate::args::PrepareArgs;
 
@@ -7,6 +8,9 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     super::check_output_path(&a.output)?;
     let config = a.preprocess.config();
     config.check().map_err(|e| crate::failure::usage(super::render::flag_error(e)))?;
+    if a.output.extension().is_some_and(|e| e.eq_ignore_ascii_case("prs")) {
+        return scene_file(a, &config, quiet);
+    }
     let spinner = crate::progress::spinner("read", quiet);
     let stage = |s: &str| spinner.set_message(s.to_string());
     let prepared = pointray_io::source::read_prepared(&a.input, &config, &a.read.options(), &stage)?;
@@ -23,6 +27,30 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
             if cloud.len() == 1 { "point" } else { "points" },
             if stats.computed_normals { "computed" } else { "from file" },
             if stats.computed_radii { "computed" } else { "from file" },
+            a.output.display()
+        );
+    }
+    Ok(())
+}
+
+/// `prepare IN -o OUT.prs`: the scene a default render of IN builds, stored.
+fn scene_file(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig, quiet: bool) -> anyhow::Result<()> {
+    let spinner = crate::progress::spinner("read", quiet);
+    let stage = |s: &str| spinner.set_message(s.to_string());
+    let source = pointray_io::source::load(&a.input, config, &a.read.options(), &stage)?;
+    stage("build");
+    let scene = pointray::Scene::build(source.parts, &pointray::Settings::default())
+        .map_err(|e| anyhow::anyhow!("{}: {e}", a.input.display()))?;
+    spinner.finish_and_clear();
+    crate::progress::spinning("write", quiet, || pointray_io::prs::write_prs(&a.output, &scene))
+        .map_err(crate::failure::output)?;
+    if !quiet {
+        let bytes = std::fs::metadata(&a.output).map(|m| m.len()).unwrap_or(0);
+        let per_point = bytes as f64 / scene.points().max(1) as f64;
+        eprintln!(
+            "{}: {} points in a BVH, wrote {} ({bytes} bytes, {per_point:.1} a point)",
+            a.input.display(),
+            scene.points(),
             a.output.display()
         );
     }

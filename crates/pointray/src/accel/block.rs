@@ -38,7 +38,7 @@ pub(crate) const BLOCK: usize = 8;
 /// row of offsets in two halves and joined them (first hits 704 → 692 instructions a pixel at
 /// 256², callgrind).
 #[repr(C, align(16))]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct SplatBlock {
     pub(super) offset: [[u16; BLOCK]; 3],
     pub(super) normal: [[i16; BLOCK]; 3],

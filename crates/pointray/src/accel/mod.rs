@@ -13,13 +13,14 @@
 //!   normal cones in its nodes (thesis ch. 3).
 //! * [`KdTree`]: binned-SAH kd-tree with level of detail in its inner nodes (thesis ch. 4).
 
-mod block;
+pub(crate) mod block;
 mod brute;
 pub mod bvh;
 pub mod isa;
 pub mod kdtree;
 mod packet;
 mod representative;
+pub mod stored;
 
 pub use brute::BruteForce;
 pub use bvh::{Bvh, BvhParams, NodeBounds};

@@ -23,7 +23,7 @@ use oriented_disk::DiskHit;
 /// The disk a splat stands for when a ray meets it. The accelerators' bounds must hold it: a
 /// ray-facing disk reaches r from its centre in every direction, an oriented disk only within
 /// its plane.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum DiskShape {
     #[default]

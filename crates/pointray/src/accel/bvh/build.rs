@@ -266,11 +266,11 @@ impl Bvh {
         drop(counts);
         let lod_floor = radius_quantile(nodes.iter().map(|n| n.min_radius).collect(), LOD_FLOOR_QUANTILE);
         let mut bvh = Bvh {
-            nodes,
-            lod,
-            blocks,
-            representatives,
-            aggregates,
+            nodes: nodes.into(),
+            lod: lod.into(),
+            blocks: blocks.into(),
+            representatives: representatives.into(),
+            aggregates: aggregates.into(),
             splat_count,
             bounds,
             depth,

@@ -16,7 +16,7 @@ use glam::{BVec4A, Vec4};
 pub(crate) const LANES: usize = 8;
 
 /// As stored in the nodes: eight consecutive floats, 32-byte aligned (what an AVX load takes).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
 #[repr(C, align(32))]
 pub(crate) struct Lanes {
     lo: Vec4,

@@ -34,7 +34,7 @@ use crate::splat::{DiskShape, Splat};
 /// is stored again (they took 192 of this record's 256 bytes: 6 bytes a splat of the dragon).
 /// Unused slots have radius 0 and a cone that never culls.
 #[repr(C, align(64))]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct NodeLod {
     /// Bounding sphere radii.
     pub(crate) radius: Lanes,
@@ -47,7 +47,7 @@ pub(crate) struct NodeLod {
 /// area-weighted mean normal (1 where they agree; shorter where they spread, Toksvig's
 /// measure of roughness). Eight lanes, like [`NodeLod`]; unused slots hold zeros.
 #[repr(C, align(64))]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct NodeAggregate {
     pub(crate) area_radius: Lanes,
     pub(crate) agreement: Lanes,

@@ -17,10 +17,12 @@ mod build;
 mod gather;
 pub(crate) mod lanes;
 mod lod;
+mod stored;
 pub(super) mod traverse;
 
 pub use build::BvhParams;
 pub use lod::NodeBounds;
+pub use stored::{ARRAY_ALIGN, ARRAYS, BvhMeta, BvhStoredError};
 
 use glam::Vec3;
 
@@ -28,6 +30,7 @@ use lanes::{Lanes, Wide};
 
 use crate::accel::Accel;
 use crate::accel::block::{BLOCK, SplatBlock};
+use crate::accel::stored::Stored;
 use crate::math::Aabb;
 use crate::splat::footprint::{Beam, FootprintVisitor, coverage_density};
 use crate::splat::{DiskShape, Splat};
@@ -85,7 +88,7 @@ pub(crate) const WIDTH: usize = lanes::LANES;
 /// `planes[3 + k]` the maxima, so one subtract and multiply per plane give the slab distances
 /// of all eight. Unused slots have empty bounds (minimum +∞, maximum −∞).
 #[repr(C, align(64))]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 pub(crate) struct Node {
     pub(crate) planes: [Lanes; 6],
     /// Inner child: its node index. Leaf child: see [`leaf_ref`].
@@ -103,6 +106,8 @@ pub(crate) struct Node {
     /// above this: `min_radius`, or −∞ for sphere nodes, which always need it. One compare per
     /// node decides.
     pub(crate) multires_below: f32,
+    /// To the 64-byte boundary, written out: a scene file stores nodes as their bytes.
+    pub(crate) pad: [u32; 5],
 }
 
 /// Flag in `Node::used`: the node tests its children's bounding spheres, not their boxes.
@@ -124,6 +129,7 @@ impl Node {
             used: (1 << b.len()) - 1,
             min_radius: f32::INFINITY,
             multires_below: f32::INFINITY,
+            pad: [0; 5],
         }
     }
 
@@ -135,19 +141,19 @@ impl Node {
 
 /// The BVH and the splats it indexes, reordered so that each leaf is a contiguous range.
 pub struct Bvh {
-    pub(crate) nodes: Vec<Node>,
+    pub(crate) nodes: Stored<Node>,
     /// Per node, its children's spheres and cones.
-    pub(crate) lod: Vec<lod::NodeLod>,
+    pub(crate) lod: Stored<lod::NodeLod>,
     /// The splats, in leaf order, in blocks for the leaf kernel (see [`SplatBlock`]): the
     /// only copy (a second, as an array of [`Splat`]s, was 32 bytes a splat that only the
     /// visitors' look-ups read).
-    pub(crate) blocks: Vec<SplatBlock>,
+    pub(crate) blocks: Stored<SplatBlock>,
     /// The representative splats, a block per node: child `i` of node `k` in lane `i` of
     /// block `k`, with index `BLOCK·blocks.len() + WIDTH·k + i` for a visitor, which gets one
     /// index space for both (`WIDTH` = `BLOCK`), and one way to fetch either.
-    pub(crate) representatives: Vec<SplatBlock>,
+    pub(crate) representatives: Stored<SplatBlock>,
     /// Per node, what the footprint prefilter knows of its children's disks.
-    pub(crate) aggregates: Vec<lod::NodeAggregate>,
+    pub(crate) aggregates: Stored<lod::NodeAggregate>,
     /// The number of input splats.
     pub(crate) splat_count: usize,
     pub(crate) bounds: Aabb,
@@ -199,7 +205,7 @@ impl Bvh {
 
     /// Chooses the bounds the nodes test anew (cheap: the spheres are already there).
     pub fn set_node_bounds(&mut self, choice: NodeBounds) {
-        lod::choose_node_bounds(&mut self.nodes, &self.lod, choice);
+        lod::choose_node_bounds(self.nodes.make_mut(), &self.lod, choice);
         self.node_bounds = choice;
     }
 

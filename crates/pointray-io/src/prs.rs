@@ -1,0 +1,275 @@
+//! The prepared scene file (`.prs`, `docs/prs.md`): a scene's BVH, splats and level-of-detail
+//! data included, in one file laid out to be memory-mapped, so that a render opens it without
+//! a build and reads its arrays where they lie.
+//!
+//! Layout (little-endian): a 64-byte header; each array of [`SCENE_ARRAYS`] on a page
+//! boundary ([`PAGE`]); then the index (a 32-byte entry an array: name, offset, length; then a
+//! CRC-32 for every [`CHUNK`] bytes of each array) and the scene's metadata as JSON. The
+//! header's CRC covers the header, the index and the metadata; the index's CRCs the arrays.
+
+use std::io::Read;
+use std::ops::Range;
+use std::path::Path;
+use std::sync::Arc;
+
+use pointray::Scene;
+use pointray::accel::stored::{AlignedBytes, StableBytes};
+use pointray::scene::{SCENE_ARRAYS, SceneMeta, StoredScene};
+
+use crate::IoError;
+
+/// The file's first bytes: PNG's pattern (a high byte, then line ends and a DOS end-of-file
+/// that a text-mode transfer would change).
+pub const MAGIC: [u8; 8] = *b"\x89PRS\r\n\x1a\n";
+
+/// The format this build writes and reads.
+pub const VERSION: u32 = 1;
+
+/// Arrays start on multiples of this (a memory page; also every element's alignment).
+pub const PAGE: usize = 4096;
+
+/// Each array's CRCs cover this many bytes each.
+pub const CHUNK: usize = 1 << 20;
+
+const HEADER: usize = 64;
+const ENTRY: usize = 32;
+
+/// Writes `scene` to `path` (all or nothing).
+pub fn write_prs(path: &Path, scene: &Scene) -> Result<(), IoError> {
+    let (arrays, meta) = scene.stored().map_err(|e| IoError::invalid(path, format!("cannot store the scene: {e}")))?;
+    let meta = serde_json::to_vec(&meta).map_err(|e| IoError::invalid(path, format!("cannot store the scene: {e}")))?;
+    let mut at = PAGE;
+    let ranges = arrays.map(|a| {
+        let start = at;
+        at = (start + a.len()).next_multiple_of(PAGE);
+        start..start + a.len()
+    });
+    let mut index = Vec::new();
+    for (name, range) in SCENE_ARRAYS.iter().zip(&ranges) {
+        index.extend_from_slice(&name_field(name));
+        index.extend_from_slice(&(range.start as u64).to_le_bytes());
+        index.extend_from_slice(&(range.len() as u64).to_le_bytes());
+    }
+    for array in arrays {
+        for chunk in array.chunks(CHUNK) {
+            index.extend_from_slice(&crc32fast::hash(chunk).to_le_bytes());
+        }
+    }
+    let index_at = at;
+    let meta_at = index_at + index.len();
+    let end = meta_at + meta.len();
+    let mut header = Vec::with_capacity(HEADER);
+    header.extend_from_slice(&MAGIC);
+    header.extend_from_slice(&VERSION.to_le_bytes());
+    header.extend_from_slice(&(PAGE as u32).to_le_bytes());
+    for value in [index_at, index.len(), meta_at, meta.len(), end] {
+        header.extend_from_slice(&(value as u64).to_le_bytes());
+    }
+    let crc = header_crc(&header, &index, &meta);
+    header.extend_from_slice(&crc.to_le_bytes());
+    header.resize(HEADER, 0);
+    crate::atomic_write(path, |w| {
+        let zeros = vec![0; PAGE];
+        w.write_all(&header)?;
+        let mut written = HEADER;
+        for (array, range) in arrays.iter().zip(&ranges) {
+            w.write_all(&zeros[..range.start - written])?;
+            w.write_all(array)?;
+            written = range.end;
+        }
+        w.write_all(&zeros[..index_at - written])?;
+        w.write_all(&index)?;
+        w.write_all(&meta)
+    })
+}
+
+/// Whether `path` starts as a scene file does.
+pub fn is_prs(path: &Path) -> bool {
+    let mut start = [0; 8];
+    std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut start)).is_ok() && start == MAGIC
+}
+
+/// Opens the scene file at `path`: mapped, its header, index and metadata checked, then every
+/// array against its CRCs and the structure against what a traversal needs.
+pub fn open_prs(path: &Path) -> Result<StoredScene, IoError> {
+    let map = crate::file::map_stable(path)?;
+    let bytes: Arc<dyn StableBytes> = match &map {
+        Some(map) => Arc::clone(map) as Arc<dyn StableBytes>,
+        None => {
+            let mut read = Vec::new();
+            std::fs::File::open(path).and_then(|mut f| f.read_to_end(&mut read)).map_err(|e| IoError::io(path, e))?;
+            Arc::new(AlignedBytes::copy_of(&read))
+        }
+    };
+    let invalid = |message: String| IoError::invalid(path, message);
+    let (meta, ranges) = check(bytes.bytes()).map_err(invalid)?;
+    if let Some(map) = map {
+        map.read_as_asked();
+    }
+    StoredScene::new(meta, bytes, ranges).map_err(|e| invalid(format!("not a scene pointray can render: {e}")))
+}
+
+/// The metadata and the arrays' ranges of a scene file's `bytes`, everything checked but the
+/// scene's own structure; the problem otherwise.
+fn check(bytes: &[u8]) -> Result<(SceneMeta, [Range<usize>; 6]), String> {
+    if bytes.len() < HEADER || bytes[..8] != MAGIC {
+        return Err("not a pointray scene file (.prs)".into());
+    }
+    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes"));
+    let u64_at = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().expect("8 bytes"));
+    let version = u32_at(8);
+    if version != VERSION {
+        return Err(format!("scene file format {version}; this pointray reads format {VERSION}: prepare it again"));
+    }
+    let [index_at, index_len, meta_at, meta_len, end] = [16, 24, 32, 40, 48].map(u64_at);
+    if end != bytes.len() as u64 {
+        return Err(format!("truncated or extended: {} bytes where the header says {end}", bytes.len()));
+    }
+    let span = |at: u64, len: u64| {
+        let start = usize::try_from(at).ok().filter(|&s| s <= bytes.len());
+        start.and_then(|s| Some(s..s.checked_add(usize::try_from(len).ok()?)?)).filter(|r| r.end <= bytes.len())
+    };
+    let (Some(index), Some(meta)) = (span(index_at, index_len), span(meta_at, meta_len)) else {
+        return Err("its header points outside the file".into());
+    };
+    let (index, meta) = (&bytes[index], &bytes[meta]);
+    if header_crc(&bytes[..56], index, meta) != u32_at(56) {
+        return Err("its header, index or metadata is damaged (CRC mismatch)".into());
+    }
+    let ranges = arrays(bytes, index)?;
+    let meta: SceneMeta = serde_json::from_slice(meta).map_err(|e| format!("its metadata: {e}"))?;
+    Ok((meta, ranges))
+}
+
+/// The arrays the index names, each checked against its CRCs.
+fn arrays(bytes: &[u8], index: &[u8]) -> Result<[Range<usize>; 6], String> {
+    let entries = SCENE_ARRAYS.len() * ENTRY;
+    let mut ranges: [Range<usize>; 6] = Default::default();
+    let mut crcs = index.get(entries..).ok_or("its index is short")?;
+    for (i, name) in SCENE_ARRAYS.iter().enumerate() {
+        let entry = &index[i * ENTRY..(i + 1) * ENTRY];
+        if entry[..16] != name_field(name) {
+            return Err(format!(
+                "its index names {:?} where the {name} array belongs",
+                String::from_utf8_lossy(&entry[..16])
+            ));
+        }
+        let field = |at: usize| usize::try_from(u64::from_le_bytes(entry[at..at + 8].try_into().expect("8 bytes")));
+        let (start, len) = (field(16).unwrap_or(usize::MAX), field(24).unwrap_or(usize::MAX));
+        let range = start..start.saturating_add(len);
+        if start % PAGE != 0 || range.end > bytes.len() {
+            return Err(format!("the {name} array lies at {start}, {len} bytes: outside the file or off a page"));
+        }
+        for (c, chunk) in bytes[range.clone()].chunks(CHUNK).enumerate() {
+            let Some((stored, rest)) = crcs.split_first_chunk::<4>() else { return Err("its index is short".into()) };
+            if crc32fast::hash(chunk) != u32::from_le_bytes(*stored) {
+                return Err(format!("the {name} array is damaged at bytes {}.. (CRC mismatch)", start + c * CHUNK));
+            }
+            crcs = rest;
+        }
+        ranges[i] = range;
+    }
+    if !crcs.is_empty() {
+        return Err("its index is longer than its arrays' CRCs".into());
+    }
+    Ok(ranges)
+}
+
+/// An array's name as its index entry holds it: zero-padded to 16 bytes.
+fn name_field(name: &str) -> [u8; 16] {
+    let mut field = [0; 16];
+    field[..name.len()].copy_from_slice(name.as_bytes());
+    field
+}
+
+/// The CRC of the header's first 56 bytes, the index and the metadata.
+fn header_crc(header: &[u8], index: &[u8], meta: &[u8]) -> u32 {
+    let mut crc = crc32fast::Hasher::new();
+    crc.update(&header[..56]);
+    crc.update(index);
+    crc.update(meta);
+    crc.finalize()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use pointray::preprocess::{PreprocessConfig, preprocess};
+    use pointray::{Settings, render};
+
+    fn scene() -> Scene {
+        let mut cloud = pointray::demo::demo_cloud(3_000, 7);
+        preprocess(&mut cloud, &PreprocessConfig::standard()).unwrap();
+        Scene::build(pointray::demo::demo_scene_parts(cloud), &Settings::default()).unwrap()
+    }
+
+    fn image(scene: &Scene) -> Vec<u8> {
+        let settings = Settings { width: 40, height: 32, ..Settings::default() };
+        render(scene, &settings).unwrap().srgb8(settings.tone_map())
+    }
+
+    fn opened(path: &Path) -> Result<Scene, IoError> {
+        let parts = pointray::SceneParts { stored: Some(open_prs(path)?), ..Default::default() };
+        Ok(Scene::build(parts, &Settings::default()).expect("a checked scene builds"))
+    }
+
+    #[test]
+    fn a_scene_file_renders_the_scene_it_stores() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("demo.prs");
+        let scene = scene();
+        write_prs(&path, &scene).unwrap();
+        assert!(is_prs(&path));
+        let bytes = std::fs::read(&path).unwrap();
+        assert_eq!(bytes[..8], MAGIC);
+        assert_eq!(image(&opened(&path).unwrap()), image(&scene));
+    }
+
+    /// Each kind of damage is refused with the file's name and what is wrong, never a panic.
+    #[test]
+    fn damaged_truncated_and_foreign_files_are_refused() {
+        let dir = tempfile::tempdir().unwrap();
+        let good = dir.path().join("good.prs");
+        write_prs(&good, &scene()).unwrap();
+        let bytes = std::fs::read(&good).unwrap();
+        let refused = |name: &str, edit: &dyn Fn(&mut Vec<u8>)| {
+            let mut damaged = bytes.clone();
+            edit(&mut damaged);
+            let path = dir.path().join(name);
+            std::fs::write(&path, &damaged).unwrap();
+            let message = opened(&path).err().expect("refused").to_string();
+            assert!(message.contains(name), "{message}");
+            message
+        };
+        let index_at = u64::from_le_bytes(bytes[16..24].try_into().unwrap()) as usize;
+        let meta_at = u64::from_le_bytes(bytes[32..40].try_into().unwrap()) as usize;
+        assert!(refused("cut.prs", &|b| b.truncate(b.len() - 100)).contains("truncated"));
+        assert!(refused("short.prs", &|b| b.truncate(40)).contains("not a pointray scene file"));
+        assert!(refused("array.prs", &|b| b[PAGE + 3] ^= 1).contains("nodes array is damaged"));
+        // The last byte of the last array (the ids).
+        let entry = index_at + 5 * ENTRY;
+        let field = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap()) as usize;
+        let last = field(entry + 16) + field(entry + 24) - 1;
+        assert!(refused("ids.prs", &|b| b[last] ^= 0x10).contains("ids array is damaged"));
+        assert!(refused("meta.prs", &|b| b[meta_at + 5] ^= 1).contains("CRC"));
+        assert!(refused("index.prs", &|b| b[index_at + 20] ^= 1).contains("CRC"));
+        let newer = refused("newer.prs", &|b| b[8] = 2);
+        assert!(newer.contains("format 2") && newer.contains("prepare it again"), "{newer}");
+        assert!(!is_prs(&dir.path().join("missing.prs")));
+        std::fs::write(dir.path().join("cloud.prs"), "ply\nformat ascii 1.0\n").unwrap();
+        assert!(!is_prs(&dir.path().join("cloud.prs")));
+    }
+
+    #[test]
+    fn only_what_a_lone_cloud_makes_is_stored() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut cloud = pointray::demo::demo_cloud(1_000, 8);
+        preprocess(&mut cloud, &PreprocessConfig::standard()).unwrap();
+        let settings = Settings { accel: pointray::settings::AccelKind::Brute, ..Settings::default() };
+        let scene = Scene::build(cloud.into(), &settings).unwrap();
+        let path = dir.path().join("brute.prs");
+        let err = write_prs(&path, &scene).unwrap_err().to_string();
+        assert!(err.contains("only a BVH") && err.contains("brute.prs"), "{err}");
+        assert!(!path.exists(), "no partial file");
+    }
+}

@@ -1,0 +1,263 @@
+//! A scene as a scene file keeps it (`pointray_io::prs`, `docs/prs.md`): the BVH's arrays and
+//! the input's ids as bytes, and everything else as [`SceneMeta`]; and the scene back from
+//! bytes that stay mapped, rendering the same image as the scene it was.
+//!
+//! Only what a lone cloud makes is stored: a BVH (the accelerator whose level of detail the
+//! file serves), with the cloud's up axis, view, sun and sky. A scene file's lights and
+//! materials, and an environment map, are refused when storing.
+
+use std::ops::Range;
+use std::sync::{Arc, OnceLock};
+
+use glam::{DVec3, Vec3};
+
+use super::{Accelerator, Build, Scene};
+use crate::accel::bvh::{ARRAYS, BvhMeta, BvhStoredError};
+use crate::accel::stored::{StableBytes, Stored, StoredError};
+use crate::accel::{Bvh, block};
+use crate::math::Aabb;
+use crate::settings::AccelKind;
+use crate::shading::{Environment, Light};
+
+/// The arrays of a stored scene, in the order [`Scene::stored`] gives them and
+/// [`Scene::from_stored`] takes them: the BVH's, then the input's id of each splat slot.
+pub const SCENE_ARRAYS: [&str; 6] = [ARRAYS[0], ARRAYS[1], ARRAYS[2], ARRAYS[3], ARRAYS[4], "ids"];
+
+/// Everything of a stored scene but its arrays.
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct SceneMeta {
+    pub points: usize,
+    /// Added to the stored positions to give the input's coordinates.
+    pub origin: [f64; 3],
+    /// What the camera frames: minimum, maximum.
+    pub bounds: [[f32; 3]; 2],
+    pub mean_radius: f64,
+    pub up: [f32; 3],
+    pub view: Option<([f32; 3], f32)>,
+    pub light: Option<Light>,
+    pub environment: Option<Environment>,
+    /// The settings the accelerator was built with, which a render must ask for too.
+    pub build: Build,
+    pub bvh: BvhMeta,
+}
+
+/// Why a scene cannot be stored, or stored bytes are not a scene.
+#[derive(Debug, thiserror::Error)]
+pub enum StoredSceneError {
+    #[error("only a BVH is stored (this scene's accelerator is the {0})")]
+    NotBvh(&'static str),
+    #[error("a scene file's lights and materials are not stored: store its clouds")]
+    Content,
+    #[error("an environment map is not stored")]
+    EnvironmentMap,
+    #[error(transparent)]
+    Bvh(#[from] BvhStoredError),
+    #[error("the ids array: {0}")]
+    Ids(StoredError),
+    #[error("{0} ids for {1} splat slots")]
+    IdCount(usize, usize),
+    #[error("{0}")]
+    Meta(String),
+}
+
+/// A stored scene's parts, checked (see [`Scene::from_stored`]): what [`Scene::build`] makes
+/// the scene from when [`super::SceneParts::stored`] holds one, as often as asked, without a copy.
+#[derive(Clone)]
+pub struct StoredScene {
+    meta: SceneMeta,
+    bytes: Arc<dyn StableBytes>,
+    ranges: [Range<usize>; 6],
+}
+
+impl StoredScene {
+    /// The scene in `ranges` of `bytes`, with `meta`, as [`Scene::from_stored`] takes it; the
+    /// same errors.
+    pub fn new(
+        meta: SceneMeta,
+        bytes: Arc<dyn StableBytes>,
+        ranges: [Range<usize>; 6],
+    ) -> Result<Self, StoredSceneError> {
+        Scene::from_stored(meta.clone(), Arc::clone(&bytes), ranges.clone())?;
+        Ok(Self { meta, bytes, ranges })
+    }
+
+    pub fn meta(&self) -> &SceneMeta {
+        &self.meta
+    }
+
+    pub(super) fn scene(&self) -> Result<Scene, StoredSceneError> {
+        Scene::from_stored(self.meta.clone(), Arc::clone(&self.bytes), self.ranges.clone())
+    }
+}
+
+impl std::fmt::Debug for StoredScene {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("StoredScene").field("meta", &self.meta).field("ranges", &self.ranges).finish_non_exhaustive()
+    }
+}
+
+impl Scene {
+    /// What a scene file stores of this scene: its arrays' bytes (named as [`SCENE_ARRAYS`])
+    /// and the rest.
+    pub fn stored(&self) -> Result<([&[u8]; 6], SceneMeta), StoredSceneError> {
+        let Accelerator::Bvh(bvh) = &self.accel else {
+            return Err(StoredSceneError::NotBvh(self.accel_name()));
+        };
+        if self.content.is_some() {
+            return Err(StoredSceneError::Content);
+        }
+        if matches!(self.environment, Some(Environment::Map { .. })) {
+            return Err(StoredSceneError::EnvironmentMap);
+        }
+        let (arrays, bvh_meta) = bvh.arrays();
+        let ids = self.ids.as_ref().map_or(&[][..], |ids| ids.as_bytes());
+        let [nodes, lod, blocks, representatives, aggregates] = arrays;
+        let b = self.bounds;
+        let meta = SceneMeta {
+            points: self.points,
+            origin: self.origin.to_array(),
+            bounds: [b.min.to_array(), b.max.to_array()],
+            mean_radius: self.mean_radius,
+            up: self.up.to_array(),
+            view: self.view.map(|(dir, distance)| (dir.to_array(), distance)),
+            light: self.light,
+            environment: self.environment.clone(),
+            build: self.build.clone(),
+            bvh: bvh_meta,
+        };
+        Ok(([nodes, lod, blocks, representatives, aggregates, ids], meta))
+    }
+
+    /// The scene whose arrays lie in `ranges` (in [`SCENE_ARRAYS`]' order) of `bytes`, as
+    /// [`Self::stored`] gave them, with the rest in `meta`: read where they lie, never copied.
+    pub fn from_stored(
+        meta: SceneMeta,
+        bytes: Arc<dyn StableBytes>,
+        ranges: [Range<usize>; 6],
+    ) -> Result<Scene, StoredSceneError> {
+        check_meta(&meta).map_err(StoredSceneError::Meta)?;
+        let [nodes, lod, blocks, representatives, aggregates, ids] = ranges;
+        let ids = Stored::<u32>::from_bytes(Arc::clone(&bytes), ids).map_err(StoredSceneError::Ids)?;
+        let bvh = Bvh::from_stored(meta.bvh, bytes, [nodes, lod, blocks, representatives, aggregates])?;
+        let slots = bvh.blocks.len() * block::BLOCK;
+        if ids.len() != slots {
+            return Err(StoredSceneError::IdCount(ids.len(), slots));
+        }
+        let [lo, hi] = meta.bounds;
+        Ok(Scene {
+            accel: Accelerator::Bvh(bvh),
+            build: meta.build,
+            content: None,
+            view: meta.view.map(|(dir, distance)| (Vec3::from(dir), distance)),
+            up: Vec3::from(meta.up),
+            light: meta.light,
+            environment: meta.environment,
+            origin: DVec3::from(meta.origin),
+            bounds: Aabb::new(lo.into(), hi.into()),
+            points: meta.points,
+            mean_radius: meta.mean_radius,
+            build_seconds: 0.0,
+            ids: Some(ids),
+            stored: true,
+            backfacing: OnceLock::new(),
+            environment_map: None,
+        })
+    }
+}
+
+/// The values of `meta` the renderer divides by or frames with: finite, and bounds that hold
+/// a box.
+fn check_meta(meta: &SceneMeta) -> Result<(), String> {
+    let [lo, hi] = meta.bounds;
+    let finite = lo.iter().chain(&hi).all(|v| v.is_finite()) && meta.origin.iter().all(|v| v.is_finite());
+    if !finite || lo.iter().zip(&hi).any(|(l, h)| l > h) {
+        return Err(format!("the scene's bounds {lo:?}..{hi:?} (origin {:?}) are no box", meta.origin));
+    }
+    if Vec3::from(meta.up).try_normalize().is_none() {
+        return Err(format!("the up axis {:?} is no direction", meta.up));
+    }
+    if meta.build.accel != AccelKind::Bvh {
+        return Err(format!("the build names the {:?} accelerator, but a BVH is stored", meta.build.accel));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::stored::AlignedBytes;
+    use crate::preprocess::{PreprocessConfig, preprocess};
+    use crate::{Settings, render};
+
+    fn laid_out(arrays: [&[u8]; 6]) -> (Arc<dyn StableBytes>, [Range<usize>; 6]) {
+        let mut bytes = Vec::new();
+        let ranges = arrays.map(|a| {
+            bytes.resize(bytes.len().next_multiple_of(crate::accel::bvh::ARRAY_ALIGN), 0);
+            let start = bytes.len();
+            bytes.extend_from_slice(a);
+            start..bytes.len()
+        });
+        (Arc::new(AlignedBytes::copy_of(&bytes)), ranges)
+    }
+
+    #[test]
+    fn a_stored_scene_renders_the_image_of_the_scene_it_was() {
+        let mut cloud = crate::demo::demo_cloud(4_000, 3);
+        preprocess(&mut cloud, &PreprocessConfig::standard()).unwrap();
+        let settings = Settings { width: 48, height: 40, spp: 2, ..Settings::default() };
+        let scene = Scene::build(crate::demo::demo_scene_parts(cloud), &settings).unwrap();
+        let (arrays, meta) = scene.stored().expect("a BVH from a cloud");
+        // Through JSON, as a file keeps it.
+        let meta: SceneMeta = serde_json::from_str(&serde_json::to_string(&meta).unwrap()).unwrap();
+        let (bytes, ranges) = laid_out(arrays);
+        let back = Scene::from_stored(meta, bytes, ranges).expect("its own arrays");
+        let image = |s: &Scene| render(s, &settings).unwrap().srgb8(settings.tone_map());
+        assert_eq!(image(&back), image(&scene));
+        let prefiltered = Settings { prefilter: true, lod_threshold: 1.0, spp: 1, ..settings.clone() };
+        let image = |s: &Scene| render(s, &prefiltered).unwrap().srgb8(settings.tone_map());
+        assert_eq!(image(&back), image(&scene));
+        // A query names the input's points through the stored ids.
+        let (center, size) = (scene.bounds().center().as_dvec3(), scene.bounds().diagonal() as f64);
+        let rays: Vec<(DVec3, Vec3)> = (0..100)
+            .map(|i| {
+                // From above the demo's floor (y up), down.
+                let across = DVec3::new((i % 10) as f64 - 4.5, 10.0, (i / 10) as f64 - 4.5) * (0.1 * size);
+                (scene.origin() + center + across, -Vec3::Y)
+            })
+            .collect();
+        let hits = |s: &Scene| s.intersect(&rays, &settings).unwrap();
+        assert!(hits(&scene).iter().flatten().count() > 10);
+        assert_eq!(hits(&back), hits(&scene));
+    }
+
+    #[test]
+    fn a_stored_scene_refuses_settings_its_build_does_not_allow() {
+        let mut cloud = crate::demo::demo_cloud(2_000, 4);
+        preprocess(&mut cloud, &PreprocessConfig::standard()).unwrap();
+        let settings = Settings { width: 16, height: 16, ..Settings::default() };
+        let scene = Scene::build(cloud.into(), &settings).unwrap();
+        let (arrays, meta) = scene.stored().unwrap();
+        let (bytes, ranges) = laid_out(arrays);
+        let back = Scene::from_stored(meta.clone(), bytes, ranges.clone()).unwrap();
+        let kd = Settings { accel: AccelKind::Kdtree, ..settings.clone() };
+        assert!(render(&back, &kd).is_err_and(|e| e.to_string().contains("accel")));
+        // Damaged values the renderer would divide by or frame with.
+        let (bytes, _) = laid_out(arrays);
+        let bad = SceneMeta { bounds: [[0.0, f32::NAN, 0.0], [1.0; 3]], ..meta.clone() };
+        assert!(Scene::from_stored(bad, Arc::clone(&bytes), ranges.clone()).is_err());
+        let bad = SceneMeta { up: [0.0; 3], ..meta.clone() };
+        assert!(Scene::from_stored(bad, Arc::clone(&bytes), ranges.clone()).is_err());
+        let mut short = ranges.clone();
+        short[5].end -= 4;
+        assert!(Scene::from_stored(meta, bytes, short).is_err_and(|e| e.to_string().contains("ids")));
+    }
+
+    #[test]
+    fn only_a_bvh_is_stored() {
+        let mut cloud = crate::demo::demo_cloud(1_000, 5);
+        preprocess(&mut cloud, &PreprocessConfig::standard()).unwrap();
+        let settings = Settings { accel: AccelKind::Kdtree, ..Settings::default() };
+        let scene = Scene::build(cloud.into(), &settings).unwrap();
+        assert!(matches!(scene.stored(), Err(StoredSceneError::NotBvh("kdtree"))));
+    }
+}
