@@ -1,11 +1,12 @@
 //! The prepared scene file (`.prs`, `docs/prs.md`): a scene's BVH, splats and level-of-detail
 //! data included, in one file laid out to be memory-mapped, so that a render opens it without
-//! a build and reads its arrays where they lie.
+//! a build and reads only what its view needs.
 //!
-//! Layout (little-endian): a 64-byte header; each array of [`SCENE_ARRAYS`] on a page
-//! boundary ([`PAGE`]); then the index (a 32-byte entry an array: name, offset, length; then a
-//! CRC-32 for every [`CHUNK`] bytes of each array) and the scene's metadata as JSON. The
-//! header's CRC covers the header, the index and the metadata; the index's CRCs the arrays.
+//! Layout (little-endian): a 64-byte header; each array of [`SCENE_ARRAYS`] on a page boundary
+//! ([`PAGE`]); then the index (a 32-byte entry an array: name, offset, length) and the scene's
+//! metadata as JSON. The header's CRC covers the header, the index and the metadata, which are
+//! checked at open; the arrays carry their own CRCs, a treelet's checked as a walk first enters
+//! it (`pointray::accel::Bvh::from_stored`), the ids' as a query first names a point.
 
 use std::io::Read;
 use std::ops::Range;
@@ -28,9 +29,6 @@ pub const VERSION: u32 = 1;
 /// Arrays start on multiples of this (a memory page; also every element's alignment).
 pub const PAGE: usize = 4096;
 
-/// Each array's CRCs cover this many bytes each.
-pub const CHUNK: usize = 1 << 20;
-
 const HEADER: usize = 64;
 const ENTRY: usize = 32;
 
@@ -39,7 +37,7 @@ pub fn write_prs(path: &Path, scene: &Scene) -> Result<(), IoError> {
     let (arrays, meta) = scene.stored().map_err(|e| IoError::invalid(path, format!("cannot store the scene: {e}")))?;
     let meta = serde_json::to_vec(&meta).map_err(|e| IoError::invalid(path, format!("cannot store the scene: {e}")))?;
     let mut at = PAGE;
-    let ranges = arrays.map(|a| {
+    let ranges = arrays.each_ref().map(|a| {
         let start = at;
         at = (start + a.len()).next_multiple_of(PAGE);
         start..start + a.len()
@@ -49,11 +47,6 @@ pub fn write_prs(path: &Path, scene: &Scene) -> Result<(), IoError> {
         index.extend_from_slice(&name_field(name));
         index.extend_from_slice(&(range.start as u64).to_le_bytes());
         index.extend_from_slice(&(range.len() as u64).to_le_bytes());
-    }
-    for array in arrays {
-        for chunk in array.chunks(CHUNK) {
-            index.extend_from_slice(&crc32fast::hash(chunk).to_le_bytes());
-        }
     }
     let index_at = at;
     let meta_at = index_at + index.len();
@@ -89,8 +82,8 @@ pub fn is_prs(path: &Path) -> bool {
     std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut start)).is_ok() && start == MAGIC
 }
 
-/// Opens the scene file at `path`: mapped, its header, index and metadata checked, then every
-/// array against its CRCs and the structure against what a traversal needs.
+/// Opens the scene file at `path`: mapped, its header, index and metadata checked, and the
+/// top of its tree; the rest is read (and checked) where a view needs it.
 pub fn open_prs(path: &Path) -> Result<StoredScene, IoError> {
     let map = crate::file::map_stable(path)?;
     let bytes: Arc<dyn StableBytes> = match &map {
@@ -102,16 +95,16 @@ pub fn open_prs(path: &Path) -> Result<StoredScene, IoError> {
         }
     };
     let invalid = |message: String| IoError::invalid(path, message);
-    let (meta, ranges) = check(bytes.bytes()).map_err(invalid)?;
-    if let Some(map) = map {
+    if let Some(map) = &map {
         map.read_as_asked();
     }
+    let (meta, ranges) = check(bytes.bytes()).map_err(invalid)?;
     StoredScene::new(meta, bytes, ranges).map_err(|e| invalid(format!("not a scene pointray can render: {e}")))
 }
 
 /// The metadata and the arrays' ranges of a scene file's `bytes`, everything checked but the
 /// scene's own structure; the problem otherwise.
-fn check(bytes: &[u8]) -> Result<(SceneMeta, [Range<usize>; 6]), String> {
+fn check(bytes: &[u8]) -> Result<(SceneMeta, [Range<usize>; 7]), String> {
     if bytes.len() < HEADER || bytes[..8] != MAGIC {
         return Err("not a pointray scene file (.prs)".into());
     }
@@ -141,11 +134,12 @@ fn check(bytes: &[u8]) -> Result<(SceneMeta, [Range<usize>; 6]), String> {
     Ok((meta, ranges))
 }
 
-/// The arrays the index names, each checked against its CRCs.
-fn arrays(bytes: &[u8], index: &[u8]) -> Result<[Range<usize>; 6], String> {
-    let entries = SCENE_ARRAYS.len() * ENTRY;
-    let mut ranges: [Range<usize>; 6] = Default::default();
-    let mut crcs = index.get(entries..).ok_or("its index is short")?;
+/// The arrays the index names, where it says.
+fn arrays(bytes: &[u8], index: &[u8]) -> Result<[Range<usize>; 7], String> {
+    if index.len() != SCENE_ARRAYS.len() * ENTRY {
+        return Err(format!("its index holds {} bytes, not {}", index.len(), SCENE_ARRAYS.len() * ENTRY));
+    }
+    let mut ranges: [Range<usize>; 7] = Default::default();
     for (i, name) in SCENE_ARRAYS.iter().enumerate() {
         let entry = &index[i * ENTRY..(i + 1) * ENTRY];
         if entry[..16] != name_field(name) {
@@ -160,17 +154,7 @@ fn arrays(bytes: &[u8], index: &[u8]) -> Result<[Range<usize>; 6], String> {
         if start % PAGE != 0 || range.end > bytes.len() {
             return Err(format!("the {name} array lies at {start}, {len} bytes: outside the file or off a page"));
         }
-        for (c, chunk) in bytes[range.clone()].chunks(CHUNK).enumerate() {
-            let Some((stored, rest)) = crcs.split_first_chunk::<4>() else { return Err("its index is short".into()) };
-            if crc32fast::hash(chunk) != u32::from_le_bytes(*stored) {
-                return Err(format!("the {name} array is damaged at bytes {}.. (CRC mismatch)", start + c * CHUNK));
-            }
-            crcs = rest;
-        }
         ranges[i] = range;
-    }
-    if !crcs.is_empty() {
-        return Err("its index is longer than its arrays' CRCs".into());
     }
     Ok(ranges)
 }
@@ -225,32 +209,34 @@ mod tests {
         assert_eq!(image(&opened(&path).unwrap()), image(&scene));
     }
 
-    /// Each kind of damage is refused with the file's name and what is wrong, never a panic.
+    /// Damage to the header, index, metadata or top is refused at open, with the file's name
+    /// and what is wrong; damage below the top when a render or a query first reads it.
     #[test]
     fn damaged_truncated_and_foreign_files_are_refused() {
         let dir = tempfile::tempdir().unwrap();
         let good = dir.path().join("good.prs");
         write_prs(&good, &scene()).unwrap();
         let bytes = std::fs::read(&good).unwrap();
-        let refused = |name: &str, edit: &dyn Fn(&mut Vec<u8>)| {
+        let damaged = |name: &str, edit: &dyn Fn(&mut Vec<u8>)| {
             let mut damaged = bytes.clone();
             edit(&mut damaged);
             let path = dir.path().join(name);
             std::fs::write(&path, &damaged).unwrap();
-            let message = opened(&path).err().expect("refused").to_string();
+            path
+        };
+        let refused = |name: &str, edit: &dyn Fn(&mut Vec<u8>)| {
+            let message = opened(&damaged(name, edit)).err().expect("refused").to_string();
             assert!(message.contains(name), "{message}");
             message
         };
-        let index_at = u64::from_le_bytes(bytes[16..24].try_into().unwrap()) as usize;
-        let meta_at = u64::from_le_bytes(bytes[32..40].try_into().unwrap()) as usize;
+        let field = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap()) as usize;
+        let (index_at, meta_at) = (field(16), field(32));
+        let array = |i: usize| {
+            field(index_at + i * ENTRY + 16)..field(index_at + i * ENTRY + 16) + field(index_at + i * ENTRY + 24)
+        };
         assert!(refused("cut.prs", &|b| b.truncate(b.len() - 100)).contains("truncated"));
         assert!(refused("short.prs", &|b| b.truncate(40)).contains("not a pointray scene file"));
-        assert!(refused("array.prs", &|b| b[PAGE + 3] ^= 1).contains("nodes array is damaged"));
-        // The last byte of the last array (the ids).
-        let entry = index_at + 5 * ENTRY;
-        let field = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().unwrap()) as usize;
-        let last = field(entry + 16) + field(entry + 24) - 1;
-        assert!(refused("ids.prs", &|b| b[last] ^= 0x10).contains("ids array is damaged"));
+        assert!(refused("root.prs", &|b| b[PAGE + 3] ^= 1).contains("top is damaged"));
         assert!(refused("meta.prs", &|b| b[meta_at + 5] ^= 1).contains("CRC"));
         assert!(refused("index.prs", &|b| b[index_at + 20] ^= 1).contains("CRC"));
         let newer = refused("newer.prs", &|b| b[8] = 2);
@@ -258,6 +244,19 @@ mod tests {
         assert!(!is_prs(&dir.path().join("missing.prs")));
         std::fs::write(dir.path().join("cloud.prs"), "ply\nformat ascii 1.0\n").unwrap();
         assert!(!is_prs(&dir.path().join("cloud.prs")));
+        // Every block damaged: the render that reads them fails, as the query reading the ids.
+        let blocks = array(2);
+        let scene =
+            opened(&damaged("blocks.prs", &|b| (blocks.start..blocks.end).step_by(176).for_each(|i| b[i + 3] ^= 1)))
+                .expect("the top is whole");
+        let err = render(&scene, &Settings { width: 40, height: 32, ..Settings::default() }).unwrap_err().to_string();
+        assert!(err.contains("damaged") && err.contains("CRC"), "{err}");
+        let ids = array(6);
+        let scene = opened(&damaged("ids.prs", &|b| b[ids.end - 1] ^= 1)).expect("the top is whole");
+        assert_eq!(image(&scene), image(&self::scene()), "a render reads no id");
+        let center = scene.origin() + scene.bounds().center().as_dvec3();
+        let err = scene.intersect(&[(center + glam::DVec3::Y * 10.0, -glam::Vec3::Y)], &Settings::default());
+        assert!(err.is_err_and(|e| e.to_string().contains("ids")));
     }
 
     #[test]

@@ -398,7 +398,8 @@ fn render_frame(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Boun
         Some(progress) => Python::attach(|py| progress.call1(py, (done.load(Ordering::Relaxed), total)).map(drop)),
         None => Ok(()),
     };
-    let frame = cancellable(py, report, |cancel| pool.install(|| job.render_until(&count, cancel)))?;
+    let frame = cancellable(py, report, |cancel| pool.install(|| job.render_until(&count, cancel).transpose()))?
+        .map_err(value_error)?;
     let stats = serde_json::to_value(job.report(&frame)).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
     Ok(Frame { frame, aovs: settings.aovs.clone(), stats })
 }

@@ -39,5 +39,5 @@ pub mod stats;
 
 pub use cloud::PointCloud;
 pub use frame::Frame;
-pub use scene::{Scene, SceneParts, render};
+pub use scene::{RenderError, Scene, SceneParts, render};
 pub use settings::Settings;

@@ -12,6 +12,7 @@ use std::sync::{Arc, Mutex, PoisonError};
 use std::time::Instant;
 
 use crate::frame::Frame;
+use crate::scene::RenderError;
 use crate::scene::Scene;
 use crate::settings::{Settings, SettingsError};
 
@@ -140,7 +141,7 @@ impl<'s> Progressive<'s> {
 
     /// Renders the next frame of the latest view: its preview first, then the next pass.
     /// Settings that the scene refuses are an error, and the view before them stays.
-    pub fn step(&mut self) -> Result<Step, SettingsError> {
+    pub fn step(&mut self) -> Result<Step, RenderError> {
         // Cleared before the pending view is taken: a view set after this cancels what follows.
         self.control.cancel.store(false, Ordering::SeqCst);
         let pending = self.control.pending.lock().unwrap_or_else(PoisonError::into_inner).take();
@@ -159,14 +160,14 @@ impl<'s> Progressive<'s> {
     /// A frame of one sample a pixel at the scale the last preview's time allows (the coarsest
     /// at first), level of detail at least at a pixel, and at two where even the coarsest
     /// scale is predicted to take longer than the frame time.
-    fn preview(&mut self) -> Result<Step, SettingsError> {
+    fn preview(&mut self) -> Result<Step, RenderError> {
         let (scale, too_slow) = self.preview_scale();
         let s = &self.settings;
         let lod_threshold = s.lod_threshold.max(1.0) * if too_slow { 2.0 } else { 1.0 };
         let (width, height) = (s.width.div_ceil(scale), s.height.div_ceil(scale));
         let preview = Settings { width, height, spp: 1, lod_threshold, ..s.clone() };
         let start = Instant::now();
-        let Some(frame) = self.scene.job(&preview)?.render_until(&|_| {}, &self.control.cancel) else {
+        let Some(frame) = self.scene.job(&preview)?.render_until(&|_| {}, &self.control.cancel)? else {
             self.state = State::Preview;
             return Ok(Step::Cancelled);
         };
@@ -194,7 +195,7 @@ impl<'s> Progressive<'s> {
 
     /// The next pass at full resolution: as many samples as are done already (at least one), up
     /// to the view's `spp`, so that the image sharpens at once and the passes stay few.
-    fn refine(&mut self, done: u32, mut sum: Vec<[f32; 3]>) -> Result<Step, SettingsError> {
+    fn refine(&mut self, done: u32, mut sum: Vec<[f32; 3]>) -> Result<Step, RenderError> {
         // At least 1: the settings passed `Self::check`.
         let budget = self.settings.spp;
         if done >= budget {
@@ -204,7 +205,7 @@ impl<'s> Progressive<'s> {
         let mut job = self.scene.job(&self.settings)?;
         job.config.sample_range = Some(range.clone());
         let start = Instant::now();
-        let Some(mut frame) = job.render_until(&|_| {}, &self.control.cancel) else {
+        let Some(mut frame) = job.render_until(&|_| {}, &self.control.cancel)? else {
             self.state = State::Refining { done, sum };
             return Ok(Step::Cancelled);
         };
@@ -307,7 +308,7 @@ mod tests {
         let leisurely = frame(view.step().unwrap());
         assert_eq!((leisurely.scale, leisurely.lod_threshold), (1, 1.0));
         control.set_view(Settings { spp: 0, ..settings });
-        assert_eq!(view.step().err().map(|e| e.option), Some("spp"));
+        assert!(matches!(view.step(), Err(RenderError::Settings(e)) if e.option == "spp"));
         assert_eq!(view.settings().fov, 50.0);
         // The kept view's first pass, not a new view's preview.
         let kept = frame(view.step().unwrap());

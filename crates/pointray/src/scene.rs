@@ -205,6 +205,8 @@ pub struct Scene {
     ids: Option<Stored<u32>>,
     /// Read from a scene file (`.prs`): its build is the file's.
     stored: bool,
+    /// A stored scene's ids' CRC, checked when a query first needs them.
+    ids_check: Option<stored::IdsCheck>,
     /// The `Cull::Auto` probe, run at the first render that asks.
     backfacing: OnceLock<Option<f64>>,
     /// The map `Settings::env_map` names, read from that file (see [`Scene::set_environment_map`]).
@@ -316,6 +318,7 @@ impl Scene {
             build_seconds,
             ids,
             stored: false,
+            ids_check: None,
             backfacing: OnceLock::new(),
             environment_map: None,
         })
@@ -356,9 +359,12 @@ impl Scene {
 
     /// The first surface point along each ray (`origin` in the file's coordinates, `direction`
     /// of any length), at full detail, through the settings' surface scheme; rays in parallel.
-    pub fn intersect(&self, rays: &[(DVec3, Vec3)], settings: &Settings) -> Result<Vec<Option<RayHit>>, SettingsError> {
+    pub fn intersect(&self, rays: &[(DVec3, Vec3)], settings: &Settings) -> Result<Vec<Option<RayHit>>, RenderError> {
         settings.check()?;
         self.check_build(settings)?;
+        if let Some(ids) = &self.ids_check {
+            ids.check(self.ids.as_ref().map_or(&[][..], |ids| ids.as_bytes()))?;
+        }
         let scheme = settings.scheme();
         let cone = crate::math::RayCone { width0: 0.0, spread: 0.0 };
         let query = |&(origin, direction): &(DVec3, Vec3)| {
@@ -369,7 +375,18 @@ impl Scene {
             let splat = self.ids.as_ref().map_or(hit.splat, |ids| ids[hit.splat as usize]);
             Some(RayHit { t: hit.t, position: self.origin + hit.position.as_dvec3(), normal: hit.normal, splat })
         };
-        Ok(rays.par_iter().map(query).collect())
+        let hits = rays.par_iter().map(query).collect();
+        self.check_whole()?;
+        Ok(hits)
+    }
+
+    /// An error if a walk found part of a stored scene damaged (see [`Bvh::damage`]): what it
+    /// drew or met is then incomplete.
+    fn check_whole(&self) -> Result<(), RenderError> {
+        match &self.accel {
+            Accelerator::Bvh(bvh) => bvh.damage().map_or(Ok(()), |d| Err(RenderError::Damaged(d.to_string()))),
+            _ => Ok(()),
+        }
     }
 
     /// The settings resolved against this scene: the camera, the pixels and the render
@@ -648,22 +665,29 @@ pub struct RenderJob<'s> {
 }
 
 impl RenderJob<'_> {
-    /// One frame. `progress` is told how many pixels each finished band held.
-    pub fn render(&self, progress: &(dyn Fn(u64) + Sync)) -> Frame {
-        self.render_until(progress, &AtomicBool::new(false)).expect("a render nobody cancels is whole")
+    /// One frame. `progress` is told how many pixels each finished band held. An error where
+    /// the frame met a damaged part of a stored scene (the frame is then incomplete).
+    pub fn render(&self, progress: &(dyn Fn(u64) + Sync)) -> Result<Frame, RenderError> {
+        let frame = self.render_until(progress, &AtomicBool::new(false))?;
+        Ok(frame.expect("a render nobody cancels is whole"))
     }
 
     /// [`Self::render`], given up (`None`) once `cancel` is set: a band checks before it starts.
-    pub fn render_until(&self, progress: &(dyn Fn(u64) + Sync), cancel: &AtomicBool) -> Option<Frame> {
+    pub fn render_until(
+        &self,
+        progress: &(dyn Fn(u64) + Sync),
+        cancel: &AtomicBool,
+    ) -> Result<Option<Frame>, RenderError> {
         let mut film = self.film();
         let (camera, config) = (&self.camera, &self.config);
         let stats = on_accel!(&self.scene.accel, a => crate::render::render_into_until(a, camera, config, &mut film, progress, cancel));
         if cancel.load(Ordering::Relaxed) {
-            return None;
+            return Ok(None);
         }
         self.shade_eye_dome(&mut film);
+        self.scene.check_whole()?;
         let (width, height) = (self.settings.width, self.settings.height);
-        Some(Frame { film, stats, width, height, background: self.background() })
+        Ok(Some(Frame { film, stats, width, height, background: self.background() }))
     }
 
     /// Eye-dome lighting over the film's pixels, where the settings ask for it.
@@ -811,13 +835,31 @@ fn select_points(cloud: &mut PointCloud, settings: &Settings) -> Result<Option<V
 }
 
 /// Renders `scene` with `settings`: the one call a program needs.
-pub fn render(scene: &Scene, settings: &Settings) -> Result<Frame, SettingsError> {
-    Ok(scene.job(settings)?.render(&|_| {}))
+pub fn render(scene: &Scene, settings: &Settings) -> Result<Frame, RenderError> {
+    scene.job(settings)?.render(&|_| {})
+}
+
+/// Why a render or a query has no result.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    #[error(transparent)]
+    Settings(#[from] SettingsError),
+    /// A stored scene's part failed its check when first read.
+    #[error("the scene file is damaged: {0}")]
+    Damaged(String),
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The option a render refused.
+    fn refused_option(result: Result<Frame, RenderError>) -> &'static str {
+        match result {
+            Err(RenderError::Settings(e)) => e.option,
+            other => panic!("not refused for an option: {:?}", other.err()),
+        }
+    }
 
     fn sphere_scene(settings: &Settings) -> Scene {
         let mut cloud = crate::demo::demo_cloud(3000, 1);
@@ -834,9 +876,9 @@ mod tests {
         let first_hit = Settings { surface: crate::splat::scheme::SurfaceKind::FirstHit, ..small.clone() };
         assert!(render(&scene, &first_hit).is_ok(), "oriented disks both");
         let rfd = Settings { surface: crate::splat::scheme::SurfaceKind::Rfd, ..small.clone() };
-        assert_eq!(render(&scene, &rfd).unwrap_err().option, "surface");
+        assert_eq!(refused_option(render(&scene, &rfd)), "surface");
         let kd = Settings { accel: AccelKind::Kdtree, ..small };
-        assert_eq!(render(&scene, &kd).unwrap_err().option, "accel");
+        assert_eq!(refused_option(render(&scene, &kd)), "accel");
     }
 
     #[test]
@@ -855,9 +897,9 @@ mod tests {
             assert!(hits.iter().flatten().all(|h| h.splat % 2 == 1), "{accel:?}: only class 6, by the input's ids");
             // Settings that need another build are refused.
             let other = Settings { classes: None, ..s.clone() };
-            assert_eq!(render(&scene, &other).unwrap_err().option, "classes");
+            assert_eq!(refused_option(render(&scene, &other)), "classes");
             let other = Settings { color_by: ColorBy::Auto, ..s };
-            assert_eq!(render(&scene, &other).unwrap_err().option, "color_by");
+            assert_eq!(refused_option(render(&scene, &other)), "color_by");
         }
     }
 
@@ -894,7 +936,7 @@ mod tests {
         let s = Settings { width: 8, height: 8, color_by: ColorBy::Elevation, ..Settings::default() };
         let scene = sphere_scene(&s);
         assert!(render(&scene, &Settings { up: Some(Vec3::Y), ..s.clone() }).is_ok(), "the data's up, named");
-        assert_eq!(render(&scene, &Settings { up: Some(Vec3::Z), ..s }).unwrap_err().option, "up");
+        assert_eq!(refused_option(render(&scene, &Settings { up: Some(Vec3::Z), ..s })), "up");
     }
 
     #[test]
@@ -942,7 +984,7 @@ mod tests {
         let s = Settings { width: 40, height: 30, lod_threshold: 0.0, aovs: vec![Aov::Depth], ..Settings::default() };
         let scene = sphere_scene(&s);
         let job = scene.job(&s).unwrap();
-        let frame = job.render(&|_| {});
+        let frame = job.render(&|_| {}).unwrap();
         let rays: Vec<_> =
             (0..30).flat_map(|y| (0..40).map(move |x| (x, y))).map(|(x, y)| job.camera_ray(x, y)).collect();
         let hits = scene.intersect(&rays, &s).unwrap();
@@ -964,9 +1006,9 @@ mod tests {
         // (0.4, 0.3, 1) turned from +y to +z: (0.4, −1, 0.3), raised along z, from −y.
         let from = (job.camera.eye - centre).normalize();
         assert!((from - Vec3::new(0.4, -1.0, 0.3).normalize()).length() < 1e-5, "{from}");
-        assert_eq!(job.report(&job.render(&|_| {})).up, [0.0, 0.0, 1.0]);
+        assert_eq!(job.report(&job.render(&|_| {}).unwrap()).up, [0.0, 0.0, 1.0]);
         let told = Settings { up: Some(Vec3::Y), ..s };
-        assert_eq!(scene.job(&told).unwrap().report(&job.render(&|_| {})).up, [0.0, 1.0, 0.0]);
+        assert_eq!(scene.job(&told).unwrap().report(&job.render(&|_| {}).unwrap()).up, [0.0, 1.0, 0.0]);
     }
 
     #[test]
@@ -1041,7 +1083,7 @@ mod tests {
         };
         let scene = Scene::build(cloud.into(), &s).unwrap();
         let job = scene.job(&s).unwrap();
-        let frame = job.render(&|_| {});
+        let frame = job.render(&|_| {}).unwrap();
         // The frame is 2·tan 30° · 2√3 = 4 units high: the unit disk covers π/16 of it.
         let depth = &frame.film.first_hits.as_ref().unwrap().depth;
         let covered = depth.iter().filter(|d| d.is_finite()).count() as f64 / depth.len() as f64;

@@ -431,7 +431,7 @@ fn measure_point(
     let job = built.scene.job(&settings(e, model, p))?;
     let region = job.config.region;
     let t = Instant::now();
-    let Frame { film, stats, .. } = job.render(&|_| {});
+    let Frame { film, stats, .. } = job.render(&|_| {})?;
     let first_seconds = t.elapsed().as_secs_f64();
     let image = region_srgb8(&film);
     let (w, h) = (region.width(), region.height());

@@ -103,10 +103,11 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     scene.set_environment_map(env_map);
     tracing::info!("built {} over {} splats in {:.3} s", scene.accel_name(), scene.points(), builds[0]);
     if a.turntable > 0 {
-        return super::turntable::run(a, &scene, &settings, quiet);
+        return super::turntable::run(a, &scene, &settings, quiet).context(input_name);
     }
     let job = scene.job(&settings).map_err(|e| failure::usage(flag_error(e).context(input_name.clone())))?;
-    let (frame, render_seconds, render_seconds_min) = render_frames(&job, a.bench_frames, quiet);
+    let (frame, render_seconds, render_seconds_min) =
+        render_frames(&job, a.bench_frames, quiet).with_context(|| input_name.clone())?;
     write_images(a, &a.output, &settings, &frame)?;
     let stats = &frame.stats;
     let mrays = stats.rays as f64 / render_seconds / 1e6;
@@ -190,10 +191,10 @@ fn build(parts: SceneParts, settings: &Settings, timed: u32, quiet: bool) -> any
 /// frame after frame would (they count no work: the statistics' counts are the first
 /// frame's). The frame, and the median and least seconds of the timed frames (the first
 /// frame's when there are none).
-fn render_frames(job: &RenderJob, timed: u32, quiet: bool) -> (Frame, f64, f64) {
+fn render_frames(job: &RenderJob, timed: u32, quiet: bool) -> Result<(Frame, f64, f64), pointray::RenderError> {
     let bar = crate::progress::bar(job.config.region.pixel_count(), "render", quiet);
     let t = Instant::now();
-    let frame = job.render(&|n| bar.inc(n));
+    let frame = job.render(&|n| bar.inc(n))?;
     let first_seconds = t.elapsed().as_secs_f64();
     bar.finish_and_clear();
     let (uncounted, mut times) = (job.uncounted(), Vec::new());
@@ -206,8 +207,8 @@ fn render_frames(job: &RenderJob, timed: u32, quiet: bool) -> (Frame, f64, f64) 
     }
     times.sort_by(f64::total_cmp);
     match times.len() {
-        0 => (frame, first_seconds, first_seconds),
-        _ => (frame, pointray::stats::median(&times), times[0]),
+        0 => Ok((frame, first_seconds, first_seconds)),
+        _ => Ok((frame, pointray::stats::median(&times), times[0])),
     }
 }
 

@@ -15,7 +15,7 @@ pub fn run(a: &RenderArgs, scene: &Scene, settings: &Settings, quiet: bool) -> a
     for (k, view) in views.iter().enumerate() {
         let job = scene.job(view).map_err(|e| failure::usage(super::render::flag_error(e)))?;
         let bar = crate::progress::bar(job.config.region.pixel_count(), "render", quiet);
-        let frame = job.render(&|n| bar.inc(n));
+        let frame = job.render(&|n| bar.inc(n))?;
         bar.finish_and_clear();
         let path = frame_path(&a.output, k);
         super::render::write_images(a, &path, view, &frame)?;

@@ -6,6 +6,7 @@
 //! file serves), with the cloud's up axis, view, sun and sky. A scene file's lights and
 //! materials, and an environment map, are refused when storing.
 
+use std::borrow::Cow;
 use std::ops::Range;
 use std::sync::{Arc, OnceLock};
 
@@ -21,7 +22,10 @@ use crate::shading::{Environment, Light};
 
 /// The arrays of a stored scene, in the order [`Scene::stored`] gives them and
 /// [`Scene::from_stored`] takes them: the BVH's, then the input's id of each splat slot.
-pub const SCENE_ARRAYS: [&str; 6] = [ARRAYS[0], ARRAYS[1], ARRAYS[2], ARRAYS[3], ARRAYS[4], "ids"];
+pub const SCENE_ARRAYS: [&str; 7] = [ARRAYS[0], ARRAYS[1], ARRAYS[2], ARRAYS[3], ARRAYS[4], ARRAYS[5], "ids"];
+
+/// A stored scene's arrays' bytes, named as [`SCENE_ARRAYS`].
+pub type SceneArrays<'a> = [Cow<'a, [u8]>; 7];
 
 /// Everything of a stored scene but its arrays.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -39,6 +43,8 @@ pub struct SceneMeta {
     /// The settings the accelerator was built with, which a render must ask for too.
     pub build: Build,
     pub bvh: BvhMeta,
+    /// CRC-32 of the ids, checked when a query first needs them.
+    pub ids_crc: u32,
 }
 
 /// Why a scene cannot be stored, or stored bytes are not a scene.
@@ -60,13 +66,26 @@ pub enum StoredSceneError {
     Meta(String),
 }
 
+/// The ids' CRC, checked once, when a query first names a point.
+pub(super) struct IdsCheck {
+    crc: u32,
+    whole: OnceLock<bool>,
+}
+
+impl IdsCheck {
+    pub(super) fn check(&self, ids: &[u8]) -> Result<(), super::RenderError> {
+        let whole = *self.whole.get_or_init(|| crc32fast::hash(ids) == self.crc);
+        if whole { Ok(()) } else { Err(super::RenderError::Damaged("the ids array (CRC mismatch)".into())) }
+    }
+}
+
 /// A stored scene's parts, checked (see [`Scene::from_stored`]): what [`Scene::build`] makes
 /// the scene from when [`super::SceneParts::stored`] holds one, as often as asked, without a copy.
 #[derive(Clone)]
 pub struct StoredScene {
     meta: SceneMeta,
     bytes: Arc<dyn StableBytes>,
-    ranges: [Range<usize>; 6],
+    ranges: [Range<usize>; 7],
 }
 
 impl StoredScene {
@@ -75,7 +94,7 @@ impl StoredScene {
     pub fn new(
         meta: SceneMeta,
         bytes: Arc<dyn StableBytes>,
-        ranges: [Range<usize>; 6],
+        ranges: [Range<usize>; 7],
     ) -> Result<Self, StoredSceneError> {
         Scene::from_stored(meta.clone(), Arc::clone(&bytes), ranges.clone())?;
         Ok(Self { meta, bytes, ranges })
@@ -99,7 +118,7 @@ impl std::fmt::Debug for StoredScene {
 impl Scene {
     /// What a scene file stores of this scene: its arrays' bytes (named as [`SCENE_ARRAYS`])
     /// and the rest.
-    pub fn stored(&self) -> Result<([&[u8]; 6], SceneMeta), StoredSceneError> {
+    pub fn stored(&self) -> Result<(SceneArrays<'_>, SceneMeta), StoredSceneError> {
         let Accelerator::Bvh(bvh) = &self.accel else {
             return Err(StoredSceneError::NotBvh(self.accel_name()));
         };
@@ -111,7 +130,7 @@ impl Scene {
         }
         let (arrays, bvh_meta) = bvh.arrays();
         let ids = self.ids.as_ref().map_or(&[][..], |ids| ids.as_bytes());
-        let [nodes, lod, blocks, representatives, aggregates] = arrays;
+        let [nodes, lod, blocks, representatives, aggregates, treelets] = arrays;
         let b = self.bounds;
         let meta = SceneMeta {
             points: self.points,
@@ -124,8 +143,9 @@ impl Scene {
             environment: self.environment.clone(),
             build: self.build.clone(),
             bvh: bvh_meta,
+            ids_crc: crc32fast::hash(ids),
         };
-        Ok(([nodes, lod, blocks, representatives, aggregates, ids], meta))
+        Ok(([nodes, lod, blocks, representatives, aggregates, treelets, Cow::Borrowed(ids)], meta))
     }
 
     /// The scene whose arrays lie in `ranges` (in [`SCENE_ARRAYS`]' order) of `bytes`, as
@@ -133,12 +153,12 @@ impl Scene {
     pub fn from_stored(
         meta: SceneMeta,
         bytes: Arc<dyn StableBytes>,
-        ranges: [Range<usize>; 6],
+        ranges: [Range<usize>; 7],
     ) -> Result<Scene, StoredSceneError> {
         check_meta(&meta).map_err(StoredSceneError::Meta)?;
-        let [nodes, lod, blocks, representatives, aggregates, ids] = ranges;
+        let [nodes, lod, blocks, representatives, aggregates, treelets, ids] = ranges;
         let ids = Stored::<u32>::from_bytes(Arc::clone(&bytes), ids).map_err(StoredSceneError::Ids)?;
-        let bvh = Bvh::from_stored(meta.bvh, bytes, [nodes, lod, blocks, representatives, aggregates])?;
+        let bvh = Bvh::from_stored(meta.bvh, bytes, [nodes, lod, blocks, representatives, aggregates, treelets])?;
         let slots = bvh.blocks.len() * block::BLOCK;
         if ids.len() != slots {
             return Err(StoredSceneError::IdCount(ids.len(), slots));
@@ -159,6 +179,7 @@ impl Scene {
             build_seconds: 0.0,
             ids: Some(ids),
             stored: true,
+            ids_check: Some(IdsCheck { crc: meta.ids_crc, whole: OnceLock::new() }),
             backfacing: OnceLock::new(),
             environment_map: None,
         })
@@ -189,9 +210,9 @@ mod tests {
     use crate::preprocess::{PreprocessConfig, preprocess};
     use crate::{Settings, render};
 
-    fn laid_out(arrays: [&[u8]; 6]) -> (Arc<dyn StableBytes>, [Range<usize>; 6]) {
+    fn laid_out(arrays: &[Cow<'_, [u8]>; 7]) -> (Arc<dyn StableBytes>, [Range<usize>; 7]) {
         let mut bytes = Vec::new();
-        let ranges = arrays.map(|a| {
+        let ranges = arrays.each_ref().map(|a| {
             bytes.resize(bytes.len().next_multiple_of(crate::accel::bvh::ARRAY_ALIGN), 0);
             let start = bytes.len();
             bytes.extend_from_slice(a);
@@ -209,7 +230,7 @@ mod tests {
         let (arrays, meta) = scene.stored().expect("a BVH from a cloud");
         // Through JSON, as a file keeps it.
         let meta: SceneMeta = serde_json::from_str(&serde_json::to_string(&meta).unwrap()).unwrap();
-        let (bytes, ranges) = laid_out(arrays);
+        let (bytes, ranges) = laid_out(&arrays);
         let back = Scene::from_stored(meta, bytes, ranges).expect("its own arrays");
         let image = |s: &Scene| render(s, &settings).unwrap().srgb8(settings.tone_map());
         assert_eq!(image(&back), image(&scene));
@@ -237,18 +258,18 @@ mod tests {
         let settings = Settings { width: 16, height: 16, ..Settings::default() };
         let scene = Scene::build(cloud.into(), &settings).unwrap();
         let (arrays, meta) = scene.stored().unwrap();
-        let (bytes, ranges) = laid_out(arrays);
+        let (bytes, ranges) = laid_out(&arrays);
         let back = Scene::from_stored(meta.clone(), bytes, ranges.clone()).unwrap();
         let kd = Settings { accel: AccelKind::Kdtree, ..settings.clone() };
         assert!(render(&back, &kd).is_err_and(|e| e.to_string().contains("accel")));
         // Damaged values the renderer would divide by or frame with.
-        let (bytes, _) = laid_out(arrays);
+        let (bytes, _) = laid_out(&arrays);
         let bad = SceneMeta { bounds: [[0.0, f32::NAN, 0.0], [1.0; 3]], ..meta.clone() };
         assert!(Scene::from_stored(bad, Arc::clone(&bytes), ranges.clone()).is_err());
         let bad = SceneMeta { up: [0.0; 3], ..meta.clone() };
         assert!(Scene::from_stored(bad, Arc::clone(&bytes), ranges.clone()).is_err());
         let mut short = ranges.clone();
-        short[5].end -= 4;
+        short[6].end -= 4;
         assert!(Scene::from_stored(meta, bytes, short).is_err_and(|e| e.to_string().contains("ids")));
     }
 

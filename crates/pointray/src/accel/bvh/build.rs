@@ -265,16 +265,22 @@ impl Bvh {
         let (lod, representatives, aggregates) = super::lod::build(&mut nodes, &disks, params.shape);
         drop(counts);
         let lod_floor = radius_quantile(nodes.iter().map(|n| n.min_radius).collect(), LOD_FLOOR_QUANTILE);
+        let cut = super::treelet::partition(nodes, lod, representatives, aggregates);
         let mut bvh = Bvh {
-            nodes: nodes.into(),
-            lod: lod.into(),
+            nodes: cut.nodes.into(),
+            lod: cut.lod.into(),
             blocks: blocks.into(),
-            representatives: representatives.into(),
-            aggregates: aggregates.into(),
+            representatives: cut.representatives.into(),
+            aggregates: cut.aggregates.into(),
+            treelets: cut.treelets.into(),
+            top_nodes: cut.top,
+            lazy: None,
             splat_count,
             bounds,
             depth,
             node_bounds: NodeBounds::Boxes,
+            plain_walk: true,
+            sphere_nodes: 0,
             lod_floor,
             wide_radius,
             coverage_density: Box::default(),

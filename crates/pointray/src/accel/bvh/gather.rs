@@ -34,6 +34,8 @@ pub(super) fn gather<V: FootprintVisitor>(
         if entry > visitor.t_cut() {
             continue;
         }
+        // A stored top's treelet: its root (see `treelet`), none if damaged.
+        let Some(child) = (if Bvh::is_treelet(child) { bvh.enter(child) } else { Some(child) }) else { continue };
         if child & LEAF != 0 {
             leaf(bvh, child, visitor, stats);
             continue;

@@ -103,7 +103,7 @@ fn child_range(child: u32, node_range: &[Range<usize>]) -> Range<usize> {
 
 /// The block range below every node. Children are stored after their parent, so one pass
 /// from the back sees every child before its parent.
-fn node_ranges(nodes: &[Node]) -> Vec<Range<usize>> {
+pub(super) fn node_ranges(nodes: &[Node]) -> Vec<Range<usize>> {
     let mut ranges = vec![0..0; nodes.len()];
     for k in (0..nodes.len()).rev() {
         let n = &nodes[k];
@@ -342,6 +342,7 @@ pub(super) fn choose_node_bounds(nodes: &mut [Node], lod: &[NodeLod], choice: No
 /// every disk below it, and its cone (about its representative's normal) every normal below it.
 pub(super) fn check_invariants(bvh: &Bvh) -> Result<(), String> {
     fn splats_below(bvh: &Bvh, child: u32) -> Vec<Splat> {
+        let child = if Bvh::is_treelet(child) { bvh.enter(child).expect("a whole treelet") } else { child };
         if child & LEAF != 0 {
             return leaf_splats(child).map(|j| bvh.splat(j)).collect();
         }

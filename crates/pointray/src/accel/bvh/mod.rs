@@ -19,6 +19,7 @@ pub(crate) mod lanes;
 mod lod;
 mod stored;
 pub(super) mod traverse;
+mod treelet;
 
 pub use build::BvhParams;
 pub use lod::NodeBounds;
@@ -154,11 +155,22 @@ pub struct Bvh {
     pub(crate) representatives: Stored<SplatBlock>,
     /// Per node, what the footprint prefilter knows of its children's disks.
     pub(crate) aggregates: Stored<lod::NodeAggregate>,
+    /// The subtrees below the top (see [`treelet`]), whose nodes follow the top's `top_nodes`.
+    pub(crate) treelets: Stored<treelet::Treelet>,
+    pub(crate) top_nodes: usize,
+    /// A stored tree's checks of its treelets, made as walks enter them (none in memory).
+    pub(crate) lazy: Option<Box<treelet::Lazy>>,
     /// The number of input splats.
     pub(crate) splat_count: usize,
     pub(crate) bounds: Aabb,
     pub(crate) depth: usize,
     pub(crate) node_bounds: NodeBounds,
+    /// Whether full-detail rays may take the loop without the multiresolution steps: boxes
+    /// everywhere, and a tree in memory (a stored top's treelet references are entered in the
+    /// other loop alone).
+    pub(crate) plain_walk: bool,
+    /// See [`Bvh::sphere_node_count`].
+    pub(crate) sphere_nodes: usize,
     /// The 5th percentile of `Node::min_radius` (`representative::LOD_FLOOR_QUANTILE`): a ray whose
     /// footprint, scaled by τ, stays below it all through the model takes the full-detail
     /// traversal, forgoing stops only at nodes among the smallest 5 %, where they would save
@@ -198,21 +210,32 @@ impl Bvh {
         self.node_bounds
     }
 
-    /// Nodes that test their children's spheres.
+    /// Nodes that test their children's spheres (counted when chosen: a stored tree's report
+    /// reads no node).
     pub fn sphere_node_count(&self) -> usize {
-        self.nodes.iter().filter(|n| n.used & SPHERE_NODE != 0).count()
+        self.sphere_nodes
     }
 
     /// Chooses the bounds the nodes test anew (cheap: the spheres are already there).
+    ///
+    /// # Panics
+    /// On a stored tree (`from_stored`), whose bounds are its file's.
     pub fn set_node_bounds(&mut self, choice: NodeBounds) {
+        assert!(self.lazy.is_none(), "a stored tree keeps the bounds it was stored with");
         lod::choose_node_bounds(self.nodes.make_mut(), &self.lod, choice);
         self.node_bounds = choice;
+        self.plain_walk = choice == NodeBounds::Boxes;
+        self.sphere_nodes = self.nodes.iter().filter(|n| n.used & SPHERE_NODE != 0).count();
     }
 
-    /// Every input splat with its index, in no particular order.
+    /// Every input splat with its index, in no particular order (a stored tree's treelets
+    /// checked on the way, any damaged left out, see [`Bvh::damage`]).
     pub fn splats(&self) -> impl Iterator<Item = (u32, Splat)> + '_ {
-        let leaves = self.nodes.iter().flat_map(|n| (0..WIDTH).filter(|&i| n.used & (1 << i) != 0).map(|i| n.child[i]));
-        leaves.filter(|c| c & LEAF != 0).flat_map(leaf_splats).map(|j| (j, self.splat(j)))
+        let mut leaves = Vec::new();
+        self.for_each_near(self.bounds.center(), f32::INFINITY, &mut super::TraversalStats::uncounted(), |j, _| {
+            leaves.push(j);
+        });
+        leaves.into_iter().map(|j| (j, self.splat(j)))
     }
 
     pub fn node_count(&self) -> usize {
@@ -287,8 +310,20 @@ impl super::Accel for Bvh {
         }
         let r2 = radius * radius;
         let mut stack = vec![0u32];
-        while let Some(k) = stack.pop() {
-            let n = &self.nodes[k as usize];
+        while let Some(child) = stack.pop() {
+            // A stored top's treelet: its root (see `treelet`), none if damaged.
+            let Some(child) = (if Bvh::is_treelet(child) { self.enter(child) } else { Some(child) }) else { continue };
+            if child & LEAF != 0 {
+                for j in leaf_splats(child) {
+                    let s = self.splat(j);
+                    stats.splat_tests += 1;
+                    if (s.center - center).length_squared() <= r2 {
+                        f(j, s);
+                    }
+                }
+                continue;
+            }
+            let n = &self.nodes[child as usize];
             stats.nodes_visited += 1;
             // Squared distance from the centre to each child's box (unused slots: infinite).
             let gap = |axis: usize| {
@@ -298,19 +333,8 @@ impl super::Accel for Bvh {
             let (gx, gy, gz) = (gap(0), gap(1), gap(2));
             let mut near = Lanes::bitmask((gx * gx + gy * gy + gz * gz).cmple(Lanes::splat(r2))) & (n.used & SLOTS);
             while near != 0 {
-                let child = n.child[near.trailing_zeros() as usize];
+                stack.push(n.child[near.trailing_zeros() as usize]);
                 near &= near - 1;
-                if child & LEAF == 0 {
-                    stack.push(child);
-                    continue;
-                }
-                for j in leaf_splats(child) {
-                    let s = self.splat(j);
-                    stats.splat_tests += 1;
-                    if (s.center - center).length_squared() <= r2 {
-                        f(j, s);
-                    }
-                }
             }
         }
     }
@@ -344,9 +368,14 @@ pub fn check_invariants(bvh: &Bvh) -> Result<(), String> {
                 }
                 continue;
             }
-            let below = if n.child[i] & LEAF != 0 {
+            let child = if Bvh::is_treelet(n.child[i]) {
+                bvh.enter(n.child[i]).ok_or(format!("node {node} child {i}: a damaged treelet"))?
+            } else {
+                n.child[i]
+            };
+            let below = if child & LEAF != 0 {
                 let mut b = Vec::new();
-                for j in leaf_splats(n.child[i]) {
+                for j in leaf_splats(child) {
                     let flag = seen.get_mut(j as usize).ok_or(format!("leaf of node {node} points past the splats"))?;
                     if std::mem::replace(flag, true) {
                         return Err(format!("splat {j} is in two leaves"));
@@ -355,7 +384,7 @@ pub fn check_invariants(bvh: &Bvh) -> Result<(), String> {
                 }
                 b
             } else {
-                walk(bvh, n.child[i] as usize, seen)?
+                walk(bvh, child as usize, seen)?
             };
             if let Some(bad) = below.iter().find(|b| !boxed.contains_box(b)) {
                 return Err(format!("node {node} child {i}: {boxed:?} does not contain {bad:?}"));

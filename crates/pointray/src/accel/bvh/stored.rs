@@ -1,12 +1,16 @@
-//! The BVH as a scene file keeps it (`pointray_io::prs`): its five arrays as bytes and its
-//! scalars as [`BvhMeta`]; and back, from bytes that stay mapped, checked so that no stored
-//! value can send a traversal out of its arrays or past its stack ([`Bvh::from_stored`]).
+//! The BVH as a scene file keeps it (`pointray_io::prs`): its arrays as bytes (its top's nodes
+//! naming their treelets, see [`super::treelet`]) and its scalars as [`BvhMeta`]; and back, from
+//! bytes that stay mapped. The top is checked when the tree is made (its CRC, and that its nodes
+//! lead only to top nodes after them and to treelets); each treelet when a walk first enters it,
+//! so that opening reads the top alone and a view the treelets it enters.
 
+use std::borrow::Cow;
 use std::ops::Range;
 use std::sync::Arc;
 
 use super::lod::{NodeAggregate, NodeLod};
-use super::{Bvh, LEAF, MAX_DEPTH, MAX_SPLATS, Node, SLOTS, WIDTH, leaf_blocks};
+use super::treelet::{Treelet, treelet_ref};
+use super::{Bvh, MAX_DEPTH, MAX_SPLATS, Node};
 use crate::accel::Accel;
 use crate::accel::block::{BLOCK, SplatBlock};
 use crate::accel::stored::{StableBytes, Stored, StoredError};
@@ -29,10 +33,17 @@ pub struct BvhMeta {
     /// Found when the file was written, so that a prefiltered render of it reads no splat to
     /// find it.
     pub coverage_density: f32,
+    /// Nodes that test their children's spheres.
+    pub sphere_nodes: usize,
+    /// The nodes above the treelets, first in the node arrays.
+    pub top_nodes: usize,
+    /// CRC-32 of the top's bytes in the node arrays (nodes, spheres, representatives,
+    /// aggregates) and of the treelet table.
+    pub top_crc: u32,
 }
 
 /// The BVH's arrays, in the order [`Bvh::arrays`] gives them and [`Bvh::from_stored`] takes them.
-pub const ARRAYS: [&str; 5] = ["nodes", "lod", "blocks", "representatives", "aggregates"];
+pub const ARRAYS: [&str; 6] = ["nodes", "lod", "blocks", "representatives", "aggregates", "treelets"];
 
 /// The largest alignment of the arrays' elements: where each must start in a file.
 pub const ARRAY_ALIGN: usize = 64;
@@ -47,8 +58,20 @@ pub enum BvhStoredError {
 }
 
 impl Bvh {
-    /// The arrays' bytes (named as [`ARRAYS`]) and the scalars, to store.
-    pub fn arrays(&self) -> ([&[u8]; 5], BvhMeta) {
+    /// The arrays' bytes (named as [`ARRAYS`]) and the scalars, to store: the top's nodes name
+    /// their treelets, and each treelet carries its CRC.
+    pub fn arrays(&self) -> ([Cow<'_, [u8]>; 6], BvhMeta) {
+        let stored_top = self.lazy.is_some();
+        let mut treelets = self.treelets.to_vec();
+        let mut nodes: Cow<'_, [Node]> = Cow::Borrowed(&self.nodes);
+        if !stored_top {
+            let top = &mut nodes.to_mut()[..self.top_nodes];
+            for (t, treelet) in treelets.iter_mut().enumerate() {
+                top[treelet.parent as usize].child[treelet.slot as usize] = treelet_ref(t);
+                treelet.crc = self.treelet_crc(treelet);
+            }
+        }
+        let top = self.top_nodes;
         let b = self.bounds;
         let meta = BvhMeta {
             splat_count: self.splat_count,
@@ -59,58 +82,102 @@ impl Bvh {
             lod_floor: self.lod_floor,
             wide_radius: self.wide_radius,
             coverage_density: self.coverage_density(),
+            sphere_nodes: self.sphere_nodes,
+            top_nodes: top,
+            top_crc: top_crc(
+                &nodes[..top],
+                &self.lod[..top],
+                &self.representatives[..top],
+                &self.aggregates[..top],
+                &treelets,
+            ),
         };
         let arrays = [
-            self.nodes.as_bytes(),
-            self.lod.as_bytes(),
-            self.blocks.as_bytes(),
-            self.representatives.as_bytes(),
-            self.aggregates.as_bytes(),
+            node_bytes(nodes),
+            Cow::Borrowed(self.lod.as_bytes()),
+            Cow::Borrowed(self.blocks.as_bytes()),
+            Cow::Borrowed(self.representatives.as_bytes()),
+            Cow::Borrowed(self.aggregates.as_bytes()),
+            Cow::Owned(bytemuck::cast_slice(&treelets).to_vec()),
         ];
         (arrays, meta)
     }
 
     /// The BVH whose arrays lie in `ranges` (in [`ARRAYS`]' order) of `bytes`, as
-    /// [`Self::arrays`] gave them. Checked: the arrays' lengths agree, every child a node names
-    /// lies after it and within the arrays, and no path is deeper than the traversals' stacks
-    /// allow; the bounds, spheres and disks are taken as they are (a damaged value there draws
-    /// wrong, which the file's checksums are for).
+    /// [`Self::arrays`] gave them. Checked now: the arrays' lengths agree, the top's CRC, and
+    /// that its nodes lead only to top nodes after them and to the treelets the table names.
+    /// Each treelet is checked as a walk first enters it (its CRC, its children within it and
+    /// after their parents, its depth); a damaged one is walked as empty, and the damage told
+    /// by [`Bvh::damage`].
     pub fn from_stored(
         meta: BvhMeta,
         bytes: Arc<dyn StableBytes>,
-        ranges: [Range<usize>; 5],
+        ranges: [Range<usize>; 6],
     ) -> Result<Bvh, BvhStoredError> {
-        let [nodes, lod, blocks, representatives, aggregates] = ranges;
+        let [nodes, lod, blocks, representatives, aggregates, treelets] = ranges;
         let array = |i: usize, e: StoredError| BvhStoredError::Array { array: ARRAYS[i], source: e };
         let nodes = Stored::<Node>::from_bytes(Arc::clone(&bytes), nodes).map_err(|e| array(0, e))?;
         let lod = Stored::<NodeLod>::from_bytes(Arc::clone(&bytes), lod).map_err(|e| array(1, e))?;
         let blocks = Stored::<SplatBlock>::from_bytes(Arc::clone(&bytes), blocks).map_err(|e| array(2, e))?;
         let representatives =
             Stored::<SplatBlock>::from_bytes(Arc::clone(&bytes), representatives).map_err(|e| array(3, e))?;
-        let aggregates = Stored::<NodeAggregate>::from_bytes(bytes, aggregates).map_err(|e| array(4, e))?;
+        let aggregates =
+            Stored::<NodeAggregate>::from_bytes(Arc::clone(&bytes), aggregates).map_err(|e| array(4, e))?;
+        let treelets = Stored::<Treelet>::from_bytes(bytes, treelets).map_err(|e| array(5, e))?;
         let [lo, hi] = meta.bounds;
-        let bvh = Bvh {
+        let mut bvh = Bvh {
             nodes,
             lod,
             blocks,
             representatives,
             aggregates,
+            treelets,
+            top_nodes: meta.top_nodes,
+            lazy: None,
             splat_count: meta.splat_count,
             bounds: Aabb::new(lo.into(), hi.into()),
             depth: meta.depth,
             node_bounds: meta.node_bounds,
+            plain_walk: false,
+            sphere_nodes: meta.sphere_nodes,
             lod_floor: meta.lod_floor,
             wide_radius: meta.wide_radius,
             coverage_density: Box::new(meta.coverage_density.into()),
             shape: meta.shape,
         };
-        check_structure(&bvh).map_err(BvhStoredError::Structure)?;
+        check_top(&bvh, meta.top_crc).map_err(BvhStoredError::Structure)?;
+        bvh.lazy = Some(Box::new(bvh.lazy_checks().map_err(BvhStoredError::Structure)?));
         Ok(bvh)
     }
 }
 
-/// What [`Bvh::from_stored`] checks (one pass over the nodes).
-fn check_structure(bvh: &Bvh) -> Result<(), String> {
+fn node_bytes(nodes: Cow<'_, [Node]>) -> Cow<'_, [u8]> {
+    match nodes {
+        Cow::Borrowed(n) => Cow::Borrowed(bytemuck::cast_slice(n)),
+        Cow::Owned(n) => Cow::Owned(bytemuck::cast_slice(&n).to_vec()),
+    }
+}
+
+/// The CRC of a top: its nodes (as stored, naming their treelets), spheres, representatives
+/// and aggregates, then the treelet table.
+fn top_crc(
+    nodes: &[Node],
+    lod: &[NodeLod],
+    reps: &[SplatBlock],
+    aggregates: &[NodeAggregate],
+    treelets: &[Treelet],
+) -> u32 {
+    let mut crc = crc32fast::Hasher::new();
+    crc.update(bytemuck::cast_slice(nodes));
+    crc.update(bytemuck::cast_slice(lod));
+    crc.update(bytemuck::cast_slice(reps));
+    crc.update(bytemuck::cast_slice(aggregates));
+    crc.update(bytemuck::cast_slice(treelets));
+    crc.finalize()
+}
+
+/// What [`Bvh::from_stored`] checks of the arrays' lengths and the top's bytes.
+fn check_top(bvh: &Bvh, crc: u32) -> Result<(), String> {
     let n = bvh.nodes.len();
     if [bvh.lod.len(), bvh.representatives.len(), bvh.aggregates.len()] != [n; 3] {
         return Err(format!(
@@ -124,36 +191,14 @@ fn check_structure(bvh: &Bvh) -> Result<(), String> {
     if splats > MAX_SPLATS || splats > capacity || capacity > MAX_SPLATS + BLOCK || (n == 0) != (splats == 0) {
         return Err(format!("{splats} splats in {} blocks and {n} nodes", bvh.blocks.len()));
     }
-    if bvh.depth > MAX_DEPTH {
-        return Err(format!("depth {} beyond {MAX_DEPTH}", bvh.depth));
+    let top = bvh.top_nodes;
+    if bvh.depth > MAX_DEPTH || top > n || (top == 0) != (n == 0) {
+        return Err(format!("depth {} (at most {MAX_DEPTH}), {top} top nodes of {n}", bvh.depth));
     }
-    // Depth first, parents before children: each node's depth is known when it is reached.
-    let mut depth = vec![u8::MAX; n];
-    if let Some(root) = depth.first_mut() {
-        *root = 1;
-    }
-    for (k, node) in bvh.nodes.iter().enumerate() {
-        let d = depth[k];
-        if d == u8::MAX {
-            return Err(format!("node {k} has no parent before it"));
-        }
-        for i in (0..WIDTH).filter(|&i| node.used & SLOTS & (1 << i) != 0) {
-            let child = node.child[i];
-            if child & LEAF != 0 {
-                if leaf_blocks(child).end > bvh.blocks.len() {
-                    return Err(format!("node {k} child {i}: a leaf past the {} blocks", bvh.blocks.len()));
-                }
-                continue;
-            }
-            let c = child as usize;
-            if c <= k || c >= n {
-                return Err(format!("node {k} child {i}: node {c}, not after it among {n}"));
-            }
-            if usize::from(d) >= MAX_DEPTH {
-                return Err(format!("node {c} lies deeper than {MAX_DEPTH} levels"));
-            }
-            depth[c] = d + 1;
-        }
+    let stored =
+        top_crc(&bvh.nodes[..top], &bvh.lod[..top], &bvh.representatives[..top], &bvh.aggregates[..top], &bvh.treelets);
+    if stored != crc {
+        return Err("its top is damaged (CRC mismatch)".into());
     }
     Ok(())
 }
@@ -163,72 +208,145 @@ mod tests {
     use super::*;
     use crate::accel::BvhParams;
     use crate::accel::stored::AlignedBytes;
+    use crate::math::{Ray, RayCone};
     use crate::splat::Splat;
+    use crate::splat::scheme::{SurfaceScheme, intersect};
     use glam::Vec3;
 
     /// The arrays laid end to end, each on a 64-byte boundary, as a file would hold them.
-    fn laid_out(bvh: &Bvh) -> (Arc<dyn StableBytes>, [Range<usize>; 5], BvhMeta) {
+    fn laid_out(bvh: &Bvh) -> (Vec<u8>, [Range<usize>; 6], BvhMeta) {
         let (arrays, meta) = bvh.arrays();
         let mut bytes = Vec::new();
         let ranges = arrays.map(|a| {
             bytes.resize(bytes.len().next_multiple_of(ARRAY_ALIGN), 0);
             let start = bytes.len();
-            bytes.extend_from_slice(a);
+            bytes.extend_from_slice(&a);
             start..bytes.len()
         });
-        (Arc::new(AlignedBytes::copy_of(&bytes)), ranges, meta)
+        (bytes, ranges, meta)
     }
 
+    fn stored(bvh: &Bvh) -> Bvh {
+        let (bytes, ranges, meta) = laid_out(bvh);
+        Bvh::from_stored(meta, Arc::new(AlignedBytes::copy_of(&bytes)), ranges).expect("a BVH's own arrays")
+    }
+
+    /// A wavy sheet of `n`² disks in the unit square at z ≈ 0.
     fn sheet(n: usize) -> Vec<Splat> {
+        let step = 1.0 / n as f32;
         (0..n * n)
             .map(|i| Splat {
-                center: Vec3::new((i % n) as f32, (i / n) as f32, ((i * 7) % 5) as f32 * 0.1),
-                radius: 0.8,
+                center: Vec3::new((i % n) as f32 * step, (i / n) as f32 * step, ((i * 7) % 5) as f32 * 0.1 * step),
+                radius: 0.8 * step,
                 normal: Vec3::Z,
                 color: 0xff00_8040 + i as u32,
             })
             .collect()
     }
 
+    /// First hits of a grid of rays down onto the sheet, at full detail or with a wide footprint.
+    fn hits(bvh: &Bvh, lod: bool) -> Vec<Option<(u32, u32)>> {
+        let cone = if lod { RayCone { width0: 0.4, spread: 0.0 } } else { RayCone::default() };
+        (0..400)
+            .map(|i| {
+                let mut ray = Ray::new(
+                    Vec3::new((i % 20) as f32 / 20.0 + 0.01, (i / 20) as f32 / 20.0 + 0.01, 1.0),
+                    -Vec3::Z,
+                    cone,
+                );
+                ray.lod_threshold = if lod { 1.0 } else { 0.0 };
+                let mut stats = crate::accel::TraversalStats::uncounted();
+                intersect(bvh, &ray, &SurfaceScheme::sj(), &mut stats).map(|h| (h.t.to_bits(), h.splat))
+            })
+            .collect()
+    }
+
+    fn checked(bvh: &Bvh) -> usize {
+        bvh.lazy.as_ref().map_or(0, |l| l.checked())
+    }
+
     #[test]
-    fn a_stored_bvh_is_the_bvh_it_was() {
-        let bvh = Bvh::build(sheet(40), &BvhParams::standard());
-        let (bytes, ranges, meta) = laid_out(&bvh);
-        let back = Bvh::from_stored(meta.clone(), bytes, ranges).expect("a BVH's own arrays");
-        assert_eq!(back.arrays(), bvh.arrays());
-        assert_eq!(meta.coverage_density, bvh.coverage_density());
+    fn a_stored_bvh_walks_as_the_bvh_it_was_reading_the_treelets_it_enters() {
+        let bvh = Bvh::build(sheet(300), &BvhParams::standard());
+        assert!(bvh.treelets.len() > 20, "{} treelets", bvh.treelets.len());
+        let back = stored(&bvh);
+        assert_eq!(checked(&back), 0, "opening reads the top alone");
+        // Wide footprints stop above the treelets.
+        let far = hits(&back, true);
+        assert!(checked(&back) < bvh.treelets.len() / 4, "{} of {} treelets read", checked(&back), bvh.treelets.len());
+        assert_eq!(far, hits(&bvh, true));
+        assert!(far.iter().flatten().count() > 300);
+        assert_eq!(hits(&back, false), hits(&bvh, false));
         super::super::check_invariants(&back).expect("its invariants");
-        let hits = |b: &Bvh| {
-            let ray = crate::math::Ray::new(Vec3::new(10.3, 20.6, 5.0), -Vec3::Z, Default::default());
-            let mut stats = crate::accel::TraversalStats::uncounted();
-            crate::splat::scheme::intersect(b, &ray, &crate::splat::scheme::SurfaceScheme::sj(), &mut stats)
-                .map(|h| (h.t.to_bits(), h.splat))
+        assert_eq!(back.damage(), None);
+        let (again, meta) = back.arrays();
+        let (first, _) = bvh.arrays();
+        assert!(again == first && meta == bvh.arrays().1, "stored again, the same bytes");
+        assert_eq!(meta.coverage_density, bvh.coverage_density());
+    }
+
+    #[test]
+    fn every_treelet_is_a_run_of_the_arrays_below_the_top() {
+        let bvh = Bvh::build(sheet(200), &BvhParams::standard());
+        let top = bvh.top_nodes;
+        let (mut nodes, mut blocks) = (top, 0);
+        for t in bvh.treelets.iter() {
+            assert_eq!((t.node_range().start, t.block_range().start), (nodes, blocks), "{t:?}");
+            (nodes, blocks) = (t.node_range().end, t.block_range().end);
+            assert!(t.block_range().len() * crate::accel::block::BLOCK <= 2 * super::super::treelet::TREELET_SPLATS);
+            assert_eq!(bvh.nodes[t.parent as usize].child[t.slot as usize], t.root);
+        }
+        assert_eq!((nodes, blocks), (bvh.nodes.len(), bvh.blocks.len()));
+    }
+
+    #[test]
+    fn a_damaged_treelet_is_found_when_entered_and_walked_as_empty() {
+        let bvh = Bvh::build(sheet(300), &BvhParams::standard());
+        let (bytes, ranges, meta) = laid_out(&bvh);
+        // Damage the blocks of the treelet under the ray at (0.51, 0.51).
+        let ray = |b: &Bvh| {
+            let ray = Ray::new(Vec3::new(0.51, 0.51, 1.0), -Vec3::Z, RayCone::default());
+            intersect(b, &ray, &SurfaceScheme::sj(), &mut crate::accel::TraversalStats::uncounted()).map(|h| h.splat)
         };
-        assert!(hits(&bvh).is_some());
-        assert_eq!(hits(&back), hits(&bvh));
+        let hit = ray(&bvh).expect("the sheet") as usize / crate::accel::block::BLOCK;
+        let t = bvh.treelets.iter().position(|t| t.block_range().contains(&hit)).unwrap();
+        let mut raw = bytes.clone();
+        raw[ranges[2].start + hit * size_of::<SplatBlock>() + 3] ^= 1;
+        let back = Bvh::from_stored(meta, Arc::new(AlignedBytes::copy_of(&raw)), ranges).expect("the top is whole");
+        assert_eq!(hits(&back, true).len(), 400, "far rays need not enter it");
+        assert_ne!(ray(&back), ray(&bvh), "walked as empty");
+        let damage = back.damage().expect("found");
+        assert!(damage.contains(&format!("treelet {t}")) && damage.contains("CRC"), "{damage}");
+        assert!(back.check_all().is_err());
     }
 
     #[test]
     fn stored_bytes_that_are_no_bvh_are_refused() {
-        let bvh = Bvh::build(sheet(30), &BvhParams::standard());
-        let (arrays, _) = bvh.arrays();
-        type Edit<'a> = dyn Fn(&mut Vec<u8>, &mut [Range<usize>; 5], &mut BvhMeta) + 'a;
+        let bvh = Bvh::build(sheet(200), &BvhParams::standard());
+        type Edit<'a> = dyn Fn(&mut Vec<u8>, &mut [Range<usize>; 6], &mut BvhMeta) + 'a;
         let refused = |edit: &Edit<'_>| {
-            let (bytes, mut ranges, mut meta) = laid_out(&bvh);
-            let mut raw = bytes.bytes().to_vec();
+            let (mut raw, mut ranges, mut meta) = laid_out(&bvh);
             edit(&mut raw, &mut ranges, &mut meta);
             Bvh::from_stored(meta, Arc::new(AlignedBytes::copy_of(&raw)), ranges).err().map(|e| e.to_string())
         };
         assert_eq!(refused(&|_, _, _| ()), None, "untouched");
-        // A node's first child pointing back at the root (a cycle).
+        // The root's first child: damaged bytes, then the same with the CRC made to match.
         let child0 = std::mem::offset_of!(Node, child);
-        let err = refused(&|raw, r, _| raw[r[0].start + child0..][..4].copy_from_slice(&0u32.to_le_bytes()));
-        assert!(err.as_deref().is_some_and(|e| e.contains("not after it")), "{err:?}");
-        // A leaf past the blocks.
-        let leaf = LEAF | (arrays[2].len() / size_of::<SplatBlock>()) as u32;
-        let err = refused(&|raw, r, _| raw[r[0].start + child0..][..4].copy_from_slice(&leaf.to_le_bytes()));
-        assert!(err.as_deref().is_some_and(|e| e.contains("past the")), "{err:?}");
-        // Arrays of different lengths, a ragged one, a depth beyond the stack.
+        let err = refused(&|raw, r, _| raw[r[0].start + child0] ^= 1);
+        assert!(err.as_deref().is_some_and(|e| e.contains("top is damaged")), "{err:?}");
+        let cycle = |raw: &mut Vec<u8>, r: &mut [Range<usize>; 6], m: &mut BvhMeta| {
+            raw[r[0].start + child0..][..4].copy_from_slice(&0u32.to_le_bytes());
+            let top = |i: usize, size: usize| &raw[r[i].start..r[i].start + m.top_nodes * size];
+            let (n, l, rep, a) = (top(0, 256), top(1, 64), top(3, 176), top(4, 64));
+            let mut crc = crc32fast::Hasher::new();
+            for part in [n, l, rep, a, &raw[r[5].clone()]] {
+                crc.update(part);
+            }
+            m.top_crc = crc.finalize();
+        };
+        let err = refused(&cycle);
+        assert!(err.as_deref().is_some_and(|e| e.contains("no top node after it")), "{err:?}");
+        // Arrays of different lengths, a ragged one, a depth beyond the stack, too many splats.
         let err = refused(&|_, r, _| r[1].end -= 64);
         assert!(err.as_deref().is_some_and(|e| e.contains("spheres")), "{err:?}");
         let err = refused(&|_, r, _| r[2].end -= 1);

@@ -223,7 +223,7 @@ fn dispatch<V: SplatVisitor, K: LeafKernel, const COUNT: bool>(
     let reach = if ray.cull_backfaces { f32::INFINITY } else { lod_reach };
     let levels = Levels { lod_reach, reach };
     let mut counts = TraversalStats::default();
-    if lod || ray.cull_backfaces || bvh.node_bounds != super::NodeBounds::Boxes {
+    if lod || ray.cull_backfaces || !bvh.plain_walk {
         multires(visitor, stats, &levels);
     } else {
         traverse_from::<V, K, false>(bvh, ray, visitor, &mut counts, stack, &levels, kernel);
@@ -332,7 +332,28 @@ fn traverse_from<V: SplatVisitor, K: LeafKernel, const MULTIRES: bool>(
                 }
             } else {
                 let k = child as usize;
-                let node = &bvh.nodes[k];
+                // Past the nodes: a stored top's treelet, entered at its root (checked the
+                // first time), or walked as empty if damaged. Stored trees take the
+                // multiresolution loop only (see `dispatch`), so that the full-detail one keeps
+                // its bounds check's panic path (a branch on to the stack there cost the dragon's
+                // first hits 699 → 707 instructions a pixel, callgrind).
+                let node = match bvh.nodes.get(k) {
+                    Some(node) => node,
+                    None if MULTIRES => match bvh.enter(child) {
+                        Some(root) => {
+                            current = (root, entry);
+                            continue;
+                        }
+                        None => match stack.pop() {
+                            Some(next) => {
+                                current = next;
+                                continue;
+                            }
+                            None => return,
+                        },
+                    },
+                    None => unreachable!("a treelet reference in the full-detail loop"),
+                };
                 stats.nodes_visited += 1;
                 let t1 = cull_limit(visitor.t_max());
                 let (t, mut mask) = if MULTIRES && node.multires_below < levels.reach {
