@@ -57,6 +57,22 @@ def test_the_python_image_is_the_cli_png(tmp_path, sphere_file, options):
     assert np.array_equal(pointray.to_srgb8(image, **tone), expected)
 
 
+@pytest.mark.skipif(not BIN, reason="POINTRAY_BIN not set")
+def test_a_scene_file_renders_and_answers_as_its_cloud(tmp_path, sphere_file):
+    stored = tmp_path / "sphere.prs"
+    subprocess.run([BIN, "-q", "prepare", str(sphere_file), "-o", str(stored)], check=True)
+    cloud, scene = pointray.prepare(str(sphere_file)), pointray.prepare(str(stored))
+    assert len(scene) == len(cloud) == 3000
+    options = dict(width=64, height=48, spp=2)
+    assert np.array_equal(pointray.render(scene, **options), pointray.render(cloud, **options))
+    origins, directions = cloud.camera_rays(width=40, height=32)
+    rays = (origins.reshape(-1, 3), directions.reshape(-1, 3))
+    for a, b in zip(scene.intersect(*rays), cloud.intersect(*rays)):
+        assert np.array_equal(a, b)
+    with pytest.raises(ValueError, match="accel"):
+        pointray.render(scene, accel="kdtree", **options)
+
+
 def test_a_cloud_from_numpy_renders_like_its_file(sphere_file):
     read = pointray.read_cloud(sphere_file)
     assert len(read) == 3000 and read.normals is None

@@ -320,6 +320,57 @@ mod tests {
         assert!(back.check_all().is_err());
     }
 
+    /// Recomputes every CRC of laid-out arrays after an edit, as a hostile writer would: what
+    /// is left to catch is the structure.
+    fn reseal(raw: &mut [u8], r: &[Range<usize>; 6], meta: &mut BvhMeta) {
+        let sizes = [size_of::<Node>(), size_of::<NodeLod>(), 0, size_of::<SplatBlock>(), size_of::<NodeAggregate>()];
+        let part = |raw: &[u8], i: usize, range: Range<usize>, size: usize| {
+            raw[r[i].start + range.start * size..][..range.len() * size].to_vec()
+        };
+        let mut treelets: Vec<Treelet> =
+            raw[r[5].clone()].chunks(size_of::<Treelet>()).map(bytemuck::pod_read_unaligned).collect();
+        for t in &mut treelets {
+            let mut crc = crc32fast::Hasher::new();
+            for i in [0, 1, 3, 4] {
+                crc.update(&part(raw, i, t.node_range(), sizes[i]));
+            }
+            crc.update(&part(raw, 2, t.block_range(), size_of::<SplatBlock>()));
+            t.crc = crc.finalize();
+        }
+        raw[r[5].clone()].copy_from_slice(bytemuck::cast_slice(&treelets));
+        let mut crc = crc32fast::Hasher::new();
+        for i in [0, 1, 3, 4] {
+            crc.update(&part(raw, i, 0..meta.top_nodes, sizes[i]));
+        }
+        crc.update(&raw[r[5].clone()]);
+        meta.top_crc = crc.finalize();
+    }
+
+    #[test]
+    fn a_treelet_whose_structure_is_bad_is_damage_not_a_panic() {
+        let bvh = Bvh::build(sheet(200), &BvhParams::standard());
+        let t = bvh.treelets.iter().find(|t| t.node_range().len() > 1).copied().expect("a treelet of nodes");
+        let at = |k: usize, i: usize| k * size_of::<Node>() + std::mem::offset_of!(Node, child) + 4 * i;
+        let slot = |k: usize| {
+            (0..8).find(|&i| bvh.nodes[k].used & (1 << i) != 0 && bvh.nodes[k].child[i] & super::super::LEAF == 0)
+        };
+        let k = t.node_range().start;
+        let i = slot(k).expect("the root has an inner child");
+        for (what, child) in [
+            ("a cycle", k as u32),
+            ("past the nodes", bvh.nodes.len() as u32 + 5),
+            ("a leaf outside", super::super::LEAF | 3),
+        ] {
+            let (mut raw, ranges, mut meta) = laid_out(&bvh);
+            raw[ranges[0].start + at(k, i)..][..4].copy_from_slice(&child.to_le_bytes());
+            reseal(&mut raw, &ranges, &mut meta);
+            let back = Bvh::from_stored(meta, Arc::new(AlignedBytes::copy_of(&raw)), ranges).expect("the top is whole");
+            assert!(back.check_all().is_err_and(|e| e.contains("treelet")), "{what}");
+            hits(&back, false);
+            assert!(back.damage().is_some(), "{what}");
+        }
+    }
+
     #[test]
     fn stored_bytes_that_are_no_bvh_are_refused() {
         let bvh = Bvh::build(sheet(200), &BvhParams::standard());
