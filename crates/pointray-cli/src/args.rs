@@ -148,9 +148,8 @@ pub struct RenderArgs {
     /// splat (the reference for tests).
     #[arg(long, value_enum, default_value_t = D.accel)]
     pub accel: AccelKind,
-    /// How the disks a ray crosses become a surface point.
-    #[arg(long, value_enum, default_value_t = D.surface)]
-    pub surface: SurfaceKind,
+    #[command(flatten)]
+    pub build: BuildArgs,
     /// SJ and RFD interpolation window, in radii of the first disk hit [default: 1 for SJ and
     /// PSS, 2 for RFD].
     #[arg(long)]
@@ -291,30 +290,11 @@ pub struct RenderArgs {
     /// Degrees the --env-map turns about the up axis, anticlockwise seen from above.
     #[arg(long, default_value_t = D.env_rotation, allow_negative_numbers = true)]
     pub env_rotation: f32,
-    /// What the points' colours show: auto (the file's colours, else the material's), rgb,
-    /// intensity (viridis), classification (the ASPRS class colours), elevation (viridis along
-    /// --up) or normal.
-    #[arg(long, value_enum, default_value_t = D.color_by)]
-    pub color_by: ColorBy,
-    /// Draw only the points of these ASPRS classes (comma-separated codes: 2 ground, 6
-    /// building, 3-5 vegetation, 9 water, 7 and 18 noise).
-    #[arg(long, value_delimiter = ',')]
-    pub classes: Option<Vec<u8>>,
-    /// Leave out the points of these classes (e.g. 7,18: noise).
-    #[arg(long, value_delimiter = ',')]
-    pub exclude_classes: Vec<u8>,
     /// Eye-dome lighting, the depth cue of Potree and CloudCompare: a pixel darkens where its
     /// neighbours are nearer, outlining the edges of nearer surfaces over farther ones, the
     /// model against the background, and creases; the strength (1 is Potree's default), 0 off.
     #[arg(long, default_value_t = D.edl)]
     pub edl: f32,
-    /// Keep only the points inside this box, in the file's coordinates: X0,Y0,Z0,X1,Y1,Z1.
-    #[arg(long, allow_hyphen_values = true, value_parser = parse_clip_box)]
-    pub clip_box: Option<pointray::clip::ClipBox>,
-    /// A section: keep only the points with NX·x + NY·y + NZ·z <= D (file coordinates; the
-    /// normal points to the side cut away): NX,NY,NZ,D. May be given several times.
-    #[arg(long, allow_hyphen_values = true, value_parser = parse_clip_plane)]
-    pub clip_plane: Vec<pointray::clip::ClipPlane>,
 
     /// Level of detail: a subtree narrower than this many pixels (its bounding sphere's
     /// radius against the ray's footprint) is drawn as its representative splat; 0 is full
@@ -337,10 +317,6 @@ pub struct RenderArgs {
     /// and culling measured slower (docs/multires.md).
     #[arg(long, value_enum, default_value_t = D.cull)]
     pub cull: Cull,
-    /// Bounding volumes: boxes above this level of the tree (the root is 0), spheres from it
-    /// down; "never" for boxes only, "auto" to choose per node by surface area.
-    #[arg(long, value_parser = parse_sphere_level, default_value = "never")]
-    pub sphere_from_level: pointray::accel::NodeBounds,
     /// A PNG with alpha: the background transparent (the coverage as alpha, the colour with a
     /// flat background's share taken out), to composite over anything; an EXR gets an A layer.
     #[arg(long)]
@@ -393,8 +369,8 @@ impl RenderArgs {
             width: self.width,
             height: self.height,
             accel: self.accel,
-            sphere_from_level: self.sphere_from_level,
-            surface: self.surface,
+            sphere_from_level: self.build.sphere_from_level,
+            surface: self.build.surface,
             sj_window: self.sj_window,
             sj_min_coverage: self.sj_min_coverage,
             sj_min_coverage_facing_away: self.sj_min_coverage_facing_away,
@@ -426,12 +402,12 @@ impl RenderArgs {
             env_map: self.env_map.clone(),
             env_rotation: self.env_rotation,
             ground: self.ground,
-            color_by: self.color_by,
-            classes: self.classes.clone(),
-            exclude_classes: self.exclude_classes.clone(),
+            color_by: self.build.color_by,
+            classes: self.build.classes.clone(),
+            exclude_classes: self.build.exclude_classes.clone(),
             edl: self.edl,
-            clip_box: self.clip_box,
-            clip_planes: self.clip_plane.clone(),
+            clip_box: self.build.clip_box,
+            clip_planes: self.build.clip_plane.clone(),
             integrator: self.integrator,
             ao_distance: self.ao_distance,
             diffuse_spread: self.diffuse_spread,
@@ -462,6 +438,56 @@ impl PreprocessArgs {
     }
 }
 
+/// What a scene's accelerator holds: the render's flags that a `.prs` scene file keeps.
+#[derive(Args, Debug, Clone)]
+pub struct BuildArgs {
+    /// How the disks a ray crosses become a surface point.
+    #[arg(long, value_enum, default_value_t = D.surface)]
+    pub surface: SurfaceKind,
+    /// What the points' colours show: auto (the file's colours, else the material's), rgb,
+    /// intensity (viridis), classification (the ASPRS class colours), elevation (viridis along
+    /// --up) or normal.
+    #[arg(long, value_enum, default_value_t = D.color_by)]
+    pub color_by: ColorBy,
+    /// Draw only the points of these ASPRS classes (comma-separated codes: 2 ground, 6
+    /// building, 3-5 vegetation, 9 water, 7 and 18 noise).
+    #[arg(long, value_delimiter = ',')]
+    pub classes: Option<Vec<u8>>,
+    /// Leave out the points of these classes (e.g. 7,18: noise).
+    #[arg(long, value_delimiter = ',')]
+    pub exclude_classes: Vec<u8>,
+    /// Keep only the points inside this box, in the file's coordinates: X0,Y0,Z0,X1,Y1,Z1.
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_clip_box)]
+    pub clip_box: Option<pointray::clip::ClipBox>,
+    /// A section: keep only the points with NX·x + NY·y + NZ·z <= D (file coordinates; the
+    /// normal points to the side cut away): NX,NY,NZ,D. May be given several times.
+    #[arg(long, allow_hyphen_values = true, value_parser = parse_clip_plane)]
+    pub clip_plane: Vec<pointray::clip::ClipPlane>,
+    /// Bounding volumes: boxes above this level of the tree (the root is 0), spheres from it
+    /// down; "never" for boxes only, "auto" to choose per node by surface area.
+    #[arg(long, value_parser = parse_sphere_level, default_value = "never")]
+    pub sphere_from_level: pointray::accel::NodeBounds,
+}
+
+impl BuildArgs {
+    /// Default settings but for what these flags say.
+    pub fn settings(&self) -> Settings {
+        let b = self.clone();
+        let (color_by, classes, exclude_classes) = (b.color_by, b.classes, b.exclude_classes);
+        let (clip_box, clip_planes, sphere_from_level) = (b.clip_box, b.clip_plane, b.sphere_from_level);
+        Settings {
+            surface: b.surface,
+            color_by,
+            classes,
+            exclude_classes,
+            clip_box,
+            clip_planes,
+            sphere_from_level,
+            ..Settings::default()
+        }
+    }
+}
+
 #[derive(Args, Debug)]
 pub struct PrepareArgs {
     /// Point cloud (PLY, LAS/LAZ, E57, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf).
@@ -474,6 +500,9 @@ pub struct PrepareArgs {
     pub read: ReadArgs,
     #[command(flatten)]
     pub preprocess: PreprocessArgs,
+    /// To a `.prs` output: what its BVH holds (a render must ask for the same).
+    #[command(flatten)]
+    pub build: BuildArgs,
 }
 
 #[derive(Args, Debug)]

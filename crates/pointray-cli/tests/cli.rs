@@ -895,6 +895,26 @@ fn classified_sphere() -> String {
     s
 }
 
+/// A scene file prepared with the render's build flags (colour, classes, a clip) keeps them:
+/// rendered with the same flags it gives the cloud's image, without them it is refused; a
+/// prepared PLY refuses them (they would be lost).
+#[test]
+fn a_scene_file_keeps_the_build_flags_it_was_prepared_with() {
+    let dir = temp_dir();
+    write_file(dir.path(), "classified.ply", classified_sphere());
+    let build = ["--color-by", "intensity", "--classes", "6", "--clip-plane", "1,0,0,0.5"];
+    let prepare = [&["-q", "prepare", "classified.ply", "-o", "top.prs"][..], &build].concat();
+    run_in(dir.path(), &prepare).assert_success();
+    render_in(dir.path(), &[&["classified.ply", "-o", "cloud.png"][..], &build].concat()).assert_success();
+    render_in(dir.path(), &[&["top.prs", "-o", "file.png"][..], &build].concat()).assert_success();
+    let (cloud, file) = (read_png(&dir.path().join("cloud.png")), read_png(&dir.path().join("file.png")));
+    assert!(cloud.count_not(background_srgb8()) > 100 && cloud == file);
+    render_in(dir.path(), &["top.prs", "-o", "plain.png"]).assert_failure(1).assert_stderr_contains("--color-by");
+    let ply = [&["-q", "prepare", "classified.ply", "-o", "p.ply"][..], &build].concat();
+    run_in(dir.path(), &ply).assert_failure(2).assert_stderr_contains("scene file");
+    assert!(!dir.path().join("plain.png").exists() && !dir.path().join("p.ply").exists());
+}
+
 /// The share of the image's model pixels (not the background) where `test` holds.
 fn share_of_model(image: &Image, test: impl Fn([u8; 3]) -> bool) -> f64 {
     let model: Vec<[u8; 3]> = image.pixels().map(|(.., p)| p).filter(|&p| p != background_srgb8()).collect();

@@ -11,6 +11,13 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     if a.output.extension().is_some_and(|e| e.eq_ignore_ascii_case("prs")) {
         return scene_file(a, &config, quiet);
     }
+    if a.build.settings() != pointray::Settings::default() {
+        return Err(crate::failure::usage(anyhow::anyhow!(
+            "{}: the render's flags (--surface, --color-by, --classes, a clip, --sphere-from-level) apply to a scene file \
+             (-o NAME.prs), not to a prepared PLY",
+            a.output.display()
+        )));
+    }
     let spinner = crate::progress::spinner("read", quiet);
     let stage = |s: &str| spinner.set_message(s.to_string());
     let prepared = pointray_io::source::read_prepared(&a.input, &config, &a.read.options(), &stage)?;
@@ -33,14 +40,18 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// `prepare IN -o OUT.prs`: the scene a default render of IN builds, stored.
+/// `prepare IN -o OUT.prs`: the scene a render of IN with the same build flags builds, stored.
 fn scene_file(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig, quiet: bool) -> anyhow::Result<()> {
     let spinner = crate::progress::spinner("read", quiet);
     let stage = |s: &str| spinner.set_message(s.to_string());
     let source = pointray_io::source::load(&a.input, config, &a.read.options(), &stage)?;
     stage("build");
-    let scene = pointray::Scene::build(source.parts, &pointray::Settings::default())
-        .map_err(|e| anyhow::anyhow!("{}: {e}", a.input.display()))?;
+    let settings = a.build.settings();
+    settings.check().map_err(|e| crate::failure::usage(super::render::flag_error(e)))?;
+    let scene = pointray::Scene::build(source.parts, &settings).map_err(|e| match e {
+        pointray::scene::SceneError::Settings(e) => super::render::flag_error(e).context(a.input.display().to_string()),
+        e => anyhow::anyhow!("{}: {e}", a.input.display()),
+    })?;
     spinner.finish_and_clear();
     crate::progress::spinning("write", quiet, || pointray_io::prs::write_prs(&a.output, &scene))
         .map_err(crate::failure::output)?;
