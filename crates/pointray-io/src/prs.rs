@@ -76,10 +76,12 @@ pub fn write_prs(path: &Path, scene: &Scene) -> Result<(), IoError> {
     })
 }
 
-/// Whether `path` starts as a scene file does.
+/// Whether `path` is a regular file that starts as a scene file does (a pipe is never read
+/// here: its bytes are the cloud reader's).
 pub fn is_prs(path: &Path) -> bool {
     let mut start = [0; 8];
-    std::fs::File::open(path).and_then(|mut f| f.read_exact(&mut start)).is_ok() && start == MAGIC
+    let file = std::fs::File::open(path).ok().filter(|f| f.metadata().is_ok_and(|m| m.is_file()));
+    file.is_some_and(|mut f| f.read_exact(&mut start).is_ok() && start == MAGIC)
 }
 
 /// Opens the scene file at `path`: mapped, its header, index and metadata checked, and the

@@ -89,7 +89,7 @@ impl<T> std::ops::Deref for Stored<T> {
     fn deref(&self) -> &[T] {
         // SAFETY: `ptr` and `len` describe the whole of the owner's elements, which `self`
         // keeps alive: a `Vec`'s heap buffer, which stays put when the `Vec` moves and which
-        // nothing resizes (`make_mut` hands out only `&mut [T]` and then resets them), or
+        // nothing resizes (`modify` lends it as `&mut [T]`, then takes the pointer anew), or
         // `len` elements that `from_bytes` checked to lie, aligned, within bytes that
         // `StableBytes` promises stay valid and unchanged while their owner lives.
         unsafe { std::slice::from_raw_parts(self.ptr.as_ptr(), self.len) }
@@ -97,16 +97,17 @@ impl<T> std::ops::Deref for Stored<T> {
 }
 
 impl<T: Clone> Stored<T> {
-    /// The elements to change: in place where they are this array's own, else (borrowed) a
-    /// copy made its own first.
-    pub fn make_mut(&mut self) -> &mut [T] {
+    /// Lets `change` change the elements: in place where they are this array's own, else
+    /// (borrowed) in a copy made its own first.
+    pub fn modify<R>(&mut self, change: impl FnOnce(&mut [T]) -> R) -> R {
         if let Owner::Bytes(_) = self.owner {
             *self = Self::from(self.to_vec());
         }
         let Owner::Vec(vec) = &mut self.owner else { unreachable!("made its own above") };
-        let slice = vec.as_mut_slice();
-        self.ptr = NonNull::from(&mut *slice).cast();
-        slice
+        let changed = change(vec.as_mut_slice());
+        // Taken again after the change, so that no use of the `&mut` outlives the pointer.
+        self.ptr = NonNull::new(vec.as_mut_ptr()).expect("a Vec's pointer is never null");
+        changed
     }
 }
 
@@ -127,7 +128,7 @@ impl<T: std::fmt::Debug> std::fmt::Debug for Stored<T> {
 
 // SAFETY: a `Stored<T>` is a `&[T]` into memory it owns (a `Vec<T>`, which is `Send` and
 // `Sync` as `T` is) or shares immutably (`StableBytes` is `Send + Sync` and unchanging): sending
-// or sharing it sends or shares `T`s only for reading, or (`make_mut`) through `&mut self`.
+// or sharing it sends or shares `T`s only for reading, or (`modify`) through `&mut self`.
 #[allow(unsafe_code)]
 unsafe impl<T: Send + Sync> Send for Stored<T> {}
 // SAFETY: as for `Send`.
@@ -201,11 +202,11 @@ mod tests {
     fn changing_a_borrowed_array_changes_a_copy() {
         let bytes = shared(&[1, 2, 3, 4]);
         let mut a = Stored::<u32>::from_bytes(Arc::clone(&bytes), 0..16).unwrap();
-        a.make_mut()[0] = 9;
+        a.modify(|a| a[0] = 9);
         assert_eq!(&*a, &[9, 2, 3, 4]);
         assert_eq!(bytes.bytes()[0], 1, "the shared bytes are untouched");
         let mut b = Stored::from(vec![5u32, 6]);
-        b.make_mut()[1] = 7;
+        b.modify(|b| b[1] = 7);
         assert_eq!(&*b, &[5, 7]);
     }
 }

@@ -222,7 +222,8 @@ impl Bvh {
     /// On a stored tree (`from_stored`), whose bounds are its file's.
     pub fn set_node_bounds(&mut self, choice: NodeBounds) {
         assert!(self.lazy.is_none(), "a stored tree keeps the bounds it was stored with");
-        lod::choose_node_bounds(self.nodes.make_mut(), &self.lod, choice);
+        let lod = &self.lod;
+        self.nodes.modify(|nodes| lod::choose_node_bounds(nodes, lod, choice));
         self.node_bounds = choice;
         self.plain_walk = choice == NodeBounds::Boxes;
         self.sphere_nodes = self.nodes.iter().filter(|n| n.used & SPHERE_NODE != 0).count();
