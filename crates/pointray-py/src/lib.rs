@@ -207,6 +207,13 @@ impl Scene {
         Ok((Array1::from(t).into_pyarray(py), Array1::from(ids).into_pyarray(py), normals.into_pyarray(py)))
     }
 
+    /// Writes the scene as a scene file (`.prs`, written whole or not at all), which
+    /// `pointray.prepare` and `pointray render` open without a build, reading only what a view
+    /// needs. Only a BVH scene made from a lone cloud can be stored.
+    fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
+        py.detach(|| pointray_io::prs::write_prs(&path, &self.inner)).map_err(io_error)
+    }
+
     /// The camera's rays through every pixel's centre, for `intersect`: origins (H×W×3,
     /// float64) and directions (H×W×3, float32, not normalised). Options as for `render`.
     #[pyo3(signature = (**options))]

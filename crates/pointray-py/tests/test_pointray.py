@@ -62,6 +62,12 @@ def test_a_scene_file_renders_and_answers_as_its_cloud(tmp_path, sphere_file):
     stored = tmp_path / "sphere.prs"
     subprocess.run([BIN, "-q", "prepare", str(sphere_file), "-o", str(stored)], check=True)
     cloud, scene = pointray.prepare(str(sphere_file)), pointray.prepare(str(stored))
+    # Saved from Python, the same file.
+    cloud.save(str(tmp_path / "saved.prs"))
+    assert (tmp_path / "saved.prs").read_bytes() == stored.read_bytes()
+    with pytest.raises(ValueError, match="only a BVH"):
+        pointray.prepare(str(sphere_file), accel="kdtree").save(str(tmp_path / "kd.prs"))
+    assert not (tmp_path / "kd.prs").exists()
     assert len(scene) == len(cloud) == 3000
     options = dict(width=64, height=48, spp=2)
     assert np.array_equal(pointray.render(scene, **options), pointray.render(cloud, **options))
