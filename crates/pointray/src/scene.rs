@@ -128,6 +128,8 @@ pub enum SceneError {
     Settings(#[from] SettingsError),
     #[error("the stored scene: {0}")]
     Stored(#[from] StoredSceneError),
+    #[error(transparent)]
+    TooLarge(#[from] crate::accel::bvh::TooLarge),
 }
 
 /// The accelerators a scene can be built on; the render loop is monomorphised for each.
@@ -274,7 +276,7 @@ impl Scene {
         let accel = match build.accel {
             AccelKind::Bvh => {
                 let params = BvhParams { node_bounds: build.node_bounds, shape: build.shape, ..BvhParams::standard() };
-                let (bvh, slot_ids) = Bvh::build_with_ids(splats, &params);
+                let (bvh, slot_ids) = Bvh::try_build_with_ids(splats, &params)?;
                 ids = Some(slot_ids);
                 Accelerator::Bvh(bvh)
             }

@@ -109,7 +109,7 @@ impl Box3 {
 /// corners in SIMD lanes as the inner loops use them (with three floats a corner, loading one
 /// into lanes took four instructions: the 1-million-point torus's build 3.58 → 3.40 billion
 /// instructions, callgrind). The splat's index rides in the lower corner's fourth lane, as
-/// the bits of a float with bit 30 set: a normal number between 2 and 2¹⁷, which no lane's
+/// the bits of a float with bit 30 set: a normal number between 2 and 2³³, which no lane's
 /// arithmetic slows down, where a bare index would be subnormal. The upper corner's fourth lane
 /// holds the splat's grid step (`block::grid_step`), which decides how wide a leaf may be.
 #[derive(Clone, Copy)]
@@ -120,7 +120,7 @@ struct Prim {
 
 /// Set in a [`Prim`]'s index lane; indices take the bits below it.
 const INDEX_TAG: u32 = 1 << 30;
-const _: () = assert!(MAX_SPLATS <= 1 << 27, "an index lane's exponent must stay below 2^17");
+const _: () = assert!(MAX_SPLATS <= 1 << 28, "an index lane must stay a normal number below 2^33");
 
 impl Prim {
     fn new(bounds: Aabb, index: u32, grid_step: f32) -> Prim {
@@ -208,16 +208,34 @@ impl Bvh {
         Self::build_with_ids(input, params).0
     }
 
+    /// [`Self::try_build_with_ids`], which cannot fail below 2²⁷ splats (a block each at worst).
+    ///
+    /// # Panics
+    /// Where that fails, and with parameters out of range.
+    pub fn build_with_ids(input: Vec<Splat>, params: &BvhParams) -> (Bvh, Vec<u32>) {
+        Self::try_build_with_ids(input, params).unwrap_or_else(|e| panic!("{e}"))
+    }
+
     /// [`Self::build`], with each index's input splat (`ids[index]`, for the indices
     /// [`crate::accel::Accel::splat`] takes; `u32::MAX` for the gaps in partly filled blocks
     /// and the representatives past them): what a ray query needs to name the splat it hit.
-    pub fn build_with_ids(mut input: Vec<Splat>, params: &BvhParams) -> (Bvh, Vec<u32>) {
+    /// An error with more than [`MAX_SPLATS`] splats, or leaves in more blocks than a leaf
+    /// reference can name.
+    ///
+    /// # Panics
+    /// With parameters out of range.
+    pub fn try_build_with_ids(mut input: Vec<Splat>, params: &BvhParams) -> Result<(Bvh, Vec<u32>), TooLarge> {
         assert!((2..=MAX_BINS).contains(&params.bins) && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
-        assert!(input.len() <= MAX_SPLATS, "a BVH indexes at most {MAX_SPLATS} splats");
+        if input.len() > MAX_SPLATS {
+            return Err(TooLarge::Splats(input.len()));
+        }
         snap(&mut input);
         let mut prims = prims_of(&input, params);
         let extent = Extent::of(&prims);
         let root = build_node(&mut prims, extent, 0, params, 0);
+        if root.block_count() > super::MAX_BLOCKS {
+            return Err(TooLarge::Blocks(root.block_count()));
+        }
         // The leaf order alone (4 bytes a splat), so that the primitives (32) are gone before
         // the blocks are made.
         let order: Vec<u32> = prims.iter().map(Prim::index).collect();
@@ -287,8 +305,17 @@ impl Bvh {
             shape: params.shape,
         };
         bvh.set_node_bounds(params.node_bounds);
-        (bvh, ids)
+        Ok((bvh, ids))
     }
+}
+
+/// Why a BVH cannot index a cloud.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum TooLarge {
+    #[error("{0} splats is more than a BVH indexes ({MAX_SPLATS})")]
+    Splats(usize),
+    #[error("the leaves take {0} blocks of eight splats, more than a BVH names (2^27): the splats are too scattered")]
+    Blocks(usize),
 }
 
 /// The costs by which the binary build tree is collapsed into an 8-wide one: entry j − 1 is the

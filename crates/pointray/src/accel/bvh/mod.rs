@@ -21,7 +21,7 @@ mod stored;
 pub(super) mod traverse;
 mod treelet;
 
-pub use build::BvhParams;
+pub use build::{BvhParams, TooLarge};
 pub use lod::NodeBounds;
 pub use stored::{ARRAY_ALIGN, ARRAYS, BvhMeta, BvhStoredError};
 
@@ -45,11 +45,15 @@ const FIRST_BITS: u32 = 27;
 /// Most splats a leaf can hold (its splat count takes the four bits between `LEAF` and the
 /// first block).
 pub(crate) const MAX_LEAF_SIZE: usize = 16;
-/// Most splats a BVH can index (2²⁷ ≈ 134 million).
-pub const MAX_SPLATS: usize = 1 << FIRST_BITS;
+/// Most blocks a BVH can hold: a leaf reference names its first in `FIRST_BITS`.
+const MAX_BLOCKS: usize = 1 << FIRST_BITS;
+const SPLAT_BITS: u32 = FIRST_BITS + 1;
+/// Most splats a BVH can index (2²⁸ ≈ 268 million), where its leaves fill at least half their
+/// blocks on average (SAH leaves of 8 to 16 splats fill them; `Bvh::try_build` says if not).
+pub const MAX_SPLATS: usize = 1 << SPLAT_BITS;
 
 fn leaf_ref(first_block: usize, splats: usize) -> u32 {
-    debug_assert!((1..=MAX_LEAF_SIZE).contains(&splats) && first_block < MAX_SPLATS);
+    debug_assert!((1..=MAX_LEAF_SIZE).contains(&splats) && first_block < MAX_BLOCKS);
     LEAF | ((splats - 1) as u32) << FIRST_BITS | first_block as u32
 }
 
@@ -78,7 +82,7 @@ pub(crate) const MEDIAN_SPLIT_DEPTH: usize = 88;
 
 /// The deepest an 8-wide tree can be: each of its levels takes at least one level of the
 /// binary build tree, whose depth median splits bound.
-pub(crate) const MAX_DEPTH: usize = MEDIAN_SPLIT_DEPTH + FIRST_BITS as usize;
+pub(crate) const MAX_DEPTH: usize = MEDIAN_SPLIT_DEPTH + SPLAT_BITS as usize;
 
 /// Children per node.
 pub(crate) const WIDTH: usize = lanes::LANES;

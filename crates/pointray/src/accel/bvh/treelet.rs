@@ -21,7 +21,7 @@ use crate::accel::block::SplatBlock;
 pub(crate) const TREELET_SPLATS: usize = 4096;
 
 /// Where treelet references start: past any node index (a BVH has fewer nodes than splats,
-/// at most 2²⁷), below [`LEAF`].
+/// at most 2²⁸), below [`LEAF`].
 const TREELET_BASE: u32 = 1 << 30;
 
 /// The child reference of treelet `t` in a stored top node.
