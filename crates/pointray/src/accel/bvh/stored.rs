@@ -285,9 +285,38 @@ mod tests {
         assert_eq!(meta.coverage_density, bvh.coverage_density());
     }
 
+    /// A dense sheet with a few disks far off: leaves right under the top.
+    fn sheet_and_strays() -> Vec<Splat> {
+        let mut splats = sheet(120);
+        for i in 0..3 {
+            let center = Vec3::new(5.0 + i as f32, -4.0, 2.0 * i as f32);
+            splats.push(Splat { center, radius: 0.05, normal: Vec3::Z, color: 0xff20_4060 });
+        }
+        splats
+    }
+
+    #[test]
+    fn lone_leaves_under_the_top_are_treelets_too() {
+        let bvh = Bvh::build(sheet_and_strays(), &BvhParams::standard());
+        assert!(bvh.treelets.iter().any(|t| t.root & super::super::LEAF != 0), "a lone leaf");
+        let back = stored(&bvh);
+        let ray = Ray::new(Vec3::new(6.0, -4.0, 5.0), -Vec3::Z, RayCone::default());
+        let hit = |b: &Bvh| intersect(b, &ray, &SurfaceScheme::sj(), &mut crate::accel::TraversalStats::uncounted());
+        assert!(hit(&bvh).is_some_and(|h| h.t > 2.5 && h.t < 3.5), "the stray at z = 2");
+        assert_eq!(hit(&back).map(|h| (h.t.to_bits(), h.splat)), hit(&bvh).map(|h| (h.t.to_bits(), h.splat)));
+        assert_eq!(back.check_all(), Ok(()));
+    }
+
     #[test]
     fn every_treelet_is_a_run_of_the_arrays_below_the_top() {
-        let bvh = Bvh::build(sheet(200), &BvhParams::standard());
+        for bvh in
+            [Bvh::build(sheet(200), &BvhParams::standard()), Bvh::build(sheet_and_strays(), &BvhParams::standard())]
+        {
+            every_treelet_is_a_run(&bvh);
+        }
+    }
+
+    fn every_treelet_is_a_run(bvh: &Bvh) {
         let top = bvh.top_nodes;
         let (mut nodes, mut blocks) = (top, 0);
         for t in bvh.treelets.iter() {

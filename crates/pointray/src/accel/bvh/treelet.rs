@@ -5,9 +5,9 @@
 //!
 //! In memory the top's nodes name their treelets' roots as any child. Stored, they name the
 //! treelet instead ([`treelet_ref`], a node index past every node), and a walk that meets one
-//! asks [`Bvh::enter`] for the root: the one place the check happens, where an in-memory walk
-//! would have failed the bounds check of `nodes[k]` anyway, so that an in-memory walk pays
-//! nothing for it.
+//! asks [`Bvh::enter`] for the root, the one place the check happens: past the bounds check of
+//! `nodes[k]` in the level-of-detail loop, which stored trees always take, so that the
+//! full-detail loop, which only trees in memory take, is what it was.
 
 use std::sync::OnceLock;
 
@@ -15,8 +15,8 @@ use super::lod::{NodeAggregate, NodeLod, node_ranges};
 use super::{Bvh, LEAF, MAX_DEPTH, Node, SLOTS, WIDTH, leaf_blocks, leaf_size};
 use crate::accel::block::SplatBlock;
 
-/// The most splats a treelet holds: at 176 bytes a block and 560 a node, some 150 kB of a scene
-/// file. Smaller than a pixel in a far view of a large scan, so that level of detail stops
+/// The most splats a treelet holds: at 176 bytes a block and 560 a node, at most some 150 kB of
+/// a scene file (30 million points: 31,900 treelets of 940 splats on average). Smaller than a pixel in a far view of a large scan, so that level of detail stops
 /// above most of them and the view reads the top alone.
 pub(crate) const TREELET_SPLATS: usize = 4096;
 
@@ -123,6 +123,7 @@ pub(super) fn partition(
         }
     }
     let top_count = top.iter().filter(|&&t| t).count();
+    place_in_order(&mut treelets, top_count);
     let permute = |k: usize| order[k];
     let nodes: Vec<Node> = (0..n)
         .map(|k| {
@@ -140,6 +141,20 @@ pub(super) fn partition(
         aggregates: (0..n).map(|k| aggregates[permute(k)]).collect(),
         treelets,
         top: top_count,
+    }
+}
+
+/// Orders the treelets as their runs lie, depth first (by first block: every treelet has one),
+/// and gives each lone leaf the empty run of nodes where it stands.
+fn place_in_order(treelets: &mut [Treelet], top: usize) {
+    treelets.sort_unstable_by_key(|t| t.blocks[0]);
+    let mut next = top as u32;
+    for t in treelets {
+        if t.root & LEAF != 0 {
+            t.nodes = [next; 2];
+        }
+        debug_assert_eq!(t.nodes[0], next, "a treelet's nodes follow the one before");
+        next = t.nodes[1];
     }
 }
 
