@@ -110,6 +110,10 @@ fn check(bytes: &[u8]) -> Result<(SceneMeta, [Range<usize>; 7]), String> {
     if bytes.len() < HEADER || bytes[..8] != MAGIC {
         return Err("not a pointray scene file (.prs)".into());
     }
+    // The arrays are the little-endian machine's own bytes, read in place.
+    if cfg!(target_endian = "big") {
+        return Err("scene files are read on little-endian machines only: render the cloud".into());
+    }
     let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().expect("4 bytes"));
     let u64_at = |at: usize| u64::from_le_bytes(bytes[at..at + 8].try_into().expect("8 bytes"));
     let version = u32_at(8);
