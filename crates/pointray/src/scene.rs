@@ -126,8 +126,6 @@ pub enum SceneError {
     /// A colour or class filter the cloud cannot give (no such attribute, no point left).
     #[error(transparent)]
     Settings(#[from] SettingsError),
-    #[error("the stored scene: {0}")]
-    Stored(#[from] StoredSceneError),
     #[error(transparent)]
     TooLarge(#[from] crate::accel::bvh::TooLarge),
 }
@@ -205,10 +203,9 @@ pub struct Scene {
     build_seconds: f64,
     /// The input splat of each accelerator index where they differ (the BVH's blocks).
     ids: Option<Stored<u32>>,
-    /// Read from a scene file (`.prs`): its build is the file's.
-    stored: bool,
-    /// A stored scene's ids' CRC, checked when a query first needs them.
-    ids_check: Option<stored::IdsCheck>,
+    /// Read from a scene file (`.prs`): its build is the file's, and its ids' CRC is checked
+    /// when a query first needs them.
+    stored: Option<Arc<stored::IdsCheck>>,
     /// The `Cull::Auto` probe, run at the first render that asks.
     backfacing: OnceLock<Option<f64>>,
     /// The map `Settings::env_map` names, read from that file (see [`Scene::set_environment_map`]).
@@ -235,7 +232,7 @@ impl Scene {
     pub fn build(parts: SceneParts, settings: &Settings) -> Result<Scene, SceneError> {
         let SceneParts { mut cloud, mut point_materials, content, view, light, up, environment, stored } = parts;
         if let Some(stored) = stored {
-            let scene = stored.scene()?;
+            let scene = stored.scene();
             scene.check_build(settings)?;
             return Ok(scene);
         }
@@ -319,8 +316,7 @@ impl Scene {
             mean_radius,
             build_seconds,
             ids,
-            stored: false,
-            ids_check: None,
+            stored: None,
             backfacing: OnceLock::new(),
             environment_map: None,
         })
@@ -364,7 +360,7 @@ impl Scene {
     pub fn intersect(&self, rays: &[(DVec3, Vec3)], settings: &Settings) -> Result<Vec<Option<RayHit>>, RenderError> {
         settings.check()?;
         self.check_build(settings)?;
-        if let Some(ids) = &self.ids_check {
+        if let Some(ids) = &self.stored {
             ids.check(self.ids.as_ref().map_or(&[][..], |ids| ids.as_bytes()))?;
         }
         let scheme = settings.scheme();
@@ -464,8 +460,11 @@ impl Scene {
     /// or disks of another shape in the bounds.
     fn check_build(&self, settings: &Settings) -> Result<(), SettingsError> {
         let (built, asked) = (&self.build, Build::of(settings));
-        let hint =
-            if self.stored { "render the cloud it was prepared from" } else { "prepare the scene with these settings" };
+        let hint = if self.stored.is_some() {
+            "render the cloud it was prepared from"
+        } else {
+            "prepare the scene with these settings"
+        };
         let problem = |what: &str| format!("differs from the scene's build ({what}): {hint}");
         // (Does it differ, the option, what of the build it changes.)
         let checks = [

@@ -79,13 +79,15 @@ impl IdsCheck {
     }
 }
 
-/// A stored scene's parts, checked (see [`Scene::from_stored`]): what [`Scene::build`] makes
-/// the scene from when [`super::SceneParts::stored`] holds one, as often as asked, without a copy.
+/// A stored scene, checked as far as opening checks it (see [`Scene::from_stored`]): what
+/// [`Scene::build`] makes the scene from when [`super::SceneParts::stored`] holds one, as often
+/// as asked, sharing its arrays and the checks made so far.
 #[derive(Clone)]
 pub struct StoredScene {
     meta: SceneMeta,
-    bytes: Arc<dyn StableBytes>,
-    ranges: [Range<usize>; 7],
+    bvh: Bvh,
+    ids: Stored<u32>,
+    ids_check: Arc<IdsCheck>,
 }
 
 impl StoredScene {
@@ -96,22 +98,51 @@ impl StoredScene {
         bytes: Arc<dyn StableBytes>,
         ranges: [Range<usize>; 7],
     ) -> Result<Self, StoredSceneError> {
-        Scene::from_stored(meta.clone(), Arc::clone(&bytes), ranges.clone())?;
-        Ok(Self { meta, bytes, ranges })
+        check_meta(&meta).map_err(StoredSceneError::Meta)?;
+        let [nodes, lod, blocks, representatives, aggregates, treelets, ids] = ranges;
+        let ids = Stored::<u32>::from_bytes(Arc::clone(&bytes), ids).map_err(StoredSceneError::Ids)?;
+        let bvh =
+            Bvh::from_stored(meta.bvh.clone(), bytes, [nodes, lod, blocks, representatives, aggregates, treelets])?;
+        let slots = bvh.blocks.len() * block::BLOCK;
+        if ids.len() != slots {
+            return Err(StoredSceneError::IdCount(ids.len(), slots));
+        }
+        let ids_check = Arc::new(IdsCheck { crc: meta.ids_crc, whole: OnceLock::new() });
+        Ok(Self { meta, bvh, ids, ids_check })
     }
 
     pub fn meta(&self) -> &SceneMeta {
         &self.meta
     }
 
-    pub(super) fn scene(&self) -> Result<Scene, StoredSceneError> {
-        Scene::from_stored(self.meta.clone(), Arc::clone(&self.bytes), self.ranges.clone())
+    /// The scene, sharing this one's arrays.
+    pub(super) fn scene(&self) -> Scene {
+        let meta = self.meta.clone();
+        let [lo, hi] = meta.bounds;
+        Scene {
+            accel: Accelerator::Bvh(self.bvh.clone()),
+            build: meta.build,
+            content: None,
+            view: meta.view.map(|(dir, distance)| (Vec3::from(dir), distance)),
+            up: Vec3::from(meta.up),
+            light: meta.light,
+            environment: meta.environment,
+            origin: DVec3::from(meta.origin),
+            bounds: Aabb::new(lo.into(), hi.into()),
+            points: meta.points,
+            mean_radius: meta.mean_radius,
+            build_seconds: 0.0,
+            ids: Some(self.ids.clone()),
+            stored: Some(Arc::clone(&self.ids_check)),
+            backfacing: OnceLock::new(),
+            environment_map: None,
+        }
     }
 }
 
 impl std::fmt::Debug for StoredScene {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("StoredScene").field("meta", &self.meta).field("ranges", &self.ranges).finish_non_exhaustive()
+        f.debug_struct("StoredScene").field("meta", &self.meta).finish_non_exhaustive()
     }
 }
 
@@ -155,34 +186,7 @@ impl Scene {
         bytes: Arc<dyn StableBytes>,
         ranges: [Range<usize>; 7],
     ) -> Result<Scene, StoredSceneError> {
-        check_meta(&meta).map_err(StoredSceneError::Meta)?;
-        let [nodes, lod, blocks, representatives, aggregates, treelets, ids] = ranges;
-        let ids = Stored::<u32>::from_bytes(Arc::clone(&bytes), ids).map_err(StoredSceneError::Ids)?;
-        let bvh = Bvh::from_stored(meta.bvh, bytes, [nodes, lod, blocks, representatives, aggregates, treelets])?;
-        let slots = bvh.blocks.len() * block::BLOCK;
-        if ids.len() != slots {
-            return Err(StoredSceneError::IdCount(ids.len(), slots));
-        }
-        let [lo, hi] = meta.bounds;
-        Ok(Scene {
-            accel: Accelerator::Bvh(bvh),
-            build: meta.build,
-            content: None,
-            view: meta.view.map(|(dir, distance)| (Vec3::from(dir), distance)),
-            up: Vec3::from(meta.up),
-            light: meta.light,
-            environment: meta.environment,
-            origin: DVec3::from(meta.origin),
-            bounds: Aabb::new(lo.into(), hi.into()),
-            points: meta.points,
-            mean_radius: meta.mean_radius,
-            build_seconds: 0.0,
-            ids: Some(ids),
-            stored: true,
-            ids_check: Some(IdsCheck { crc: meta.ids_crc, whole: OnceLock::new() }),
-            backfacing: OnceLock::new(),
-            environment_map: None,
-        })
+        Ok(StoredScene::new(meta, bytes, ranges)?.scene())
     }
 }
 

@@ -145,6 +145,10 @@ impl Node {
 }
 
 /// The BVH and the splats it indexes, reordered so that each leaf is a contiguous range.
+///
+/// A clone of a stored tree shares its arrays and its treelets' checks; of a tree in memory,
+/// copies its arrays.
+#[derive(Clone)]
 pub struct Bvh {
     pub(crate) nodes: Stored<Node>,
     /// Per node, its children's spheres and cones.
@@ -162,8 +166,9 @@ pub struct Bvh {
     /// The subtrees below the top (see [`treelet`]), whose nodes follow the top's `top_nodes`.
     pub(crate) treelets: Stored<treelet::Treelet>,
     pub(crate) top_nodes: usize,
-    /// A stored tree's checks of its treelets, made as walks enter them (none in memory).
-    pub(crate) lazy: Option<Box<treelet::Lazy>>,
+    /// A stored tree's checks of its treelets, made as walks enter them, shared by its clones
+    /// (none in memory).
+    pub(crate) lazy: Option<std::sync::Arc<treelet::Lazy>>,
     /// The number of input splats.
     pub(crate) splat_count: usize,
     pub(crate) bounds: Aabb,

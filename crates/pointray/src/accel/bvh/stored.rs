@@ -146,7 +146,7 @@ impl Bvh {
             shape: meta.shape,
         };
         check_top(&bvh, meta.top_crc).map_err(BvhStoredError::Structure)?;
-        bvh.lazy = Some(Box::new(bvh.lazy_checks().map_err(BvhStoredError::Structure)?));
+        bvh.lazy = Some(Arc::new(bvh.lazy_checks().map_err(BvhStoredError::Structure)?));
         Ok(bvh)
     }
 }
