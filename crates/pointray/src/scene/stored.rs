@@ -82,7 +82,6 @@ impl IdsCheck {
 /// A stored scene, checked as far as opening checks it (see [`Scene::from_stored`]): what
 /// [`Scene::build`] makes the scene from when [`super::SceneParts::stored`] holds one, as often
 /// as asked, sharing its arrays and the checks made so far.
-#[derive(Clone)]
 pub struct StoredScene {
     meta: SceneMeta,
     bvh: Bvh,
@@ -120,7 +119,7 @@ impl StoredScene {
         let meta = self.meta.clone();
         let [lo, hi] = meta.bounds;
         Scene {
-            accel: Accelerator::Bvh(self.bvh.clone()),
+            accel: Accelerator::Bvh(self.bvh.share()),
             build: meta.build,
             content: None,
             view: meta.view.map(|(dir, distance)| (Vec3::from(dir), distance)),
@@ -137,6 +136,14 @@ impl StoredScene {
             backfacing: OnceLock::new(),
             environment_map: None,
         }
+    }
+}
+
+impl Clone for StoredScene {
+    fn clone(&self) -> Self {
+        let (meta, bvh, ids, ids_check) =
+            (self.meta.clone(), self.bvh.share(), self.ids.clone(), Arc::clone(&self.ids_check));
+        Self { meta, bvh, ids, ids_check }
     }
 }
 
