@@ -89,6 +89,32 @@ fn bvh_matches_brute_force_on_sphere_and_torus_for_every_preset() {
     }
 }
 
+/// A BVH built a chunk at a time (chunks of 1,000 splats here, of 2²² by default) finds the
+/// oracle's hits, from sorted or shuffled input, whatever its nodes' bounds; and the degenerate
+/// inputs, whose Morton cells cannot all split, too.
+#[test]
+fn a_bvh_built_in_chunks_matches_brute_force() {
+    let torus = torus_splats(20_000, 3);
+    let mut shuffled = torus.clone();
+    // A fixed permutation: odd steps through the array.
+    let n = shuffled.len();
+    shuffled = (0..n).map(|i| torus[(i * 7_919) % n]).collect();
+    for node_bounds in [NodeBounds::Boxes, NodeBounds::SpheresFrom(1)] {
+        let params = BvhParams { node_bounds, chunk_splats: 1_000, ..BvhParams::standard() };
+        for splats in [&torus, &shuffled] {
+            let chunked = bvh(splats, &params);
+            assert!(chunked.node_count() > 0);
+            let hits = check_agreement(splats, &chunked, 3_000, 21);
+            assert!(hits > 1_000, "{node_bounds:?}: too few hits ({hits})");
+        }
+    }
+    let params = BvhParams { chunk_splats: 64, ..BvhParams::standard() };
+    for (what, splats) in &degenerate_inputs() {
+        let hits = check_agreement(splats, &bvh(splats, &params), 1_000, 6);
+        assert!(hits > 0, "{what}: no ray hit, the test is vacuous");
+    }
+}
+
 /// Inputs that break naive builds: one disk, coplanar disks, coincident disks, a line.
 fn degenerate_inputs() -> [(&'static str, Vec<Splat>); 5] {
     let disk = |c: Vec3, n: Vec3| Splat { center: c, radius: 0.1, normal: n.normalize(), color: 0 };

@@ -29,6 +29,9 @@ pub struct BvhParams {
     pub node_bounds: NodeBounds,
     /// The disks the bounds hold: ray-facing disks need the splats' balls.
     pub shape: DiskShape,
+    /// Above this many splats the tree is built a chunk of at most this many at a time (see
+    /// [`super::ChunkPlan`]; [`super::CHUNK_SPLATS`]).
+    pub chunk_splats: usize,
 }
 
 impl BvhParams {
@@ -43,6 +46,7 @@ impl BvhParams {
             intersection_cost: 1.0,
             node_bounds: NodeBounds::Boxes,
             shape: DiskShape::Oriented,
+            chunk_splats: super::CHUNK_SPLATS,
         }
     }
 
@@ -226,13 +230,43 @@ impl Bvh {
     /// With parameters out of range.
     pub fn try_build_with_ids(mut input: Vec<Splat>, params: &BvhParams) -> Result<(Bvh, Vec<u32>), TooLarge> {
         assert!((2..=MAX_BINS).contains(&params.bins) && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
+        assert!(params.chunk_splats > 0);
         if input.len() > MAX_SPLATS {
             return Err(TooLarge::Splats(input.len()));
         }
+        if input.len() > params.chunk_splats {
+            return Ok(super::chunk::build(input, params)?.finish(params));
+        }
         snap(&mut input);
-        let mut prims = prims_of(&input, params);
+        // The serial flattening (in `Tree::build`) beside the serial quantile.
+        let (tree, wide_radius) = join(|| Tree::build(&input, params, 0), || wide_radius(&input));
+        let tree = tree?;
+        drop(input);
+        Ok(Tree { wide_radius, ..tree }.finish(params))
+    }
+}
+
+/// A built tree before its level of detail: nodes (children after their parents, depth first),
+/// leaf blocks, and the input's index of each block slot.
+pub(super) struct Tree {
+    pub(super) nodes: Vec<Node>,
+    pub(super) blocks: Vec<SplatBlock>,
+    /// The splats in each block.
+    pub(super) counts: Vec<u8>,
+    pub(super) ids: Vec<u32>,
+    pub(super) bounds: Aabb,
+    pub(super) depth: usize,
+    pub(super) splat_count: usize,
+    pub(super) wide_radius: f32,
+}
+
+impl Tree {
+    /// The tree over `input` (snapped), its root `depth` levels of a binary tree down (see
+    /// [`MEDIAN_SPLIT_DEPTH`]); `wide_radius` left for the caller.
+    pub(super) fn build(input: &[Splat], params: &BvhParams, depth: usize) -> Result<Tree, TooLarge> {
+        let mut prims = prims_of(input, params);
         let extent = Extent::of(&prims);
-        let root = build_node(&mut prims, extent, 0, params, 0);
+        let root = build_node(&mut prims, extent, 0, params, depth);
         if root.block_count() > super::MAX_BLOCKS {
             return Err(TooLarge::Blocks(root.block_count()));
         }
@@ -243,17 +277,12 @@ impl Bvh {
         let bounds = root.bounds();
         let mut nodes = Vec::with_capacity(input.len() / params.max_leaf_size.max(2) + 1);
         let mut spans = Vec::with_capacity(root.block_count());
-        // The serial flattening beside the serial quantile.
-        let (depth, wide_radius) = join(
-            || match root {
-                BuildNode::Leaf { count: 0, .. } => 0, // no splats: no nodes
-                root => flatten(root, &mut nodes, &mut spans, params),
-            },
-            || wide_radius(&input),
-        );
+        let depth = match root {
+            BuildNode::Leaf { count: 0, .. } => 0, // no splats: no nodes
+            root => flatten(root, &mut nodes, &mut spans, params),
+        };
         // The capacity guessed above is about twice the 8-wide tree's nodes: 8 bytes a splat.
         nodes.shrink_to_fit();
-        let splat_count = input.len();
         // The blocks in parallel, each gathering its splats from the input in leaf order; from
         // then on they are the only copy of the splats. (Gathered first into a vector in leaf
         // order and made into blocks from there, the 1-million-point torus's build took 3 %
@@ -276,9 +305,13 @@ impl Bvh {
         for (b, &(first, count)) in spans.iter().enumerate() {
             ids[b * BLOCK..b * BLOCK + count].copy_from_slice(&order[first..first + count]);
         }
-        drop((input, order));
         let counts: Vec<u8> = spans.iter().map(|&(_, count)| count as u8).collect();
-        drop(spans);
+        Ok(Tree { nodes, blocks, counts, ids, bounds, depth, splat_count: input.len(), wide_radius: 0.0 })
+    }
+
+    /// The level of detail, the treelets: the BVH, and the input's index of each block slot.
+    pub(super) fn finish(self, params: &BvhParams) -> (Bvh, Vec<u32>) {
+        let Tree { mut nodes, blocks, counts, ids, bounds, depth, splat_count, wide_radius } = self;
         let disks = super::lod::Disks { blocks: &blocks, counts: &counts };
         let (lod, representatives, aggregates) = super::lod::build(&mut nodes, &disks, params.shape);
         drop(counts);
@@ -305,7 +338,7 @@ impl Bvh {
             shape: params.shape,
         };
         bvh.set_node_bounds(params.node_bounds);
-        Ok((bvh, ids))
+        (bvh, ids)
     }
 }
 

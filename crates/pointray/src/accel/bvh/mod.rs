@@ -14,6 +14,7 @@
 //! level of detail off, culling off and boxes only, the traversal is the full-detail one.
 
 mod build;
+mod chunk;
 mod gather;
 pub(crate) mod lanes;
 mod lod;
@@ -22,6 +23,7 @@ pub(super) mod traverse;
 mod treelet;
 
 pub use build::{BvhParams, TooLarge};
+pub use chunk::{CHUNK_SPLATS, Cell, ChunkPlan};
 pub use lod::NodeBounds;
 pub use stored::{ARRAY_ALIGN, ARRAYS, BvhMeta, BvhStoredError};
 
