@@ -503,6 +503,28 @@ pub struct PrepareArgs {
     /// To a `.prs` output: what its BVH holds (a render must ask for the same).
     #[command(flatten)]
     pub build: BuildArgs,
+    /// To a `.prs` output: prepare within about this much memory (e.g. 1GiB, 512MiB; K, M, G
+    /// are powers of 1024): a cloud that would need more in memory (some 90 bytes a point) is
+    /// read in passes and built a chunk at a time, with temporary files beside the output. The
+    /// same file either way. For now a binary PLY with normals and radii, default settings.
+    #[arg(long, value_parser = parse_bytes, value_name = "SIZE")]
+    pub memory_budget: Option<u64>,
+}
+
+/// A size in bytes: a number, then optionally K, M, G or T (powers of 1024; `KiB`, `KB` alike).
+fn parse_bytes(s: &str) -> Result<u64, String> {
+    let digits = s.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(s.len());
+    let (number, unit) = s.split_at(digits);
+    let number: f64 = number.parse().map_err(|_| format!("{s:?}: a size is a number and a unit, as 1GiB"))?;
+    let shift = match unit.trim().to_ascii_lowercase().trim_end_matches("ib").trim_end_matches('b') {
+        "" => 0,
+        "k" => 10,
+        "m" => 20,
+        "g" => 30,
+        "t" => 40,
+        other => return Err(format!("{s:?}: unknown unit {other:?} (K, M, G or T)")),
+    };
+    Ok((number * (1u64 << shift) as f64) as u64)
 }
 
 #[derive(Args, Debug)]

@@ -766,6 +766,63 @@ fn a_prepared_scene_file_renders_as_its_cloud_does() {
     assert!(!dir.path().join("kd.png").exists() && !dir.path().join("cut.png").exists());
 }
 
+/// A binary PLY of `n` disks on a unit sphere with their normals pointing in, then repeats of
+/// the first ten points and one point at NaN: what preprocessing turns, drops and drops.
+fn write_inward_sphere(dir: &std::path::Path, n: usize) {
+    let mut body = Vec::new();
+    let mut push = |p: [f32; 3], normal: [f32; 3]| {
+        for v in p.into_iter().chain(normal).chain([0.06]) {
+            body.extend_from_slice(&v.to_le_bytes());
+        }
+    };
+    let point = |i: usize| {
+        let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+        let (r, phi) = ((1.0 - z * z).sqrt(), i as f32 * 2.399_963);
+        [r * phi.cos(), r * phi.sin(), z]
+    };
+    for i in (0..n).chain(0..10) {
+        let p = point(i);
+        push(p, p.map(|v| -v));
+    }
+    push([f32::NAN, 0.0, 0.0], [0.0, 0.0, 1.0]);
+    let header = format!(
+        "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
+         property float nx\nproperty float ny\nproperty float nz\nproperty float radius\nend_header\n",
+        n + 11
+    );
+    write_file(dir, "inward.ply", [header.into_bytes(), body].concat());
+}
+
+#[test]
+fn a_scene_file_prepared_out_of_core_is_the_one_prepared_in_memory() {
+    let dir = temp_dir();
+    write_inward_sphere(dir.path(), 5_000);
+    run_in(dir.path(), &["-q", "prepare", "inward.ply", "-o", "memory.prs"]).assert_success();
+    run_in(dir.path(), &["prepare", "inward.ply", "-o", "streamed.prs", "--memory-budget", "1KiB"])
+        .assert_success()
+        .assert_stderr_contains("5000 points in 1 chunks, out of core");
+    let (memory, streamed) = (dir.path().join("memory.prs"), dir.path().join("streamed.prs"));
+    assert!(std::fs::read(&memory).unwrap() == std::fs::read(&streamed).unwrap(), "the two files differ");
+    render_in(dir.path(), &["streamed.prs", "-o", "s.png"]).assert_success();
+    assert!(read_png(&dir.path().join("s.png")).count_not(background_srgb8()) > 100);
+    // What it cannot do yet is refused, naming the way: a cloud without normals, build flags.
+    write_sphere(dir.path());
+    run_in(dir.path(), &["prepare", "sphere.ply", "-o", "raw.prs", "--memory-budget", "1KiB"])
+        .assert_failure(1)
+        .assert_stderr_contains("prepare it without --memory-budget");
+    run_in(dir.path(), &["prepare", "inward.ply", "-o", "rfd.prs", "--memory-budget", "1K", "--surface", "rfd"])
+        .assert_failure(2)
+        .assert_stderr_contains("only the default build settings");
+    run_in(dir.path(), &["prepare", "inward.ply", "-o", "x.prs", "--memory-budget", "lots"]).assert_failure(2);
+    assert!(!dir.path().join("raw.prs").exists() && !dir.path().join("rfd.prs").exists());
+    let leftovers: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .filter_map(Result::ok)
+        .filter(|e| e.file_name().to_string_lossy().starts_with('.'))
+        .collect();
+    assert!(leftovers.is_empty(), "temporary files left: {leftovers:?}");
+}
+
 #[test]
 fn prepare_not_quiet_summarises_on_stderr() {
     let dir = temp_dir();

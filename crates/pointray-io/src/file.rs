@@ -68,6 +68,11 @@ pub(crate) fn map_stable(path: &Path) -> Result<Option<Arc<StableMap>>, IoError>
     Ok(map.map(|map| Arc::new(StableMap(map))))
 }
 
+/// `file` (open for reading) mapped, as bytes a scene may keep.
+pub(crate) fn map_for_reading(file: &File) -> std::io::Result<StableMap> {
+    map(file, memmap2::Advice::Random).map(StableMap)
+}
+
 /// A map lent to a scene as its arrays.
 pub(crate) struct StableMap(memmap2::Mmap);
 

@@ -13,6 +13,7 @@ mod obj;
 mod off;
 mod pcd;
 pub mod ply;
+pub mod prepare;
 pub mod prs;
 mod scanset;
 pub mod scene;
@@ -186,6 +187,16 @@ pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<Mesh, IoError> {
 /// ended by a signal runs no destructors: its handler calls
 /// [`discard_unfinished_writes_then`].
 pub fn atomic_write(path: &Path, write: impl FnOnce(&mut dyn Write) -> std::io::Result<()>) -> Result<(), IoError> {
+    atomic_file(path, |file| {
+        let mut buffered = std::io::BufWriter::new(file);
+        write(&mut buffered)?;
+        buffered.flush()
+    })
+}
+
+/// [`atomic_write`] for a writer that needs the file itself (to write at offsets, to map what
+/// it wrote): the same guarantees.
+pub fn atomic_file(path: &Path, write: impl FnOnce(&mut std::fs::File) -> std::io::Result<()>) -> Result<(), IoError> {
     let io_error = |e: std::io::Error| IoError::io(path, e);
     let directory = match path.parent() {
         Some(parent) if !parent.as_os_str().is_empty() => parent,
@@ -213,11 +224,7 @@ pub fn atomic_write(path: &Path, write: impl FnOnce(&mut dyn Write) -> std::io::
         registration.0 = Some(temp.path().to_path_buf());
         temp
     };
-    {
-        let mut buffered = std::io::BufWriter::new(temp.as_file_mut());
-        write(&mut buffered).map_err(io_error)?;
-        buffered.flush().map_err(io_error)?;
-    }
+    write(temp.as_file_mut()).map_err(io_error)?;
     temp.as_file().sync_all().map_err(io_error)?;
     let mut registry = registry();
     if registry.closed {
@@ -228,6 +235,44 @@ pub fn atomic_write(path: &Path, write: impl FnOnce(&mut dyn Write) -> std::io::
         registry.pending.retain(|p| *p != temp);
     }
     Ok(())
+}
+
+/// A temporary directory beside the file `near` (a preparation's spilled data), removed when
+/// dropped and, like an unfinished write's file, on an interrupt.
+pub(crate) struct ScratchDir(Option<tempfile::TempDir>);
+
+impl ScratchDir {
+    pub(crate) fn beside(near: &Path) -> Result<Self, IoError> {
+        let directory = near.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        let mut registry = registry();
+        if registry.closed {
+            return Err(IoError::io(near, interrupted()));
+        }
+        let dir = tempfile::Builder::new()
+            .prefix(".pointray-scratch.")
+            .tempdir_in(directory)
+            .map_err(|e| IoError::io(near, e))?;
+        registry.pending.push(dir.path().to_path_buf());
+        Ok(Self(Some(dir)))
+    }
+
+    pub(crate) fn path(&self) -> &Path {
+        self.0.as_ref().expect("a scratch directory until dropped").path()
+    }
+}
+
+impl Drop for ScratchDir {
+    fn drop(&mut self) {
+        let mut registry = registry();
+        if let Some(dir) = self.0.take() {
+            registry.pending.retain(|p| p != dir.path());
+            if !registry.closed {
+                drop(dir); // removed, under the lock as an interrupt would
+            } else {
+                std::mem::forget(dir); // an interrupt removed it
+            }
+        }
+    }
 }
 
 /// The temporary files of [`atomic_write`]s in progress, and whether writing has stopped.
@@ -265,7 +310,7 @@ impl Drop for Unfinished {
 pub fn discard_unfinished_writes_then(exit: impl FnOnce() -> std::convert::Infallible) -> ! {
     let mut registry = registry();
     for temp in registry.pending.drain(..) {
-        let _ = std::fs::remove_file(temp);
+        let _ = if temp.is_dir() { std::fs::remove_dir_all(temp) } else { std::fs::remove_file(temp) };
     }
     registry.closed = true;
     match exit() {}

@@ -35,20 +35,49 @@ const ENTRY: usize = 32;
 /// Writes `scene` to `path` (all or nothing).
 pub fn write_prs(path: &Path, scene: &Scene) -> Result<(), IoError> {
     let (arrays, meta) = scene.stored().map_err(|e| IoError::invalid(path, format!("cannot store the scene: {e}")))?;
-    let meta = serde_json::to_vec(&meta).map_err(|e| IoError::invalid(path, format!("cannot store the scene: {e}")))?;
+    let ranges = layout(arrays.each_ref().map(|a| a.len()));
+    let (header, index) = tail(path, &ranges, &meta)?;
+    crate::atomic_write(path, |w| {
+        let zeros = vec![0; PAGE];
+        w.write_all(&header[..HEADER])?;
+        let mut written = HEADER;
+        for (array, range) in arrays.iter().zip(&ranges) {
+            w.write_all(&zeros[..range.start - written])?;
+            w.write_all(array)?;
+            written = range.end;
+        }
+        w.write_all(&zeros[..index_at(&ranges) - written])?;
+        w.write_all(&index)
+    })
+}
+
+/// Where arrays of these byte lengths lie in a scene file: each on a page boundary, after the
+/// header's page.
+pub(crate) fn layout(lengths: [usize; 7]) -> [Range<usize>; 7] {
     let mut at = PAGE;
-    let ranges = arrays.each_ref().map(|a| {
+    lengths.map(|len| {
         let start = at;
-        at = (start + a.len()).next_multiple_of(PAGE);
-        start..start + a.len()
-    });
+        at = (start + len).next_multiple_of(PAGE);
+        start..start + len
+    })
+}
+
+/// Where the index starts: the page after the last array.
+pub(crate) fn index_at(ranges: &[Range<usize>; 7]) -> usize {
+    ranges[6].end.next_multiple_of(PAGE)
+}
+
+/// The header (its 64 bytes) and what follows the arrays (the index, then the metadata) of a
+/// scene file whose arrays lie in `ranges`.
+pub(crate) fn tail(path: &Path, ranges: &[Range<usize>; 7], meta: &SceneMeta) -> Result<(Vec<u8>, Vec<u8>), IoError> {
+    let meta = serde_json::to_vec(meta).map_err(|e| IoError::invalid(path, format!("cannot store the scene: {e}")))?;
     let mut index = Vec::new();
-    for (name, range) in SCENE_ARRAYS.iter().zip(&ranges) {
+    for (name, range) in SCENE_ARRAYS.iter().zip(ranges) {
         index.extend_from_slice(&name_field(name));
         index.extend_from_slice(&(range.start as u64).to_le_bytes());
         index.extend_from_slice(&(range.len() as u64).to_le_bytes());
     }
-    let index_at = at;
+    let index_at = index_at(ranges);
     let meta_at = index_at + index.len();
     let end = meta_at + meta.len();
     let mut header = Vec::with_capacity(HEADER);
@@ -61,19 +90,8 @@ pub fn write_prs(path: &Path, scene: &Scene) -> Result<(), IoError> {
     let crc = header_crc(&header, &index, &meta);
     header.extend_from_slice(&crc.to_le_bytes());
     header.resize(HEADER, 0);
-    crate::atomic_write(path, |w| {
-        let zeros = vec![0; PAGE];
-        w.write_all(&header)?;
-        let mut written = HEADER;
-        for (array, range) in arrays.iter().zip(&ranges) {
-            w.write_all(&zeros[..range.start - written])?;
-            w.write_all(array)?;
-            written = range.end;
-        }
-        w.write_all(&zeros[..index_at - written])?;
-        w.write_all(&index)?;
-        w.write_all(&meta)
-    })
+    index.extend_from_slice(&meta);
+    Ok((header, index))
 }
 
 /// Whether `path` is a regular file that starts as a scene file does (a pipe is never read

@@ -5,6 +5,7 @@
 //! World coordinates are f64 in a scene file and f32 once placed: put the models near the
 //! origin (a survey-coordinate scan is moved there by its `translate`).
 
+use pointray::math::Aabb;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
@@ -96,9 +97,14 @@ pub fn environment_map(settings: &Settings) -> Result<Option<(PathBuf, Arc<EnvMa
 /// depth frame's): at the sensor, looking at the cloud's centre. A scanner inside the cloud (a
 /// terrestrial scan's) leaves the default view.
 fn sensor_view(cloud: &PointCloud) -> Option<(Vec3, f32)> {
-    let ([sensor], bounds) = (cloud.viewpoints.as_slice(), cloud.bounds()) else { return None };
+    let [sensor] = cloud.viewpoints.as_slice() else { return None };
+    sensor_view_of(*sensor, cloud.bounds())
+}
+
+/// [`sensor_view`] of a sensor at `sensor` and a cloud within `bounds`.
+pub(crate) fn sensor_view_of(sensor: Vec3, bounds: Aabb) -> Option<(Vec3, f32)> {
     let outside = sensor.cmplt(bounds.min).any() || sensor.cmpgt(bounds.max).any();
-    let offset = *sensor - bounds.center();
+    let offset = sensor - bounds.center();
     (outside && bounds.diagonal() > 0.0).then(|| (offset.normalize(), offset.length() / bounds.diagonal()))
 }
 

@@ -63,7 +63,7 @@ const PREFILTER_CHECK_RAYS: usize = 1024;
 const CULL_CHECK_RAYS: usize = 4096;
 
 mod stored;
-pub use stored::{SCENE_ARRAYS, SceneMeta, StoredScene, StoredSceneError};
+pub use stored::{SCENE_ARRAYS, SceneMeta, StoredScene, StoredSceneError, StreamedCloud};
 
 /// What a scene file brings beside its points: then the settings' light, material, sky and
 /// ground options, which dress a lone cloud, do not apply.

@@ -1,5 +1,6 @@
 //! Binary PLY bodies (both byte orders), decoded from a byte slice of the whole file.
 
+use crate::builder::PointRecord;
 use std::path::Path;
 
 use super::header::{Element, PropertyKind, Scalar};
@@ -223,6 +224,33 @@ impl Body<'_> {
             builder.push(&layout.record(&values));
         }
         Ok((builder, pos))
+    }
+}
+
+/// A binary file's fixed-size vertex records, decoded one at a time (for reading a file in
+/// windows, `super::VertexStream`).
+pub(crate) struct FixedRecords {
+    offsets: Vec<(Field, usize)>,
+    order: ByteOrder,
+    pub(crate) size: usize,
+    values: Vec<f64>,
+}
+
+impl FixedRecords {
+    pub(crate) fn new(vertex: &Element, size: usize, layout: &VertexLayout, order: ByteOrder) -> Self {
+        let offsets = field_offsets(vertex, &layout.used_fields());
+        Self { offsets, order, size, values: vec![0.0; vertex.properties.len()] }
+    }
+
+    /// The record in `bytes` (`size` of them), as [`VertexLayout::record`] makes it.
+    pub(crate) fn decode(&mut self, bytes: &[u8], layout: &VertexLayout) -> PointRecord {
+        for &(field, offset) in &self.offsets {
+            let value = decode(bytes, offset, field.scalar, self.order).unwrap_or(f64::NAN);
+            if let Some(slot) = self.values.get_mut(field.index) {
+                *slot = value;
+            }
+        }
+        layout.record(&self.values)
     }
 }
 

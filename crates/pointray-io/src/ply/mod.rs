@@ -21,6 +21,7 @@ use std::path::Path;
 use pointray::PointCloud;
 
 use crate::builder::CloudBuilder;
+use crate::builder::PointRecord;
 use crate::text::Lines;
 use crate::{Axes, FileInfo, IoError, LoadedCloud, atomic_write};
 use binary::{Body, ByteOrder};
@@ -46,6 +47,95 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
         cloud.viewpoints = vec![(glam::DVec3::from(v) - cloud.origin).as_vec3()];
     }
     Ok(LoadedCloud { cloud, info })
+}
+
+/// A binary PLY's vertices read from the file in windows, as often as asked: for preparing a
+/// cloud larger than memory (`crate::prepare`). Only fixed-size vertex records that come first
+/// in the body.
+pub(crate) struct VertexStream {
+    path: std::path::PathBuf,
+    layout: VertexLayout,
+    records: binary::FixedRecords,
+    start: usize,
+    pub(crate) count: usize,
+    pub(crate) info: FileInfo,
+    /// A sensor's position in the file's coordinates (`comment viewpoint`).
+    pub(crate) viewpoint: Option<[f64; 3]>,
+}
+
+impl VertexStream {
+    pub(crate) fn open(path: &Path) -> Result<Self, IoError> {
+        use std::io::Read;
+        let mut file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+        let file_bytes = file.metadata().map_err(|e| IoError::io(path, e))?.len();
+        let mut head = Vec::new();
+        file.by_ref().take(1 << 20).read_to_end(&mut head).map_err(|e| IoError::io(path, e))?;
+        let unsupported = |what: &str| {
+            let hint = "out of core, only binary PLY vertices are read for now: prepare it without --memory-budget";
+            IoError::invalid(path, format!("{what}: {hint}"))
+        };
+        if !(head.starts_with(b"ply\n") || head.starts_with(b"ply\r\n")) {
+            return Err(unsupported("not a PLY file"));
+        }
+        let header = parse_header(path, &head)?;
+        let order = match header.encoding {
+            Encoding::BinaryLittleEndian => ByteOrder::Little,
+            Encoding::BinaryBigEndian => ByteOrder::Big,
+            Encoding::Ascii => return Err(unsupported("an ASCII PLY")),
+        };
+        let vertex_index = vertex_element(path, &header)?;
+        let vertex = &header.elements[vertex_index];
+        let (0, Some(size)) = (vertex_index, vertex.fixed_size()) else {
+            return Err(unsupported("its vertices are not the first element, of fixed size"));
+        };
+        if (header.body_start + vertex.count * size) as u64 > file_bytes {
+            return Err(IoError::invalid(path, format!("truncated: {} vertices do not fit", vertex.count)));
+        }
+        let layout = VertexLayout::new(path, vertex)?;
+        let records = binary::FixedRecords::new(vertex, size, &layout, order);
+        let viewpoint = header.comments.iter().find_map(|c| triple_comment(c, "viewpoint "));
+        let info = file_info(&header, vertex_index, file_bytes as usize);
+        Ok(Self {
+            path: path.to_path_buf(),
+            layout,
+            records,
+            start: header.body_start,
+            count: vertex.count,
+            info,
+            viewpoint,
+        })
+    }
+
+    /// Whether every record has a normal and a radius.
+    pub(crate) fn has_normals_and_radii(&self) -> bool {
+        let a = self.layout.attributes();
+        a.normals && a.radii
+    }
+
+    pub(crate) fn has_colors(&self) -> bool {
+        self.layout.attributes().colors
+    }
+
+    /// Calls `visit` with every vertex in file order, reading 8 MB at a time.
+    pub(crate) fn for_each(&mut self, mut visit: impl FnMut(&PointRecord)) -> Result<(), IoError> {
+        use std::io::{Read, Seek, SeekFrom};
+        let io = |e| IoError::io(&self.path, e);
+        let mut file = std::fs::File::open(&self.path).map_err(io)?;
+        file.seek(SeekFrom::Start(self.start as u64)).map_err(io)?;
+        let size = self.records.size;
+        let per_window = ((8 << 20) / size.max(1)).max(1);
+        let mut window = vec![0u8; per_window * size];
+        let mut left = self.count;
+        while left > 0 {
+            let n = left.min(per_window);
+            file.read_exact(&mut window[..n * size]).map_err(|e| IoError::io(&self.path, e))?;
+            for record in window[..n * size].chunks_exact(size) {
+                visit(&self.records.decode(record, &self.layout));
+            }
+            left -= n;
+        }
+        Ok(())
+    }
 }
 
 fn vertex_element(path: &Path, header: &Header) -> Result<usize, IoError> {

@@ -237,8 +237,11 @@ pub(crate) const LOD_FLOOR_QUANTILE: f64 = 0.05;
 /// 99th percentile 1,580, the 90th 1,661, and the first crossing's own radius (a second walk
 /// for the 23 % of rays whose window grew) 1,755.
 pub(crate) fn wide_radius(splats: &[Splat]) -> f32 {
-    radius_quantile(splats.iter().map(|s| s.radius).collect(), 0.99)
+    radius_quantile(splats.iter().map(|s| s.radius).collect(), WIDE_QUANTILE)
 }
+
+/// The quantile of the radii [`wide_radius`] takes.
+pub(crate) const WIDE_QUANTILE: f64 = 0.99;
 
 /// The `quantile` (0–1) of a multiresolution accelerator's representative radii; +∞ without
 /// any. Rays whose footprint, scaled by the threshold, stays below it take the full-detail

@@ -80,7 +80,7 @@ fn given_sums(given: &[bool], term: impl Fn(usize) -> [f64; 4] + Sync) -> [f64; 
 /// The mean nᵢ·(pᵢ − c) against the mean |pᵢ − c| below which given normals are turned (see
 /// [`turn_given_outward`]): the prepared dragon, torus and Happy Buddha score 0.25–0.39,
 /// the Autzen terrain and the PCL mug 0.00–0.02, the Armadillo's own normals −0.59.
-const INWARD: f64 = -0.2;
+pub const INWARD: f64 = -0.2;
 
 /// Turns the normals `which` marks to face their point's viewpoint (n·(v − p) ≥ 0): point `i`
 /// was seen from `viewpoints[of[i]]` (from `viewpoints[0]` without `of`), as a scanner saw

@@ -47,6 +47,50 @@ pub struct SceneMeta {
     pub ids_crc: u32,
 }
 
+/// What [`SceneMeta::streamed`] needs of a cloud whose BVH was built out of core
+/// (`accel::bvh::StreamedBvh`), as [`Scene::build`] finds it of the cloud in memory.
+#[derive(Clone, Copy, Debug)]
+pub struct StreamedCloud {
+    pub points: usize,
+    pub origin: DVec3,
+    /// Of the positions, taken in the order of the splats.
+    pub bounds: Aabb,
+    /// Of the radii, summed in the order of the splats.
+    pub mean_radius: f64,
+}
+
+impl SceneMeta {
+    /// What [`Scene::stored`] gives of the scene [`Scene::build`] makes with `settings` of a
+    /// lone cloud with `parts`' view, light, up axis and environment, whose BVH (`bvh`, its
+    /// ids' CRC `ids_crc`) was built out of core.
+    pub fn streamed(
+        settings: &crate::Settings,
+        parts: &super::SceneParts,
+        cloud: &StreamedCloud,
+        bvh: BvhMeta,
+        ids_crc: u32,
+    ) -> SceneMeta {
+        let up = parts.up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y);
+        let [lo, hi] = bvh.bounds;
+        let bounds = if cloud.bounds.diagonal() > 0.0 { cloud.bounds } else { Aabb::new(lo.into(), hi.into()) };
+        let bounds =
+            if bounds.diagonal() > 0.0 { bounds } else { Aabb::new(bounds.center() - 0.5, bounds.center() + 0.5) };
+        SceneMeta {
+            points: cloud.points,
+            origin: cloud.origin.to_array(),
+            bounds: [bounds.min.to_array(), bounds.max.to_array()],
+            mean_radius: cloud.mean_radius,
+            up: up.to_array(),
+            view: parts.view.map(|(dir, distance)| (dir.to_array(), distance)),
+            light: parts.light,
+            environment: parts.environment.clone(),
+            build: Build::of(settings),
+            bvh,
+            ids_crc,
+        }
+    }
+}
+
 /// Why a scene cannot be stored, or stored bytes are not a scene.
 #[derive(Debug, thiserror::Error)]
 pub enum StoredSceneError {

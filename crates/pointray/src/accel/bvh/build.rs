@@ -313,10 +313,10 @@ impl Tree {
     pub(super) fn finish(self, params: &BvhParams) -> (Bvh, Vec<u32>) {
         let Tree { mut nodes, blocks, counts, ids, bounds, depth, splat_count, wide_radius } = self;
         let disks = super::lod::Disks { blocks: &blocks, counts: &counts };
-        let (lod, representatives, aggregates) = super::lod::build(&mut nodes, &disks, params.shape);
+        let lod = super::lod::build(&mut nodes, &disks, params.shape);
         drop(counts);
         let lod_floor = radius_quantile(nodes.iter().map(|n| n.min_radius).collect(), LOD_FLOOR_QUANTILE);
-        let cut = super::treelet::partition(nodes, lod, representatives, aggregates);
+        let cut = super::treelet::partition(nodes, lod, true);
         let mut bvh = Bvh {
             nodes: cut.nodes.into(),
             lod: cut.lod.into(),

@@ -24,7 +24,7 @@ use super::lanes::Lanes;
 use super::{Bvh, LEAF, LOD_SLOTS_SHIFT, Node, SLOTS, SPHERE_NODE, WIDTH, leaf_blocks, leaf_size, leaf_splats};
 use crate::accel::Accel;
 use crate::accel::block::{BLOCK, SplatBlock};
-use crate::accel::representative::{Moments, Representative, Spread, along_and_off};
+use crate::accel::representative::{Frame, Moments, Representative, Spread, along_and_off};
 use crate::splat::footprint::Aggregate;
 use crate::splat::{DiskShape, Splat};
 
@@ -118,7 +118,7 @@ pub(super) fn node_ranges(nodes: &[Node]) -> Vec<Range<usize>> {
 }
 
 /// Bounding sphere, cone and representative of one child.
-struct ChildLod {
+pub(super) struct ChildLod {
     aggregate: Aggregate,
     radius: f32,
     cos_angle: f32,
@@ -153,28 +153,59 @@ fn round_up(x: f64) -> f32 {
 /// between 4.61 and 4.80 billion instructions (callgrind); forced, 4.54.
 #[inline(always)]
 fn child_lod(box_center: Vec3, disks: &Disks, blocks: Range<usize>, moments: &Moments, shape: DiskShape) -> ChildLod {
-    let frame = moments.frame(disks.blocks[blocks.start].splat(0).normal);
-    let (c, axis) = (box_center.as_dvec3(), frame.normal().as_dvec3());
-    let (mut far, mut spread, mut min_cos) = (0.0f64, Spread::default(), 1.0f64);
+    let mut pass = ChildPass::new(box_center, &disks.blocks[blocks.start], moments, shape);
     for b in blocks {
-        let (block, count) = (&disks.blocks[b], usize::from(disks.counts[b]));
-        let (far_lanes, cos_lanes) = (farthest_lanes(c, block, shape), cos_lanes(axis, block));
+        pass.add(&disks.blocks[b], usize::from(disks.counts[b]));
+    }
+    pass.finish(moments)
+}
+
+/// [`child_lod`]'s pass over a child's blocks, which a build out of core feeds a window of
+/// blocks at a time (`super::streamed`): the same operations in the same order.
+pub(super) struct ChildPass {
+    frame: Frame,
+    center: DVec3,
+    axis: DVec3,
+    shape: DiskShape,
+    far: f64,
+    spread: Spread,
+    min_cos: f64,
+}
+
+impl ChildPass {
+    /// The pass for a child whose box has centre `box_center`, whose blocks start with
+    /// `first`, and whose disks have `moments`.
+    #[inline(always)]
+    pub(super) fn new(box_center: Vec3, first: &SplatBlock, moments: &Moments, shape: DiskShape) -> Self {
+        let frame = moments.frame(first.splat(0).normal);
+        let (center, axis) = (box_center.as_dvec3(), frame.normal().as_dvec3());
+        Self { frame, center, axis, shape, far: 0.0, spread: Spread::default(), min_cos: 1.0 }
+    }
+
+    /// The child's next block, holding `count` disks.
+    #[inline(always)]
+    pub(super) fn add(&mut self, block: &SplatBlock, count: usize) {
+        let (far_lanes, cos_lanes) = (farthest_lanes(self.center, block, self.shape), cos_lanes(self.axis, block));
         // Compares, not `f64::max`, whose NaN rules cost four instructions a lane: no value
         // here is NaN, and neither the bounds nor the cone depend on a zero's sign.
         for i in 0..count {
-            far = if far_lanes[i] > far { far_lanes[i] } else { far };
-            min_cos = if cos_lanes[i] < min_cos { cos_lanes[i] } else { min_cos };
+            self.far = if far_lanes[i] > self.far { far_lanes[i] } else { self.far };
+            self.min_cos = if cos_lanes[i] < self.min_cos { cos_lanes[i] } else { self.min_cos };
         }
-        spread.add_block(&frame, block, count);
+        self.spread.add_block(&self.frame, block, count);
     }
-    let Representative { splat: rep, coherent } = frame.representative(&spread);
-    let cos_angle = if coherent {
-        // A little wider than measured: rounding must never make the cone exclude a normal.
-        (min_cos - 1e-5).max(-1.0) as f32
-    } else {
-        -1.0 // normals that cancel out: a cone that never culls
-    };
-    ChildLod { aggregate: moments.aggregate(), radius: round_up(far), cos_angle, rep }
+
+    #[inline(always)]
+    pub(super) fn finish(self, moments: &Moments) -> ChildLod {
+        let Representative { splat: rep, coherent } = self.frame.representative(&self.spread);
+        let cos_angle = if coherent {
+            // A little wider than measured: rounding must never make the cone exclude a normal.
+            (self.min_cos - 1e-5).max(-1.0) as f32
+        } else {
+            -1.0 // normals that cancel out: a cone that never culls
+        };
+        ChildLod { aggregate: moments.aggregate(), radius: round_up(self.far), cos_angle, rep }
+    }
 }
 
 /// [`farthest`] from `p` for each lane of `block`, in the same operations: written over lanes,
@@ -244,11 +275,7 @@ pub(super) struct Payload {
 
 /// Level-of-detail payload of every node (`lod[k]` for `nodes[k]`, and so on). Also sets every
 /// node's level-of-detail slots and `min_radius`.
-pub(super) fn build(
-    nodes: &mut [Node],
-    disks: &Disks,
-    shape: DiskShape,
-) -> (Vec<NodeLod>, Vec<SplatBlock>, Vec<NodeAggregate>) {
+pub(super) fn build(nodes: &mut [Node], disks: &Disks, shape: DiskShape) -> Lod {
     let ranges = node_ranges(nodes);
     let moments = node_moments(nodes, disks, &ranges);
     // Unzipped straight into the two arrays: collected as pairs and then split, the pairs took
@@ -263,17 +290,19 @@ pub(super) fn build(
             (p.lod, (p.representatives, p.aggregate))
         })
         .unzip();
-    drop(moments);
+    let root = moments.into_iter().next().unwrap_or_default();
     for (n, l) in nodes.iter_mut().zip(&lod) {
-        // A leaf of a few splats costs about what its representative does to test: it is never
-        // replaced, and full detail there is free.
-        let coarse: Vec<usize> = (0..WIDTH)
-            .filter(|&i| n.used & (1 << i) != 0 && (n.child[i] & LEAF == 0 || leaf_size(n.child[i]) > ALWAYS_FULL_LEAF))
-            .collect();
-        n.used = n.used & !(SLOTS << LOD_SLOTS_SHIFT) | coarse.iter().fold(0, |m, i| m | 1 << i) << LOD_SLOTS_SHIFT;
-        n.min_radius = coarse.iter().map(|&i| l.radius[i]).fold(f32::INFINITY, f32::min);
+        mark_lod_slots(n, l);
     }
-    (lod, reps, aggregates)
+    Lod { lod, representatives: reps, aggregates, root }
+}
+
+/// A tree's level-of-detail arrays (node by node), and the moments of the disks below its root.
+pub(super) struct Lod {
+    pub(super) lod: Vec<NodeLod>,
+    pub(super) representatives: Vec<SplatBlock>,
+    pub(super) aggregates: Vec<NodeAggregate>,
+    pub(super) root: Moments,
 }
 
 /// The level-of-detail payload and the representatives of one node's children. Never inlined:
@@ -298,6 +327,11 @@ fn node_lod(n: &Node, disks: &Disks, ranges: &[Range<usize>], moments: &[Moments
             child_lod(n.child_bounds(i).center(), disks, below, m, shape)
         })
     });
+    payload(&children)
+}
+
+/// A node's payload from its children's (`None` for unused slots).
+pub(super) fn payload(children: &[Option<ChildLod>; WIDTH]) -> Payload {
     let lane = |f: &dyn Fn(&ChildLod) -> f32, unused: f32| {
         Lanes::from_array(std::array::from_fn(|i| children[i].as_ref().map_or(unused, f)))
     };
@@ -311,13 +345,35 @@ fn node_lod(n: &Node, disks: &Disks, ranges: &[Range<usize>], moments: &[Moments
     Payload { lod, representatives: SplatBlock::new(&reps), aggregate }
 }
 
+/// Sets the children of `n` a ray may replace by their representatives and its `min_radius`,
+/// from its spheres `l`.
+pub(super) fn mark_lod_slots(n: &mut Node, l: &NodeLod) {
+    // A leaf of a few splats costs about what its representative does to test: it is never
+    // replaced, and full detail there is free.
+    let coarse: Vec<usize> = (0..WIDTH)
+        .filter(|&i| n.used & (1 << i) != 0 && (n.child[i] & LEAF == 0 || leaf_size(n.child[i]) > ALWAYS_FULL_LEAF))
+        .collect();
+    n.used = n.used & !(SLOTS << LOD_SLOTS_SHIFT) | coarse.iter().fold(0, |m, i| m | 1 << i) << LOD_SLOTS_SHIFT;
+    n.min_radius = coarse.iter().map(|&i| l.radius[i]).fold(f32::INFINITY, f32::min);
+}
+
 /// Marks the nodes that test their children's spheres rather than their boxes.
 pub(super) fn choose_node_bounds(nodes: &mut [Node], lod: &[NodeLod], choice: NodeBounds) {
-    let mut depth = vec![0u32; nodes.len()];
+    choose_node_bounds_below(nodes, lod, choice, 0);
+}
+
+/// [`choose_node_bounds`] for a subtree (its nodes in `nodes`, children after their parents,
+/// the root first) whose root lies `root_depth` levels down.
+pub(super) fn choose_node_bounds_below(nodes: &mut [Node], lod: &[NodeLod], choice: NodeBounds, root_depth: u32) {
+    let mut depth = vec![root_depth; nodes.len()];
     for k in 0..nodes.len() {
         let n = &nodes[k];
         for i in (0..WIDTH).filter(|i| n.used & (1 << i) != 0 && n.child[*i] & LEAF == 0) {
-            depth[n.child[i] as usize] = depth[k] + 1;
+            // (A chunked tree's top leaves its chunks' nodes out: `super::streamed`.)
+            let below = depth[k] + 1;
+            if let Some(d) = depth.get_mut(n.child[i] as usize) {
+                *d = below;
+            }
         }
     }
     for (k, n) in nodes.iter_mut().enumerate() {

@@ -19,6 +19,7 @@ mod gather;
 pub(crate) mod lanes;
 mod lod;
 mod stored;
+mod streamed;
 pub(super) mod traverse;
 mod treelet;
 
@@ -26,6 +27,7 @@ pub use build::{BvhParams, TooLarge};
 pub use chunk::{CHUNK_SPLATS, Cell, ChunkPlan};
 pub use lod::NodeBounds;
 pub use stored::{ARRAY_ALIGN, ARRAYS, BvhMeta, BvhStoredError};
+pub use streamed::{Sink, Spill, Spilled, StreamedBvh, StreamedError};
 
 use glam::Vec3;
 
@@ -264,6 +266,12 @@ impl Bvh {
         leaves.into_iter().map(|j| (j, self.splat(j)))
     }
 
+    /// [`Accel::coverage_density`] found from the splats (a stored tree keeps it in its
+    /// file's metadata: this is what a build out of core stores).
+    pub fn measure_coverage_density(&self) -> f32 {
+        coverage_density(self, self.splats().map(|(_, s)| s))
+    }
+
     pub fn node_count(&self) -> usize {
         self.nodes.len()
     }
@@ -305,7 +313,7 @@ impl super::Accel for Bvh {
     }
 
     fn coverage_density(&self) -> f32 {
-        *self.coverage_density.get_or_init(|| coverage_density(self, self.splats().map(|(_, s)| s)))
+        *self.coverage_density.get_or_init(|| self.measure_coverage_density())
     }
 
     fn gather<V: FootprintVisitor>(&self, beam: &Beam, tau: f32, visitor: &mut V, stats: &mut super::TraversalStats) {

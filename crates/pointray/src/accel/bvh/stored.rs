@@ -160,7 +160,7 @@ fn node_bytes(nodes: Cow<'_, [Node]>) -> Cow<'_, [u8]> {
 
 /// The CRC of a top: its nodes (as stored, naming their treelets), spheres, representatives
 /// and aggregates, then the treelet table.
-fn top_crc(
+pub(super) fn top_crc(
     nodes: &[Node],
     lod: &[NodeLod],
     reps: &[SplatBlock],

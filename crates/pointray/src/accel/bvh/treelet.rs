@@ -11,7 +11,7 @@
 
 use std::sync::OnceLock;
 
-use super::lod::{NodeAggregate, NodeLod, node_ranges};
+use super::lod::{Lod, NodeAggregate, NodeLod, node_ranges};
 use super::{Bvh, LEAF, MAX_DEPTH, Node, SLOTS, WIDTH, leaf_blocks, leaf_size};
 use crate::accel::block::SplatBlock;
 
@@ -68,14 +68,11 @@ pub(super) struct Partition {
 }
 
 /// Cuts the tree (children stored after their parents, depth first, as the build leaves them)
-/// into its top, every node above more than [`TREELET_SPLATS`] splats (and the root), and the
-/// treelets below.
-pub(super) fn partition(
-    nodes: Vec<Node>,
-    lod: Vec<NodeLod>,
-    representatives: Vec<SplatBlock>,
-    aggregates: Vec<NodeAggregate>,
-) -> Partition {
+/// into its top, every node above more than [`TREELET_SPLATS`] splats (and the root if
+/// `root_in_top`: a whole tree's, not a chunk's, see `super::streamed`), and the treelets below.
+/// A root below the top is a treelet's, with no parent yet (`u32::MAX`).
+pub(super) fn partition(nodes: Vec<Node>, lod: Lod, root_in_top: bool) -> Partition {
+    let Lod { lod, representatives, aggregates, .. } = lod;
     let n = nodes.len();
     // Splats and nodes below each node, children first.
     let (mut splats, mut size) = (vec![0usize; n], vec![1usize; n]);
@@ -90,7 +87,7 @@ pub(super) fn partition(
             }
         }
     }
-    let top: Vec<bool> = (0..n).map(|k| k == 0 || splats[k] > TREELET_SPLATS).collect();
+    let top: Vec<bool> = (0..n).map(|k| k == 0 && root_in_top || splats[k] > TREELET_SPLATS).collect();
     // Depth first, the top's nodes are those of a subtree about the root, and every treelet is
     // a run of the rest.
     let order: Vec<usize> = (0..n).filter(|&k| top[k]).chain((0..n).filter(|&k| !top[k])).collect();
@@ -121,6 +118,17 @@ pub(super) fn partition(
                 crc: 0,
             });
         }
+    }
+    if n > 0 && !top[0] {
+        let range = blocks[0].clone();
+        treelets.push(Treelet {
+            root: 0,
+            parent: u32::MAX,
+            slot: u32::MAX,
+            nodes: [0, n as u32],
+            blocks: [range.start as u32, range.end as u32],
+            crc: 0,
+        });
     }
     let top_count = top.iter().filter(|&&t| t).count();
     place_in_order(&mut treelets, top_count);

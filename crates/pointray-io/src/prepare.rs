@@ -1,0 +1,485 @@
+//! Preparing a scene file out of core (`pointray prepare IN -o OUT.prs --memory-budget SIZE`):
+//! the cloud read in passes, never whole; its points routed by Morton cell to temporary files,
+//! each cell then sorted and cleaned as preprocessing does in memory (repeated positions
+//! dropped, the given normals turned outward where they point in), and the BVH built a chunk at
+//! a time ([`StreamedBvh`]) straight into the file. The file holds the same bytes as preparing
+//! the cloud in memory writes (`tests`), so it renders the same images.
+//!
+//! What it takes, for now: a binary PLY whose vertices all carry a valid normal and radius
+//! (what `pointray prepare -o x.ply`, CloudCompare or a scanner's software writes), with the
+//! default preprocessing and build settings. Anything else is refused, naming what to do.
+
+use std::fs::File;
+use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use bytemuck::Zeroable;
+use glam::{DVec3, Vec3};
+use pointray::Settings;
+use pointray::accel::Bvh;
+use pointray::accel::bvh::{BvhParams, ChunkPlan, Sink, Spill, Spilled, StreamedBvh};
+use pointray::accel::stored::StableBytes;
+use pointray::math::{Aabb, morton};
+use pointray::preprocess::PreprocessConfig;
+use pointray::scene::{SceneMeta, SceneParts, StreamedCloud};
+use pointray::shading::{Environment, Light};
+use pointray::splat::{DEFAULT_COLOR, Splat, pack_color};
+
+use crate::IoError;
+use crate::ply::VertexStream;
+
+/// One point as the passes keep it in their temporary files.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+struct Record {
+    code: u64,
+    /// Its place in the file, which orders points of one code as the in-memory sort does.
+    index: u32,
+    position: [f32; 3],
+    normal: [f32; 3],
+    radius: f32,
+    color: u32,
+    pad: u32,
+}
+
+/// What preparing out of core did.
+#[derive(Clone, Debug)]
+pub struct Prepared {
+    pub points_read: usize,
+    pub points: usize,
+    pub chunks: usize,
+    pub dropped_non_finite: usize,
+    pub dropped_duplicates: usize,
+    pub turned_outward: bool,
+}
+
+/// Prepares the cloud at `input` into the scene file `output` out of core (see the module);
+/// `stage` is told each pass.
+pub fn prepare_out_of_core(
+    input: &Path,
+    output: &Path,
+    config: &PreprocessConfig,
+    stage: &dyn Fn(&str),
+) -> Result<Prepared, IoError> {
+    // With every normal and radius given, only these settings change what preprocessing does.
+    let standard = PreprocessConfig::standard();
+    if (config.sort, config.recompute, config.outlier_std) != (standard.sort, standard.recompute, standard.outlier_std)
+    {
+        return Err(IoError::invalid(
+            input,
+            "out of core, only the default preprocessing (sorted, no outlier filter, nothing recomputed) is done",
+        ));
+    }
+    let mut stream = VertexStream::open(input)?;
+    if !stream.has_normals_and_radii() {
+        return Err(IoError::invalid(
+            input,
+            "out of core, a cloud must come with normals and radii: prepare it without --memory-budget",
+        ));
+    }
+    let points_read = stream.count;
+    stage("bounds");
+    let origin = world_origin(&mut stream)?;
+    let (bounds, kept) = local_bounds(input, &mut stream, origin)?;
+    if kept == 0 {
+        return Err(IoError::invalid(input, "no point with finite coordinates"));
+    }
+    let params = BvhParams::standard();
+    let dir = crate::ScratchDir::beside(output)?;
+    stage("plan");
+    let provisional = plan(&mut stream, origin, bounds, kept, params.chunk_splats)?;
+    stage("route");
+    let buckets = route(&mut stream, origin, &provisional, dir.path())?;
+    stage("sort");
+    let cleaned = clean(&buckets)?;
+    let plan = if cleaned.duplicates == 0 {
+        provisional
+    } else {
+        let count = kept - cleaned.duplicates;
+        ChunkPlan::new(bounds, count, params.chunk_splats, |f| {
+            for b in &buckets {
+                for_each_record(b, |r| f(r.code)).expect("a bucket just written");
+            }
+        })
+    };
+    stage("orient");
+    let inward = pointing_in(&buckets, cleaned.center)?;
+    if inward {
+        tracing::warn!("{}: the given normals pointed inward; turned them outward", input.display());
+    }
+    if cleaned.duplicates > 0 {
+        tracing::info!(
+            "{}: dropped {} points repeating an earlier point's position",
+            input.display(),
+            cleaned.duplicates
+        );
+    }
+    let build = StreamedBvh::new(plan, &params);
+    let mut spill = Files::new(dir.path())?;
+    stage("build");
+    let (build, cloud) = build_chunks(build, &buckets, inward, origin, &mut spill)?;
+    stage("write");
+    let light = stream.info.sun.map(|d| Light::Directional { direction: Vec3::from(d), intensity: 1.0 });
+    let up = stream.info.up.map(Vec3::from);
+    let environment = stream.info.sun.map(|_| Environment::sky(up.unwrap_or(Vec3::Z).normalize()));
+    let view =
+        stream.viewpoint.and_then(|v| crate::source::sensor_view_of((DVec3::from(v) - origin).as_vec3(), cloud.bounds));
+    let parts = SceneParts { up, view, light, environment, ..SceneParts::default() };
+    write(output, build, &mut spill, &parts, &cloud)?;
+    Ok(Prepared {
+        points_read,
+        points: cloud.points,
+        chunks: buckets.len(),
+        dropped_non_finite: points_read - kept,
+        dropped_duplicates: cleaned.duplicates,
+        turned_outward: inward,
+    })
+}
+
+/// The origin reading the cloud in memory gives it (`PointCloud::from_world_positions`): the
+/// centre of its finite points' bounds.
+fn world_origin(stream: &mut VertexStream) -> Result<DVec3, IoError> {
+    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    stream.for_each(|r| {
+        if r.position.abs().max_element() <= f64::from(f32::MAX) {
+            (lo, hi) = (lo.min(r.position), hi.max(r.position));
+        }
+    })?;
+    Ok(if lo.x <= hi.x { (lo + hi) * 0.5 } else { DVec3::ZERO })
+}
+
+/// A point's position as the cloud in memory holds it (`None`: dropped as non-finite).
+fn local(position: DVec3, origin: DVec3) -> Option<Vec3> {
+    Some((position - origin).as_vec3()).filter(|p| p.is_finite())
+}
+
+/// The bounds of the points kept and how many, checking their normals and radii.
+fn local_bounds(path: &Path, stream: &mut VertexStream, origin: DVec3) -> Result<(Aabb, usize), IoError> {
+    let (mut bounds, mut kept, mut invalid) = (Aabb::EMPTY, 0usize, 0usize);
+    stream.for_each(|r| {
+        if let Some(p) = local(r.position, origin) {
+            bounds = bounds.union(Aabb::new(p, p));
+            kept += 1;
+            invalid += usize::from(r.normal.try_normalize().is_none() || !(r.radius.is_finite() && r.radius > 0.0));
+        }
+    })?;
+    if invalid > 0 {
+        return Err(IoError::invalid(
+            path,
+            format!(
+                "{invalid} points have no valid normal or radius: out of core they cannot be computed yet, prepare it without --memory-budget"
+            ),
+        ));
+    }
+    Ok((bounds, kept))
+}
+
+/// The chunks of the kept points, repeats counted (they cannot be told apart before routing).
+fn plan(
+    stream: &mut VertexStream,
+    origin: DVec3,
+    bounds: Aabb,
+    kept: usize,
+    most: usize,
+) -> Result<ChunkPlan, IoError> {
+    let mut failed = None;
+    let plan = ChunkPlan::new(bounds, kept, most, |f| {
+        let pass = stream.for_each(|r| {
+            if let Some(p) = local(r.position, origin) {
+                f(morton::encode(p, &bounds));
+            }
+        });
+        failed = failed.take().or(pass.err());
+    });
+    failed.map_or(Ok(plan), Err)
+}
+
+/// A chunk's points in a temporary file, and the least Morton code of its cell.
+struct Bucket {
+    path: PathBuf,
+    first_code: u64,
+}
+
+/// Every kept point written to its chunk's file, in file order.
+fn route(stream: &mut VertexStream, origin: DVec3, plan: &ChunkPlan, dir: &Path) -> Result<Vec<Bucket>, IoError> {
+    let io = |path: &Path, e| IoError::io(path, e);
+    let buckets: Vec<Bucket> = plan
+        .chunks()
+        .iter()
+        .enumerate()
+        .map(|(c, cell)| Bucket { path: dir.join(format!("chunk{c}")), first_code: cell.first_code() })
+        .collect();
+    let mut writers = Vec::with_capacity(buckets.len());
+    for b in &buckets {
+        writers.push(BufWriter::with_capacity(1 << 16, File::create(&b.path).map_err(|e| io(&b.path, e))?));
+    }
+    let (mut index, mut failed) = (0u32, None);
+    let colors = stream.has_colors();
+    stream.for_each(|r| {
+        if let Some(p) = local(r.position, origin) {
+            let code = plan.code(p);
+            let record = Record {
+                code,
+                index,
+                position: p.to_array(),
+                normal: r.normal.try_normalize().unwrap_or(Vec3::Z).to_array(),
+                radius: r.radius,
+                color: pack_color(if colors { r.color } else { DEFAULT_COLOR }),
+                pad: 0,
+            };
+            let c = plan.chunk_of(code);
+            if let Err(e) = writers[c].write_all(bytemuck::bytes_of(&record)) {
+                failed = failed.take().or(Some(io(&buckets[c].path, e)));
+            }
+        }
+        index += 1;
+    })?;
+    if let Some(e) = failed {
+        return Err(e);
+    }
+    for (w, b) in writers.into_iter().zip(&buckets) {
+        w.into_inner().map_err(|e| io(&b.path, e.into_error()))?;
+    }
+    Ok(buckets)
+}
+
+/// Calls `visit` with every record of `bucket`, in order.
+fn for_each_record(bucket: &Bucket, mut visit: impl FnMut(&Record)) -> Result<(), IoError> {
+    let io = |e| IoError::io(&bucket.path, e);
+    let mut file = std::io::BufReader::with_capacity(1 << 20, File::open(&bucket.path).map_err(io)?);
+    let mut record = Record::zeroed();
+    loop {
+        match file.read_exact(bytemuck::bytes_of_mut(&mut record)) {
+            Ok(()) => visit(&record),
+            Err(e) if e.kind() == std::io::ErrorKind::UnexpectedEof => return Ok(()),
+            Err(e) => return Err(io(e)),
+        }
+    }
+}
+
+fn read_bucket(bucket: &Bucket) -> Result<Vec<Record>, IoError> {
+    let mut records = Vec::new();
+    for_each_record(bucket, |r| records.push(*r))?;
+    Ok(records)
+}
+
+/// What cleaning the buckets found: repeats dropped, and the centre of the points kept.
+struct Cleaned {
+    duplicates: usize,
+    center: DVec3,
+}
+
+/// Sorts each bucket as the in-memory Morton sort orders its points, drops every point whose
+/// position repeats an earlier one's (preprocessing's `drop_duplicates`: repeats share a code,
+/// so a bucket), and sums the positions as `orient::turn_given_outward` does, in blocks of the
+/// sorted order.
+fn clean(buckets: &[Bucket]) -> Result<Cleaned, IoError> {
+    let (mut duplicates, mut sums) = (0, BlockSums::default());
+    for b in buckets {
+        let mut records = read_bucket(b)?;
+        records.sort_unstable_by_key(|r| (r.code, r.index));
+        let before = records.len();
+        records = without_repeats(records);
+        duplicates += before - records.len();
+        for r in &records {
+            let p = Vec3::from(r.position).as_dvec3();
+            sums.add([p.x, p.y, p.z, 1.0]);
+        }
+        std::fs::write(&b.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&b.path, e))?;
+    }
+    let [x, y, z, count] = sums.total();
+    Ok(Cleaned { duplicates, center: DVec3::new(x, y, z) / count })
+}
+
+/// `records` (sorted by code) without those whose position (bit for bit, −0 as +0) an earlier
+/// one in the file has: only points of one code can share a position.
+fn without_repeats(records: Vec<Record>) -> Vec<Record> {
+    let bits = |r: &Record| (Vec3::from(r.position) + Vec3::ZERO).to_array().map(f32::to_bits);
+    let mut repeat = vec![false; records.len()];
+    let mut start = 0;
+    while start < records.len() {
+        let end = start + records[start..].iter().take_while(|r| r.code == records[start].code).count();
+        if end - start > 1 {
+            let mut run: Vec<([u32; 3], u32, usize)> =
+                (start..end).map(|i| (bits(&records[i]), records[i].index, i)).collect();
+            run.sort_unstable();
+            for pair in run.windows(2).filter(|w| w[0].0 == w[1].0) {
+                repeat[pair[1].2] = true;
+            }
+        }
+        start = end;
+    }
+    records.into_iter().zip(repeat).filter(|(_, r)| !r).map(|(r, _)| r).collect()
+}
+
+/// Sums of four terms over points in the sorted order, as `orient`'s `given_sums` adds them:
+/// in blocks of 2¹⁶ points, then block by block.
+#[derive(Default)]
+struct BlockSums {
+    block: [f64; 4],
+    in_block: usize,
+    total: [f64; 4],
+}
+
+impl BlockSums {
+    const BLOCK: usize = 1 << 16;
+
+    fn add(&mut self, term: [f64; 4]) {
+        self.block = std::array::from_fn(|k| self.block[k] + term[k]);
+        self.in_block += 1;
+        if self.in_block == Self::BLOCK {
+            self.flush();
+        }
+    }
+
+    fn flush(&mut self) {
+        self.total = std::array::from_fn(|k| self.total[k] + self.block[k]);
+        (self.block, self.in_block) = ([0.0; 4], 0);
+    }
+
+    fn total(mut self) -> [f64; 4] {
+        if self.in_block > 0 {
+            self.flush();
+        }
+        self.total
+    }
+}
+
+/// Whether the given normals point inward (`orient::turn_given_outward`'s test), from the
+/// centre of the points.
+fn pointing_in(buckets: &[Bucket], center: DVec3) -> Result<bool, IoError> {
+    let mut sums = BlockSums::default();
+    for b in buckets {
+        for_each_record(b, |r| {
+            let d = Vec3::from(r.position).as_dvec3() - center;
+            sums.add([Vec3::from(r.normal).as_dvec3().normalize_or_zero().dot(d), d.length(), 0.0, 0.0]);
+        })?;
+    }
+    let [along, away, ..] = sums.total();
+    Ok(along < pointray::preprocess::orient::INWARD * away)
+}
+
+/// Every chunk built in turn from its buckets' points, as splats; the cloud's scalars.
+fn build_chunks(
+    mut build: StreamedBvh,
+    buckets: &[Bucket],
+    inward: bool,
+    origin: DVec3,
+    spill: &mut Files,
+) -> Result<(StreamedBvh, StreamedCloud), IoError> {
+    let (mut bounds, mut radii, mut points) = (Aabb::EMPTY, 0.0f64, 0usize);
+    let chunks = build.plan().chunks().len();
+    let mut next = 0;
+    for c in 0..chunks {
+        let mut splats = Vec::new();
+        while next < buckets.len() && build.plan().chunk_of(buckets[next].first_code) == c {
+            for_each_record(&buckets[next], |r| {
+                let normal = Vec3::from(r.normal);
+                let s = Splat {
+                    center: Vec3::from(r.position),
+                    radius: r.radius,
+                    normal: if inward { -normal } else { normal },
+                    color: r.color,
+                };
+                bounds = bounds.union(Aabb::new(s.center, s.center));
+                radii += f64::from(s.radius);
+                splats.push(s);
+            })?;
+            next += 1;
+        }
+        points += splats.len();
+        build.add_chunk(splats, spill).map_err(|e| IoError::invalid(&spill.dir, e.to_string()))?;
+    }
+    let cloud = StreamedCloud { points, origin, bounds, mean_radius: radii / points as f64 };
+    Ok((build, cloud))
+}
+
+/// The spilled arrays, a file each.
+struct Files {
+    dir: PathBuf,
+    files: Vec<File>,
+}
+
+impl Files {
+    fn new(dir: &Path) -> Result<Self, IoError> {
+        let files = (0..6)
+            .map(|i| {
+                let path = dir.join(format!("spill{i}"));
+                File::options()
+                    .read(true)
+                    .write(true)
+                    .create(true)
+                    .truncate(true)
+                    .open(&path)
+                    .map_err(|e| IoError::io(&path, e))
+            })
+            .collect::<Result<_, _>>()?;
+        Ok(Self { dir: dir.to_path_buf(), files })
+    }
+}
+
+impl Spill for Files {
+    fn append(&mut self, array: Spilled, bytes: &[u8]) -> std::io::Result<()> {
+        let f = &mut self.files[array as usize];
+        f.seek(SeekFrom::End(0))?;
+        f.write_all(bytes)
+    }
+
+    fn read_at(&mut self, array: Spilled, offset: usize, buf: &mut [u8]) -> std::io::Result<()> {
+        std::os::unix::fs::FileExt::read_exact_at(&self.files[array as usize], buf, offset as u64)
+    }
+}
+
+/// The scene file being written, its arrays where `ranges` put them.
+struct FileSink<'a> {
+    file: &'a File,
+    ranges: &'a [std::ops::Range<usize>; 7],
+}
+
+impl Sink for FileSink<'_> {
+    fn write_at(&mut self, array: usize, offset: usize, bytes: &[u8]) -> std::io::Result<()> {
+        debug_assert!(self.ranges[array].start + offset + bytes.len() <= self.ranges[array].end);
+        std::os::unix::fs::FileExt::write_all_at(self.file, bytes, (self.ranges[array].start + offset) as u64)
+    }
+}
+
+/// Writes the scene file: the arrays, then (with the coverage density found from them, mapped)
+/// the index, metadata and header.
+fn write(
+    output: &Path,
+    build: StreamedBvh,
+    spill: &mut Files,
+    parts: &SceneParts,
+    cloud: &StreamedCloud,
+) -> Result<(), IoError> {
+    let ranges = crate::prs::layout(build.lengths());
+    let mut failed = None;
+    crate::atomic_file(output, |file| {
+        let (mut meta, ids_crc) =
+            build.finish(spill, &mut FileSink { file, ranges: &ranges }).map_err(|e| match e {
+                pointray::accel::bvh::StreamedError::Io(e) => e,
+                e => std::io::Error::other(e.to_string()),
+            })?;
+        file.set_len(crate::prs::index_at(&ranges) as u64)?;
+        let bytes: Arc<dyn StableBytes> = Arc::new(crate::file::map_for_reading(file)?);
+        let [nodes, lod, blocks, reps, aggregates, treelets, _] = ranges.clone();
+        meta.coverage_density = 1.0;
+        let bvh = Bvh::from_stored(meta.clone(), bytes, [nodes, lod, blocks, reps, aggregates, treelets])
+            .map_err(|e| std::io::Error::other(format!("the tree written does not read back: {e}")))?;
+        meta.coverage_density = bvh.measure_coverage_density();
+        drop(bvh);
+        let scene = SceneMeta::streamed(&Settings::default(), parts, cloud, meta, ids_crc);
+        match crate::prs::tail(output, &ranges, &scene) {
+            Ok((header, tail)) => {
+                std::os::unix::fs::FileExt::write_all_at(file, &tail, crate::prs::index_at(&ranges) as u64)?;
+                std::os::unix::fs::FileExt::write_all_at(file, &header, 0)
+            }
+            Err(e) => {
+                failed = Some(e);
+                Err(std::io::Error::other("cannot store the scene"))
+            }
+        }
+    })
+    .map_err(|e| failed.take().unwrap_or(e))
+}

@@ -1,0 +1,508 @@
+//! The chunked BVH (`super::chunk`) built out of core: its chunks added one at a time, each
+//! built, given its level of detail and cut into treelets at once, the treelets' arrays handed
+//! to a [`Spill`] (files, for `pointray_io::prepare`); the top (the octree's nodes and each
+//! chunk's nodes above its treelets) kept in memory, its level of detail found in one more pass
+//! over the spilled blocks. Then every array goes to a [`Sink`] as a scene file stores it: the
+//! same bytes [`Bvh::arrays`] gives of the tree [`Bvh::build_with_ids`] makes in memory, while
+//! memory holds one chunk's build and the top.
+//!
+//! Node numbers: the top's nodes come first, the octree's, then each chunk's top nodes in
+//! turn; the treelets' nodes follow, chunk after chunk, numbered here from the first treelet
+//! node and moved past the top when written, once its size is known.
+
+use std::io;
+use std::ops::Range;
+
+use super::build::{BvhParams, TooLarge, Tree};
+use super::chunk::{Child, ChunkPlan, Top, top_nodes};
+use super::lod::{self, ChildLod, ChildPass, Disks, NodeAggregate, NodeLod};
+use super::treelet::{self, Treelet, treelet_ref};
+use super::{Bvh, BvhMeta, LEAF, Node, SPHERE_NODE, WIDTH};
+use crate::accel::block::{BLOCK, SplatBlock, snap};
+use crate::accel::representative::{LOD_FLOOR_QUANTILE, Moments, WIDE_QUANTILE, radius_quantile};
+use crate::math::Aabb;
+use crate::splat::Splat;
+
+/// The arrays a build spills, each appended to in turn and read back.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Spilled {
+    Nodes,
+    Lod,
+    Representatives,
+    Aggregates,
+    Blocks,
+    Ids,
+}
+
+/// Where an out-of-core build keeps the arrays it made (temporary files).
+pub trait Spill {
+    fn append(&mut self, array: Spilled, bytes: &[u8]) -> io::Result<()>;
+    /// Reads `buf.len()` bytes from `offset` of `array`.
+    fn read_at(&mut self, array: Spilled, offset: usize, buf: &mut [u8]) -> io::Result<()>;
+}
+
+/// Where the stored arrays go: array `array` of `scene::SCENE_ARRAYS` (the BVH's, then the
+/// ids), `bytes` at byte `offset` of it.
+pub trait Sink {
+    fn write_at(&mut self, array: usize, offset: usize, bytes: &[u8]) -> io::Result<()>;
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum StreamedError {
+    #[error(transparent)]
+    TooLarge(#[from] TooLarge),
+    #[error(transparent)]
+    Io(#[from] io::Error),
+}
+
+/// Blocks read at a time from a spill (a window of 11 MB).
+const WINDOW: usize = 1 << 16;
+
+/// A BVH being built a chunk at a time (see the module).
+pub struct StreamedBvh {
+    params: BvhParams,
+    plan: ChunkPlan,
+    top: Top,
+    /// The next chunk to add, and the input's id of its first splat.
+    next: usize,
+    first_id: usize,
+    /// The top's arrays: the octree's nodes (made by `finish`), then each chunk's top nodes.
+    nodes: Vec<Node>,
+    lod: Vec<NodeLod>,
+    representatives: Vec<SplatBlock>,
+    aggregates: Vec<NodeAggregate>,
+    /// Their nodes and roots numbered from the first treelet node.
+    treelets: Vec<Treelet>,
+    /// Each chunk's root as its parent names it, its bounds, blocks and moments.
+    roots: Vec<(u32, Aabb)>,
+    chunk_blocks: Vec<Range<usize>>,
+    moments: Vec<Moments>,
+    /// Every block's splat count, every node's `min_radius`, every splat's radius.
+    counts: Vec<u8>,
+    min_radii: Vec<f32>,
+    radii: Vec<f32>,
+    spilled_nodes: usize,
+    bounds: Aabb,
+    depth: usize,
+    sphere_nodes: usize,
+}
+
+impl StreamedBvh {
+    /// A build of the splats `plan` covers, with `params` (whose `chunk_splats` made the plan).
+    pub fn new(plan: ChunkPlan, params: &BvhParams) -> StreamedBvh {
+        let top = plan.top();
+        let empty = Node::new(&[]);
+        let t = top.nodes.len();
+        StreamedBvh {
+            params: *params,
+            plan,
+            next: 0,
+            first_id: 0,
+            nodes: vec![empty; t],
+            lod: vec![bytemuck::Zeroable::zeroed(); t],
+            representatives: vec![bytemuck::Zeroable::zeroed(); t],
+            aggregates: vec![bytemuck::Zeroable::zeroed(); t],
+            treelets: Vec::new(),
+            roots: Vec::new(),
+            chunk_blocks: Vec::new(),
+            moments: Vec::new(),
+            counts: Vec::new(),
+            min_radii: Vec::new(),
+            radii: Vec::new(),
+            spilled_nodes: 0,
+            bounds: Aabb::EMPTY,
+            depth: 0,
+            sphere_nodes: 0,
+            top,
+        }
+    }
+
+    pub fn plan(&self) -> &ChunkPlan {
+        &self.plan
+    }
+
+    /// Builds the next chunk from its splats (in the input's order; ids counted on from the
+    /// chunks before), keeps its top and spills the rest.
+    ///
+    /// # Panics
+    /// With more or fewer splats than the plan gives the chunk, or past the last chunk.
+    pub fn add_chunk(&mut self, mut splats: Vec<Splat>, spill: &mut dyn Spill) -> Result<(), StreamedError> {
+        let c = self.next;
+        assert_eq!(splats.len(), self.plan.chunks()[c].count, "chunk {c}'s splats");
+        snap(&mut splats);
+        self.radii.extend(splats.iter().map(|s| s.radius));
+        let depth = self.top.depths[c];
+        let mut tree = Tree::build(&splats, &self.params, depth)?;
+        drop(splats);
+        let blocks = self.counts.len();
+        if blocks + tree.blocks.len() > super::MAX_BLOCKS {
+            return Err(TooLarge::Blocks(blocks + tree.blocks.len()).into());
+        }
+        for id in tree.ids.iter_mut().filter(|id| **id != u32::MAX) {
+            *id += self.first_id as u32;
+        }
+        let lod = lod::build(&mut tree.nodes, &Disks { blocks: &tree.blocks, counts: &tree.counts }, self.params.shape);
+        lod::choose_node_bounds_below(&mut tree.nodes, &lod.lod, self.params.node_bounds, depth as u32);
+        self.sphere_nodes += tree.nodes.iter().filter(|n| n.used & SPHERE_NODE != 0).count();
+        self.min_radii.extend(tree.nodes.iter().map(|n| n.min_radius));
+        self.moments.push(lod.root.clone());
+        let cut = treelet::partition(std::mem::take(&mut tree.nodes), lod, self.top.nodes.is_empty());
+        let (top_at, tree_at, t0) = (self.nodes.len() as u32, self.spilled_nodes as u32, self.treelets.len());
+        let node_at = |k: u32| if (k as usize) < cut.top { top_at + k } else { tree_at + k - cut.top as u32 };
+        let moved = |c: u32| if c & LEAF != 0 { c + blocks as u32 } else { node_at(c) };
+        let mut nodes: Vec<Node> = cut.nodes.iter().map(|n| with_children(n, moved)).collect();
+        for (t, treelet) in cut.treelets.iter().enumerate() {
+            if treelet.parent != u32::MAX {
+                nodes[treelet.parent as usize].child[treelet.slot as usize] = treelet_ref(t0 + t);
+            }
+            self.treelets.push(Treelet {
+                root: moved(treelet.root),
+                parent: if treelet.parent == u32::MAX { u32::MAX } else { top_at + treelet.parent },
+                slot: treelet.slot,
+                nodes: treelet.nodes.map(|k| k - cut.top as u32 + tree_at),
+                blocks: treelet.blocks.map(|b| b + blocks as u32),
+                crc: 0,
+            });
+        }
+        let root = if cut.top > 0 { top_at } else { treelet_ref(t0) };
+        self.roots.push((root, tree.bounds));
+        let split = cut.top;
+        spill.append(Spilled::Nodes, bytemuck::cast_slice(&nodes[split..]))?;
+        spill.append(Spilled::Lod, bytemuck::cast_slice(&cut.lod[split..]))?;
+        spill.append(Spilled::Representatives, bytemuck::cast_slice(&cut.representatives[split..]))?;
+        spill.append(Spilled::Aggregates, bytemuck::cast_slice(&cut.aggregates[split..]))?;
+        spill.append(Spilled::Blocks, bytemuck::cast_slice(&tree.blocks))?;
+        spill.append(Spilled::Ids, bytemuck::cast_slice(&tree.ids))?;
+        self.nodes.extend_from_slice(&nodes[..split]);
+        self.lod.extend_from_slice(&cut.lod[..split]);
+        self.representatives.extend_from_slice(&cut.representatives[..split]);
+        self.aggregates.extend_from_slice(&cut.aggregates[..split]);
+        self.spilled_nodes += nodes.len() - split;
+        self.chunk_blocks.push(blocks..blocks + tree.blocks.len());
+        self.counts.extend_from_slice(&tree.counts);
+        self.bounds = self.bounds.union(tree.bounds);
+        self.depth = self.depth.max(depth + tree.depth);
+        self.first_id += self.plan.chunks()[c].count;
+        self.next += 1;
+        Ok(())
+    }
+
+    /// The byte length of each stored array (as [`Sink`] numbers them), once every chunk is in.
+    pub fn lengths(&self) -> [usize; 7] {
+        let nodes = self.nodes.len() + self.spilled_nodes;
+        let blocks = self.counts.len();
+        [
+            nodes * size_of::<Node>(),
+            nodes * size_of::<NodeLod>(),
+            blocks * size_of::<SplatBlock>(),
+            nodes * size_of::<SplatBlock>(),
+            nodes * size_of::<NodeAggregate>(),
+            self.treelets.len() * size_of::<Treelet>(),
+            blocks * BLOCK * size_of::<u32>(),
+        ]
+    }
+
+    /// The top's level of detail, then every array written to `sink`; the BVH's scalars (its
+    /// `coverage_density` NaN: it is found from the stored tree, `Bvh::measure_coverage_density`)
+    /// and the ids' CRC.
+    ///
+    /// # Panics
+    /// Before every chunk is added.
+    pub fn finish(mut self, spill: &mut dyn Spill, sink: &mut dyn Sink) -> Result<(BvhMeta, u32), StreamedError> {
+        assert_eq!(self.next, self.plan.chunks().len(), "chunks missing");
+        top_nodes(&self.top, &self.roots, &mut self.nodes[..self.top.nodes.len()]);
+        for k in 0..self.top.nodes.len() {
+            for i in (0..WIDTH).filter(|&i| self.nodes[k].used & (1 << i) != 0) {
+                let child = self.nodes[k].child[i];
+                if Bvh::is_treelet(child) {
+                    let t = (child - treelet_ref(0)) as usize;
+                    (self.treelets[t].parent, self.treelets[t].slot) = (k as u32, i as u32);
+                }
+            }
+        }
+        self.top_lod(spill)?;
+        let lod_floor = radius_quantile(std::mem::take(&mut self.min_radii), LOD_FLOOR_QUANTILE);
+        let wide_radius = radius_quantile(std::mem::take(&mut self.radii), WIDE_QUANTILE);
+        let top = self.nodes.len() as u32;
+        for t in &mut self.treelets {
+            t.nodes = t.nodes.map(|k| k + top);
+            t.root = if t.root & LEAF != 0 { t.root } else { t.root + top };
+        }
+        let ids_crc = self.write(spill, sink, top)?;
+        let meta = BvhMeta {
+            splat_count: self.first_id,
+            bounds: [self.bounds.min.to_array(), self.bounds.max.to_array()],
+            depth: self.depth,
+            node_bounds: self.params.node_bounds,
+            shape: self.params.shape,
+            lod_floor,
+            wide_radius,
+            coverage_density: f32::NAN,
+            sphere_nodes: self.sphere_nodes,
+            top_nodes: self.nodes.len(),
+            top_crc: super::stored::top_crc(
+                &self.nodes,
+                &self.lod,
+                &self.representatives,
+                &self.aggregates,
+                &self.treelets,
+            ),
+        };
+        Ok((meta, ids_crc))
+    }
+
+    /// The octree's nodes' level of detail: their moments from the chunks' up, then one pass
+    /// over the spilled blocks for every child's bounds and representative.
+    fn top_lod(&mut self, spill: &mut dyn Spill) -> io::Result<()> {
+        let t = self.top.nodes.len();
+        let (mut moments, mut ranges) = (vec![Moments::default(); t], vec![0..0; t]);
+        let child_of = |c: Child, moments: &[Moments], ranges: &[Range<usize>]| match c {
+            Child::Node(i) => (moments[i].clone(), ranges[i].clone()),
+            Child::Chunk(c) => (self.moments[c].clone(), self.chunk_blocks[c].clone()),
+        };
+        // Each child's pass, in the order of its blocks.
+        let mut passes: Vec<(usize, usize, Moments, Range<usize>)> = Vec::new();
+        for k in (0..t).rev() {
+            let (mut m, mut lo, mut hi) = (Moments::default(), usize::MAX, 0);
+            for (i, &c) in self.top.nodes[k].iter().enumerate() {
+                let (cm, r) = child_of(c, &moments, &ranges);
+                m.merge(&cm);
+                (lo, hi) = (lo.min(r.start), hi.max(r.end));
+                passes.push((k, i, cm, r));
+            }
+            (moments[k], ranges[k]) = (m, lo..hi);
+        }
+        passes.sort_by_key(|p| p.3.start);
+        let mut running: Vec<Option<ChildPass>> = (0..passes.len()).map(|_| None).collect();
+        let total = self.counts.len();
+        let mut window = vec![bytemuck::Zeroable::zeroed(); WINDOW.min(total)];
+        for start in (0..total).step_by(WINDOW) {
+            let end = (start + WINDOW).min(total);
+            let blocks = &mut window[..end - start];
+            spill.read_at(Spilled::Blocks, start * size_of::<SplatBlock>(), bytemuck::cast_slice_mut(blocks))?;
+            for (p, (k, i, m, r)) in passes.iter().enumerate().filter(|(_, p)| p.3.start < end && p.3.end > start) {
+                for b in r.start.max(start)..r.end.min(end) {
+                    let block = &blocks[b - start];
+                    let pass = running[p].get_or_insert_with(|| {
+                        ChildPass::new(self.nodes[*k].child_bounds(*i).center(), block, m, self.params.shape)
+                    });
+                    pass.add(block, usize::from(self.counts[b]));
+                }
+            }
+        }
+        let mut children: Vec<[Option<ChildLod>; WIDTH]> = (0..t).map(|_| Default::default()).collect();
+        for ((k, i, m, _), pass) in passes.into_iter().zip(running) {
+            children[k][i] = Some(pass.expect("every child has blocks").finish(&m));
+        }
+        for (k, children) in children.iter().enumerate() {
+            let p = lod::payload(children);
+            (self.lod[k], self.representatives[k], self.aggregates[k]) = (p.lod, p.representatives, p.aggregate);
+            lod::mark_lod_slots(&mut self.nodes[k], &p.lod);
+            self.min_radii.push(self.nodes[k].min_radius);
+        }
+        lod::choose_node_bounds_below(&mut self.nodes[..t], &self.lod[..t], self.params.node_bounds, 0);
+        self.sphere_nodes += self.nodes[..t].iter().filter(|n| n.used & SPHERE_NODE != 0).count();
+        Ok(())
+    }
+
+    /// Every array to `sink`: the top's, then the spilled ones (their nodes moved past the
+    /// `top` nodes), each treelet's CRC found on the way; the ids' CRC.
+    fn write(&mut self, spill: &mut dyn Spill, sink: &mut dyn Sink, top: u32) -> io::Result<u32> {
+        let mut crcs: Vec<crc32fast::Hasher> = self.treelets.iter().map(|_| crc32fast::Hasher::new()).collect();
+        let spilled = [Spilled::Nodes, Spilled::Lod, Spilled::Representatives, Spilled::Aggregates];
+        let tops: [&[u8]; 4] = [
+            bytemuck::cast_slice(&self.nodes),
+            bytemuck::cast_slice(&self.lod),
+            bytemuck::cast_slice(&self.representatives),
+            bytemuck::cast_slice(&self.aggregates),
+        ];
+        // In the order a treelet's CRC takes them (`Bvh::treelet_crc`).
+        for (array, (spilled, top_bytes)) in [0, 1, 3, 4].into_iter().zip(spilled.into_iter().zip(tops)) {
+            sink.write_at(array, 0, top_bytes)?;
+            let moved = |bytes: &mut [u8]| {
+                if spilled == Spilled::Nodes {
+                    let nodes: &mut [Node] = bytemuck::cast_slice_mut(bytes);
+                    for n in nodes {
+                        *n = with_children(n, |c| if c & LEAF != 0 { c } else { c + top });
+                    }
+                }
+            };
+            let runs = self.treelets.iter().map(|t| (t.nodes[0] - top) as usize..(t.nodes[1] - top) as usize);
+            let (at, size) = (top_bytes.len(), element_size(spilled));
+            copy(spill, spilled, sink, array, at, self.spilled_nodes, size, runs, &mut crcs, moved)?;
+        }
+        let runs = self.treelets.iter().map(|t| t.blocks[0] as usize..t.blocks[1] as usize);
+        copy(spill, Spilled::Blocks, sink, 2, 0, self.counts.len(), size_of::<SplatBlock>(), runs, &mut crcs, |_| {})?;
+        for (t, crc) in self.treelets.iter_mut().zip(crcs) {
+            t.crc = crc.finalize();
+        }
+        sink.write_at(5, 0, bytemuck::cast_slice(&self.treelets))?;
+        let mut ids = crc32fast::Hasher::new();
+        let slots = self.counts.len() * BLOCK;
+        let mut window = vec![0u8; WINDOW * BLOCK * 4];
+        for start in (0..slots).step_by(WINDOW * BLOCK) {
+            let bytes = &mut window[..((start + WINDOW * BLOCK).min(slots) - start) * 4];
+            spill.read_at(Spilled::Ids, start * 4, bytes)?;
+            ids.update(bytes);
+            sink.write_at(6, start * 4, bytes)?;
+        }
+        Ok(ids.finalize())
+    }
+}
+
+fn element_size(array: Spilled) -> usize {
+    match array {
+        Spilled::Nodes => size_of::<Node>(),
+        Spilled::Lod => size_of::<NodeLod>(),
+        Spilled::Representatives | Spilled::Blocks => size_of::<SplatBlock>(),
+        Spilled::Aggregates => size_of::<NodeAggregate>(),
+        Spilled::Ids => size_of::<u32>(),
+    }
+}
+
+/// Copies `count` elements of `size` bytes of spilled array `from` to `sink` array `to` from
+/// byte `at` on, a window at a time, `moved` applied to each window; each treelet's CRC (in
+/// `crcs`) is fed the elements of its run (`runs`, in order, element indices of `from`).
+#[allow(clippy::too_many_arguments)]
+fn copy(
+    spill: &mut dyn Spill,
+    from: Spilled,
+    sink: &mut dyn Sink,
+    to: usize,
+    at: usize,
+    count: usize,
+    size: usize,
+    runs: impl Iterator<Item = Range<usize>>,
+    crcs: &mut [crc32fast::Hasher],
+    moved: impl Fn(&mut [u8]),
+) -> io::Result<()> {
+    let mut runs = runs.enumerate().peekable();
+    // Of nodes, for their alignment (`moved` sees nodes in it).
+    let mut window: Vec<Node> = vec![bytemuck::Zeroable::zeroed(); (WINDOW * size).div_ceil(size_of::<Node>())];
+    let window: &mut [u8] = bytemuck::cast_slice_mut(&mut window);
+    for start in (0..count).step_by(WINDOW) {
+        let end = (start + WINDOW).min(count);
+        let bytes = &mut window[..(end - start) * size];
+        spill.read_at(from, start * size, bytes)?;
+        moved(bytes);
+        sink.write_at(to, at + start * size, bytes)?;
+        // The runs lie in order: feed each the part of it in this window.
+        while let Some((t, run)) = runs.peek() {
+            let (lo, hi) = (run.start.max(start), run.end.min(end));
+            if lo < hi {
+                crcs[*t].update(&bytes[(lo - start) * size..(hi - start) * size]);
+            }
+            if run.end <= end {
+                runs.next();
+            } else {
+                break;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `node` with each child reference mapped by `f`.
+fn with_children(node: &Node, f: impl Fn(u32) -> u32) -> Node {
+    let mut node = *node;
+    for i in (0..WIDTH).filter(|i| node.used & (1 << i) != 0) {
+        if !Bvh::is_treelet(node.child[i]) {
+            node.child[i] = f(node.child[i]);
+        }
+    }
+    node
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::bvh::NodeBounds;
+    use crate::math::morton;
+    use glam::Vec3;
+
+    /// Spilled arrays in memory.
+    #[derive(Default)]
+    struct Vecs([Vec<u8>; 7]);
+
+    impl Spill for Vecs {
+        fn append(&mut self, array: Spilled, bytes: &[u8]) -> io::Result<()> {
+            self.0[array as usize].extend_from_slice(bytes);
+            Ok(())
+        }
+
+        fn read_at(&mut self, array: Spilled, offset: usize, buf: &mut [u8]) -> io::Result<()> {
+            buf.copy_from_slice(&self.0[array as usize][offset..offset + buf.len()]);
+            Ok(())
+        }
+    }
+
+    impl Sink for Vecs {
+        fn write_at(&mut self, array: usize, offset: usize, bytes: &[u8]) -> io::Result<()> {
+            let a = &mut self.0[array];
+            a.resize(a.len().max(offset + bytes.len()), 0);
+            a[offset..offset + bytes.len()].copy_from_slice(bytes);
+            Ok(())
+        }
+    }
+
+    /// `n` disks on a wavy sheet with a sphere above it, in Morton order (as preprocessing
+    /// leaves a cloud).
+    fn scene(n: usize) -> Vec<Splat> {
+        let mut splats: Vec<Splat> = (0..n)
+            .map(|i| {
+                let (u, v) = ((i % 200) as f32 * 0.05, (i / 200) as f32 * 0.05);
+                let center = if i % 3 == 0 {
+                    let (a, b) = (u * 0.7, v * 1.3);
+                    Vec3::new(5.0 + a.cos() * b.sin(), 5.0 + a.sin() * b.sin(), 3.0 + b.cos())
+                } else {
+                    Vec3::new(u, v, (u * 1.7).sin() * 0.3)
+                };
+                Splat {
+                    center,
+                    radius: 0.04 + (i % 7) as f32 * 0.003,
+                    normal: Vec3::new(0.1, 0.2, 1.0).normalize(),
+                    color: i as u32,
+                }
+            })
+            .collect();
+        let bounds = Aabb::from_points(splats.iter().map(|s| s.center));
+        splats.sort_by_key(|s| morton::encode(s.center, &bounds));
+        splats
+    }
+
+    fn streamed(splats: &[Splat], params: &BvhParams) -> (Vecs, BvhMeta, u32) {
+        let bounds = Aabb::from_points(splats.iter().map(|s| s.center));
+        let codes = |f: &mut dyn FnMut(u64)| splats.iter().for_each(|s| f(morton::encode(s.center, &bounds)));
+        let plan = ChunkPlan::new(bounds, splats.len(), params.chunk_splats, codes);
+        let mut build = StreamedBvh::new(plan.clone(), params);
+        let mut spill = Vecs::default();
+        let mut first = 0;
+        for cell in plan.chunks() {
+            build.add_chunk(splats[first..first + cell.count].to_vec(), &mut spill).unwrap();
+            first += cell.count;
+        }
+        let mut sink = Vecs::default();
+        let lengths = build.lengths();
+        let (meta, ids_crc) = build.finish(&mut spill, &mut sink).unwrap();
+        assert_eq!(sink.0.each_ref().map(Vec::len), lengths);
+        (sink, meta, ids_crc)
+    }
+
+    #[test]
+    fn a_build_out_of_core_stores_the_bytes_of_the_build_in_memory() {
+        let splats = scene(60_000);
+        for node_bounds in [NodeBounds::Boxes, NodeBounds::SpheresFrom(2), NodeBounds::Auto] {
+            let params = BvhParams { chunk_splats: 6_000, node_bounds, ..BvhParams::standard() };
+            let (bvh, ids) = Bvh::build_with_ids(splats.clone(), &params);
+            let (arrays, meta) = bvh.arrays();
+            let (sink, streamed_meta, ids_crc) = streamed(&splats, &params);
+            assert!(meta.top_nodes > 8 && bvh.treelets.len() > 20, "{} top nodes", meta.top_nodes);
+            for (i, array) in arrays.iter().enumerate() {
+                assert!(array[..] == sink.0[i][..], "{node_bounds:?}: array {} differs", super::super::ARRAYS[i]);
+            }
+            assert!(bytemuck::cast_slice::<u32, u8>(&ids) == &sink.0[6][..], "ids differ");
+            assert_eq!(ids_crc, crc32fast::hash(bytemuck::cast_slice(&ids)));
+            assert_eq!(BvhMeta { coverage_density: meta.coverage_density, ..streamed_meta }, meta);
+        }
+    }
+}
