@@ -18,12 +18,12 @@ use bytemuck::Zeroable;
 use glam::{DVec3, Vec3};
 use pointray::Settings;
 use pointray::accel::Bvh;
-use pointray::accel::bvh::{BvhParams, ChunkPlan, Sink, Spill, Spilled, StreamedBvh};
+use pointray::accel::bvh::{BvhMeta, BvhParams, ChunkPlan, Sink, Spill, Spilled, StreamedBvh};
 use pointray::accel::stored::StableBytes;
 use pointray::math::{Aabb, morton};
 use pointray::preprocess::PreprocessConfig;
 use pointray::scene::{SceneMeta, SceneParts, StreamedCloud};
-use pointray::shading::{Environment, Light};
+use pointray::splat::footprint::{coverage_counts, density_of};
 use pointray::splat::{DEFAULT_COLOR, Splat, pack_color};
 
 use crate::IoError;
@@ -54,14 +54,53 @@ pub struct Prepared {
     pub turned_outward: bool,
 }
 
-/// Prepares the cloud at `input` into the scene file `output` out of core (see the module);
-/// `stage` is told each pass.
-pub fn prepare_out_of_core(
-    input: &Path,
-    output: &Path,
-    config: &PreprocessConfig,
-    stage: &dyn Fn(&str),
-) -> Result<Prepared, IoError> {
+/// How far a pass of [`prepare_out_of_core`] is: `done` of its `total` points.
+#[derive(Clone, Copy, Debug)]
+pub struct Progress<'a> {
+    pub stage: &'a str,
+    pub done: usize,
+    pub total: usize,
+}
+
+/// Counts a pass's points for its [`Progress`], told every 2¹⁸ points.
+struct Ticker<'a> {
+    report: &'a dyn Fn(&Progress),
+    stage: &'static str,
+    done: usize,
+    total: usize,
+}
+
+impl<'a> Ticker<'a> {
+    fn new(report: &'a dyn Fn(&Progress), stage: &'static str, total: usize) -> Self {
+        report(&Progress { stage, done: 0, total });
+        Self { report, stage, done: 0, total }
+    }
+
+    fn tick(&mut self, points: usize) {
+        let before = self.done >> 18;
+        self.done += points;
+        if self.done >> 18 != before {
+            (self.report)(&Progress { stage: self.stage, done: self.done.min(self.total), total: self.total });
+        }
+    }
+}
+
+/// The points of `input` if its header says (a PLY's), for estimating what preparing it takes.
+pub fn points_in(input: &Path) -> Option<usize> {
+    crate::ply::VertexStream::open(input).ok().map(|s| s.count)
+}
+
+/// Why [`prepare_out_of_core`] would refuse `input` with `config` from its header alone (none
+/// if it would not; a normal or radius that is not valid is found only reading the points).
+pub fn out_of_core_refusal(input: &Path, config: &PreprocessConfig) -> Option<String> {
+    let refusal = || -> Result<(), IoError> {
+        check_config(input, config)?;
+        VertexStream::open(input).and_then(|s| check_attributes(input, &s))
+    };
+    refusal().err().map(|e| e.to_string())
+}
+
+fn check_config(input: &Path, config: &PreprocessConfig) -> Result<(), IoError> {
     // With every normal and radius given, only these settings change what preprocessing does.
     let standard = PreprocessConfig::standard();
     if (config.sort, config.recompute, config.outlier_std) != (standard.sort, standard.recompute, standard.outlier_std)
@@ -71,40 +110,44 @@ pub fn prepare_out_of_core(
             "out of core, only the default preprocessing (sorted, no outlier filter, nothing recomputed) is done",
         ));
     }
-    let mut stream = VertexStream::open(input)?;
+    Ok(())
+}
+
+fn check_attributes(input: &Path, stream: &VertexStream) -> Result<(), IoError> {
     if !stream.has_normals_and_radii() {
         return Err(IoError::invalid(
             input,
             "out of core, a cloud must come with normals and radii: prepare it without --memory-budget",
         ));
     }
+    Ok(())
+}
+
+/// Prepares the cloud at `input` into the scene file `output` out of core (see the module);
+/// `progress` is told how far each pass is.
+pub fn prepare_out_of_core(
+    input: &Path,
+    output: &Path,
+    config: &PreprocessConfig,
+    progress: &dyn Fn(&Progress),
+) -> Result<Prepared, IoError> {
+    check_config(input, config)?;
+    let mut stream = VertexStream::open(input)?;
+    check_attributes(input, &stream)?;
     let points_read = stream.count;
-    stage("bounds");
-    let origin = world_origin(&mut stream)?;
-    let (bounds, kept) = local_bounds(input, &mut stream, origin)?;
+    let ticker = |stage, total| Ticker::new(progress, stage, total);
+    let origin = world_origin(&mut stream, &mut ticker("read: origin", points_read))?;
+    let (bounds, kept) = local_bounds(input, &mut stream, origin, &mut ticker("read: bounds", points_read))?;
     if kept == 0 {
         return Err(IoError::invalid(input, "no point with finite coordinates"));
     }
     let params = BvhParams::standard();
     let dir = crate::ScratchDir::beside(output)?;
-    stage("plan");
-    let provisional = plan(&mut stream, origin, bounds, kept, params.chunk_splats)?;
-    stage("route");
-    let buckets = route(&mut stream, origin, &provisional, dir.path())?;
-    stage("sort");
-    let cleaned = clean(&buckets)?;
-    let plan = if cleaned.duplicates == 0 {
-        provisional
-    } else {
-        let count = kept - cleaned.duplicates;
-        ChunkPlan::new(bounds, count, params.chunk_splats, |f| {
-            for b in &buckets {
-                for_each_record(b, |r| f(r.code)).expect("a bucket just written");
-            }
-        })
-    };
-    stage("orient");
-    let inward = pointing_in(&buckets, cleaned.center)?;
+    let provisional = plan(&mut stream, origin, bounds, kept, params.chunk_splats, &mut ticker("read: cells", 0))?;
+    let buckets = route(&mut stream, origin, &provisional, dir.path(), &mut ticker("read: route", points_read))?;
+    let cleaned = clean(&buckets, &mut ticker("sort cells", kept))?;
+    let plan = if cleaned.duplicates == 0 { provisional } else { replan(&buckets, bounds, kept - cleaned.duplicates)? };
+    let inward = pointing_in(&buckets, cleaned.center, &mut ticker("orient", kept))?;
     if inward {
         tracing::warn!("{}: the given normals pointed inward; turned them outward", input.display());
     }
@@ -117,15 +160,12 @@ pub fn prepare_out_of_core(
     }
     let build = StreamedBvh::new(plan, &params);
     let mut spill = Files::new(dir.path())?;
-    stage("build");
-    let (build, cloud) = build_chunks(build, &buckets, inward, origin, &mut spill)?;
-    stage("write");
-    let light = stream.info.sun.map(|d| Light::Directional { direction: Vec3::from(d), intensity: 1.0 });
-    let up = stream.info.up.map(Vec3::from);
-    let environment = stream.info.sun.map(|_| Environment::sky(up.unwrap_or(Vec3::Z).normalize()));
-    let view =
-        stream.viewpoint.and_then(|v| crate::source::sensor_view_of((DVec3::from(v) - origin).as_vec3(), cloud.bounds));
-    let parts = SceneParts { up, view, light, environment, ..SceneParts::default() };
+    let (build, cloud) = build_chunks(build, &buckets, inward, origin, &mut spill, &mut ticker("build", kept))?;
+    ticker("write", 0);
+    let sensor = stream.viewpoint.map(|v| (DVec3::from(v) - origin).as_vec3());
+    let view = sensor.and_then(|sensor| crate::source::sensor_view_of(sensor, cloud.bounds));
+    let lone = crate::source::lone_cloud_parts(stream.info.up.map(Vec3::from), stream.info.sun.map(Vec3::from));
+    let parts = SceneParts { view, ..lone };
     write(output, build, &mut spill, &parts, &cloud)?;
     Ok(Prepared {
         points_read,
@@ -139,9 +179,10 @@ pub fn prepare_out_of_core(
 
 /// The origin reading the cloud in memory gives it (`PointCloud::from_world_positions`): the
 /// centre of its finite points' bounds.
-fn world_origin(stream: &mut VertexStream) -> Result<DVec3, IoError> {
+fn world_origin(stream: &mut VertexStream, ticker: &mut Ticker) -> Result<DVec3, IoError> {
     let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
     stream.for_each(|r| {
+        ticker.tick(1);
         if r.position.abs().max_element() <= f64::from(f32::MAX) {
             (lo, hi) = (lo.min(r.position), hi.max(r.position));
         }
@@ -155,9 +196,15 @@ fn local(position: DVec3, origin: DVec3) -> Option<Vec3> {
 }
 
 /// The bounds of the points kept and how many, checking their normals and radii.
-fn local_bounds(path: &Path, stream: &mut VertexStream, origin: DVec3) -> Result<(Aabb, usize), IoError> {
+fn local_bounds(
+    path: &Path,
+    stream: &mut VertexStream,
+    origin: DVec3,
+    ticker: &mut Ticker,
+) -> Result<(Aabb, usize), IoError> {
     let (mut bounds, mut kept, mut invalid) = (Aabb::EMPTY, 0usize, 0usize);
     stream.for_each(|r| {
+        ticker.tick(1);
         if let Some(p) = local(r.position, origin) {
             bounds = bounds.union(Aabb::new(p, p));
             kept += 1;
@@ -182,15 +229,33 @@ fn plan(
     bounds: Aabb,
     kept: usize,
     most: usize,
+    ticker: &mut Ticker,
 ) -> Result<ChunkPlan, IoError> {
     let mut failed = None;
     let plan = ChunkPlan::new(bounds, kept, most, |f| {
+        // A pass for each level of cells split: the total grows as they are made.
+        ticker.total += stream.count;
         let pass = stream.for_each(|r| {
+            ticker.tick(1);
             if let Some(p) = local(r.position, origin) {
                 f(morton::encode(p, &bounds));
             }
         });
         failed = failed.take().or(pass.err());
+    });
+    failed.map_or(Ok(plan), Err)
+}
+
+/// The chunks of the `count` points the buckets hold once cleaned (fewer than the plan they were
+/// routed by counted: each new chunk is one or more of the buckets, which are finer).
+fn replan(buckets: &[Bucket], bounds: Aabb, count: usize) -> Result<ChunkPlan, IoError> {
+    let mut failed = None;
+    let plan = ChunkPlan::new(bounds, count, BvhParams::standard().chunk_splats, |f| {
+        for b in buckets {
+            if let Err(e) = for_each_record(b, |r| f(r.code)) {
+                failed = failed.take().or(Some(e));
+            }
+        }
     });
     failed.map_or(Ok(plan), Err)
 }
@@ -202,7 +267,13 @@ struct Bucket {
 }
 
 /// Every kept point written to its chunk's file, in file order.
-fn route(stream: &mut VertexStream, origin: DVec3, plan: &ChunkPlan, dir: &Path) -> Result<Vec<Bucket>, IoError> {
+fn route(
+    stream: &mut VertexStream,
+    origin: DVec3,
+    plan: &ChunkPlan,
+    dir: &Path,
+    ticker: &mut Ticker,
+) -> Result<Vec<Bucket>, IoError> {
     let io = |path: &Path, e| IoError::io(path, e);
     let buckets: Vec<Bucket> = plan
         .chunks()
@@ -217,6 +288,7 @@ fn route(stream: &mut VertexStream, origin: DVec3, plan: &ChunkPlan, dir: &Path)
     let (mut index, mut failed) = (0u32, None);
     let colors = stream.has_colors();
     stream.for_each(|r| {
+        ticker.tick(1);
         if let Some(p) = local(r.position, origin) {
             let code = plan.code(p);
             let record = Record {
@@ -274,10 +346,11 @@ struct Cleaned {
 /// position repeats an earlier one's (preprocessing's `drop_duplicates`: repeats share a code,
 /// so a bucket), and sums the positions as `orient::turn_given_outward` does, in blocks of the
 /// sorted order.
-fn clean(buckets: &[Bucket]) -> Result<Cleaned, IoError> {
+fn clean(buckets: &[Bucket], ticker: &mut Ticker) -> Result<Cleaned, IoError> {
     let (mut duplicates, mut sums) = (0, BlockSums::default());
     for b in buckets {
         let mut records = read_bucket(b)?;
+        ticker.tick(records.len());
         records.sort_unstable_by_key(|r| (r.code, r.index));
         let before = records.len();
         records = without_repeats(records);
@@ -348,10 +421,11 @@ impl BlockSums {
 
 /// Whether the given normals point inward (`orient::turn_given_outward`'s test), from the
 /// centre of the points.
-fn pointing_in(buckets: &[Bucket], center: DVec3) -> Result<bool, IoError> {
+fn pointing_in(buckets: &[Bucket], center: DVec3, ticker: &mut Ticker) -> Result<bool, IoError> {
     let mut sums = BlockSums::default();
     for b in buckets {
         for_each_record(b, |r| {
+            ticker.tick(1);
             let d = Vec3::from(r.position).as_dvec3() - center;
             sums.add([Vec3::from(r.normal).as_dvec3().normalize_or_zero().dot(d), d.length(), 0.0, 0.0]);
         })?;
@@ -367,6 +441,7 @@ fn build_chunks(
     inward: bool,
     origin: DVec3,
     spill: &mut Files,
+    ticker: &mut Ticker,
 ) -> Result<(StreamedBvh, StreamedCloud), IoError> {
     let (mut bounds, mut radii, mut points) = (Aabb::EMPTY, 0.0f64, 0usize);
     let chunks = build.plan().chunks().len();
@@ -389,10 +464,36 @@ fn build_chunks(
             next += 1;
         }
         points += splats.len();
+        ticker.tick(splats.len());
         build.add_chunk(splats, spill).map_err(|e| IoError::invalid(&spill.dir, e.to_string()))?;
     }
     let cloud = StreamedCloud { points, origin, bounds, mean_radius: radii / points as f64 };
     Ok((build, cloud))
+}
+
+/// [`Bvh::measure_coverage_density`] of the tree written to `file` (its `samples` read while it
+/// was written), mapped afresh for every batch of samples: a sample's neighbours lie in a few
+/// treelets, each read whole for its check, and mapped once for all, the pages read stay
+/// resident.
+fn coverage_density(
+    file: &File,
+    ranges: &[std::ops::Range<usize>; 7],
+    meta: &BvhMeta,
+    samples: &[Splat],
+) -> std::io::Result<f32> {
+    let tree = || -> std::io::Result<Bvh> {
+        let bytes: Arc<dyn StableBytes> = Arc::new(crate::file::map_for_reading(file)?);
+        let [nodes, lod, blocks, reps, aggregates, treelets, _] = ranges.clone();
+        let meta = BvhMeta { coverage_density: 1.0, ..meta.clone() };
+        Bvh::from_stored(meta, bytes, [nodes, lod, blocks, reps, aggregates, treelets])
+            .map_err(|e| std::io::Error::other(format!("the tree written does not read back: {e}")))
+    };
+    let (mut covering, mut count) = (0, 0);
+    for batch in samples.chunks(256) {
+        let (c, n) = coverage_counts(&tree()?, batch.iter().copied());
+        (covering, count) = (covering + c, count + n);
+    }
+    Ok(density_of((covering, count)))
 }
 
 /// The spilled arrays, a file each.
@@ -403,7 +504,7 @@ struct Files {
 
 impl Files {
     fn new(dir: &Path) -> Result<Self, IoError> {
-        let files = (0..6)
+        let files = (0..7)
             .map(|i| {
                 let path = dir.join(format!("spill{i}"));
                 File::options()
@@ -456,19 +557,13 @@ fn write(
     let ranges = crate::prs::layout(build.lengths());
     let mut failed = None;
     crate::atomic_file(output, |file| {
-        let (mut meta, ids_crc) =
-            build.finish(spill, &mut FileSink { file, ranges: &ranges }).map_err(|e| match e {
-                pointray::accel::bvh::StreamedError::Io(e) => e,
-                e => std::io::Error::other(e.to_string()),
-            })?;
+        let finished = build.finish(spill, &mut FileSink { file, ranges: &ranges }).map_err(|e| match e {
+            pointray::accel::bvh::StreamedError::Io(e) => e,
+            e => std::io::Error::other(e.to_string()),
+        })?;
+        let (mut meta, ids_crc) = (finished.meta, finished.ids_crc);
         file.set_len(crate::prs::index_at(&ranges) as u64)?;
-        let bytes: Arc<dyn StableBytes> = Arc::new(crate::file::map_for_reading(file)?);
-        let [nodes, lod, blocks, reps, aggregates, treelets, _] = ranges.clone();
-        meta.coverage_density = 1.0;
-        let bvh = Bvh::from_stored(meta.clone(), bytes, [nodes, lod, blocks, reps, aggregates, treelets])
-            .map_err(|e| std::io::Error::other(format!("the tree written does not read back: {e}")))?;
-        meta.coverage_density = bvh.measure_coverage_density();
-        drop(bvh);
+        meta.coverage_density = coverage_density(file, &ranges, &meta, &finished.coverage_samples)?;
         let scene = SceneMeta::streamed(&Settings::default(), parts, cloud, meta, ids_crc);
         match crate::prs::tail(output, &ranges, &scene) {
             Ok((header, tail)) => {

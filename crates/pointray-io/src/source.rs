@@ -58,10 +58,7 @@ pub fn load(
         return load_prs(path, stage);
     }
     let p = read_prepared(path, preprocess, read, stage)?;
-    // A survey under its sun, and the sky round it for the light that bounces.
-    let light = p.sun.map(|direction| Light::Directional { direction, intensity: 1.0 });
-    let environment = p.sun.map(|_| Environment::sky(p.up.unwrap_or(Vec3::Z).normalize()));
-    let parts = SceneParts { up: p.up, view: sensor_view(&p.cloud), light, environment, ..SceneParts::from(p.cloud) };
+    let parts = SceneParts { view: sensor_view(&p.cloud), cloud: p.cloud, ..lone_cloud_parts(p.up, p.sun) };
     Ok(Source {
         parts,
         settings: None,
@@ -69,6 +66,14 @@ pub fn load(
         preprocess: p.preprocess,
         load_seconds: p.read_seconds,
     })
+}
+
+/// A lone cloud's scene parts from its file's up axis and sun: a survey under its sun, and the
+/// sky round it for the light that bounces (no points, no view).
+pub(crate) fn lone_cloud_parts(up: Option<Vec3>, sun: Option<Vec3>) -> SceneParts {
+    let light = sun.map(|direction| Light::Directional { direction, intensity: 1.0 });
+    let environment = sun.map(|_| Environment::sky(up.unwrap_or(Vec3::Z).normalize()));
+    SceneParts { up, light, environment, ..SceneParts::default() }
 }
 
 /// A prepared scene file, opened: built already, nothing to preprocess.

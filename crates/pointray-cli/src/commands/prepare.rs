@@ -44,14 +44,34 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
 /// torus peaked at 2.35 GB: 78 a point).
 const BYTES_A_POINT: u64 = 90;
 
+/// The memory budget without `--memory-budget`: half the physical memory (unbounded where the
+/// system does not say).
+fn default_budget() -> u64 {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").unwrap_or_default();
+    let total_kb = meminfo
+        .lines()
+        .find_map(|l| l.strip_prefix("MemTotal:")?.trim().strip_suffix("kB")?.trim().parse::<u64>().ok());
+    total_kb.map_or(u64::MAX, |kb| kb * 1024 / 2)
+}
+
 /// `prepare IN -o OUT.prs`: the scene a render of IN with the same build flags builds, stored.
 fn scene_file(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig, quiet: bool) -> anyhow::Result<()> {
-    if let Some(budget) = a.memory_budget {
-        let size = std::fs::metadata(&a.input).map(|m| m.len()).unwrap_or(0);
-        // A point takes at least 28 bytes of a binary PLY with normals and radii.
-        if size / 28 * BYTES_A_POINT > budget {
-            return out_of_core(a, config, quiet);
-        }
+    // The points the header gives, or as many as fit the file at 28 bytes (a binary PLY's least).
+    let size = std::fs::metadata(&a.input).map_or(0, |m| m.len());
+    let points = pointray_io::prepare::points_in(&a.input).map_or(size / 28, |n| n as u64);
+    let need = points * BYTES_A_POINT;
+    match a.memory_budget {
+        // Asked for: out of core or refused, naming why.
+        Some(budget) if need > budget => return out_of_core(a, config, quiet),
+        // By default, within half this machine's memory where it can be done.
+        None if need > default_budget() => match out_of_core_refusal(a, config) {
+            None => return out_of_core(a, config, quiet),
+            Some(why) => tracing::warn!(
+                "{}: preparing it takes more than half this machine's memory; it is prepared in memory ({why})",
+                a.input.display()
+            ),
+        },
+        _ => {}
     }
     let spinner = crate::progress::spinner("read", quiet);
     let stage = |s: &str| spinner.set_message(s.to_string());
@@ -79,6 +99,14 @@ fn scene_file(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig, 
     Ok(())
 }
 
+/// Why [`out_of_core`] would refuse `a`, if it would.
+fn out_of_core_refusal(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig) -> Option<String> {
+    if a.build.settings() != pointray::Settings::default() {
+        return Some("out of core, only the default build settings are prepared for now".into());
+    }
+    pointray_io::prepare::out_of_core_refusal(&a.input, config)
+}
+
 /// `prepare IN -o OUT.prs --memory-budget SIZE` for a cloud larger than the budget.
 fn out_of_core(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig, quiet: bool) -> anyhow::Result<()> {
     if a.build.settings() != pointray::Settings::default() {
@@ -87,10 +115,18 @@ fn out_of_core(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig,
             a.output.display()
         )));
     }
-    let spinner = crate::progress::spinner("read", quiet);
-    let stage = |s: &str| spinner.set_message(format!("out of core: {s}"));
-    let done = pointray_io::prepare::prepare_out_of_core(&a.input, &a.output, config, &stage)?;
-    spinner.finish_and_clear();
+    let bar = crate::progress::bar(0, "", quiet);
+    // A bar a pass, its ETA the pass's.
+    let progress = |p: &pointray_io::prepare::Progress| {
+        if bar.message() != p.stage {
+            bar.reset();
+            bar.set_message(p.stage.to_string());
+        }
+        bar.set_length(p.total as u64);
+        bar.set_position(p.done as u64);
+    };
+    let done = pointray_io::prepare::prepare_out_of_core(&a.input, &a.output, config, &progress)?;
+    bar.finish_and_clear();
     if !quiet {
         let bytes = std::fs::metadata(&a.output).map(|m| m.len()).unwrap_or(0);
         eprintln!(

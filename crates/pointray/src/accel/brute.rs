@@ -1,6 +1,6 @@
 use super::{Accel, SplatVisitor, TraversalStats};
 use crate::math::{Aabb, Ray};
-use crate::splat::footprint::{Aggregate, Beam, FootprintVisitor, coverage_density};
+use crate::splat::footprint::{Aggregate, Beam, FootprintVisitor, coverage_density, density_stride};
 use crate::splat::{DiskShape, Splat};
 use glam::Vec3;
 
@@ -50,7 +50,9 @@ impl Accel for BruteForce {
     }
 
     fn coverage_density(&self) -> f32 {
-        *self.coverage_density.get_or_init(|| coverage_density(self, self.splats.iter().copied()))
+        *self.coverage_density.get_or_init(|| {
+            coverage_density(self, self.splats.iter().copied().step_by(density_stride(self.splats.len())))
+        })
     }
 
     /// Every disk, at full detail.

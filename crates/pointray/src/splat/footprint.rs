@@ -531,8 +531,13 @@ pub fn shadow_origin(footprint: &Footprint, layer: &Layer) -> Vec3 {
 /// How many disks cover a point of the surface, on average, in `accel` (at least 1): at the
 /// centres of [`DENSITY_SAMPLES`] of its `disks` spread over them, the disks whose radius
 /// reaches it (the dragon: 8.5; at random points of the disks instead of their centres, 8.5 too).
-pub fn coverage_density<A: Accel>(accel: &A, disks: impl Iterator<Item = Splat>) -> f32 {
-    let samples = disks.step_by((accel.splat_count() / DENSITY_SAMPLES).max(1));
+pub fn coverage_density<A: Accel>(accel: &A, samples: impl Iterator<Item = Splat>) -> f32 {
+    density_of(coverage_counts(accel, samples))
+}
+
+/// The disks covering the `samples`' centres, summed, and the samples: [`coverage_density`]
+/// in parts, for taking the samples a batch at a time (`pointray_io::prepare`).
+pub fn coverage_counts<A: Accel>(accel: &A, samples: impl Iterator<Item = Splat>) -> (u64, u64) {
     let reach = accel.wide_radius();
     let mut stats = TraversalStats::uncounted();
     let (mut covering, mut count) = (0u64, 0u64);
@@ -542,11 +547,21 @@ pub fn coverage_density<A: Accel>(accel: &A, disks: impl Iterator<Item = Splat>)
         });
         count += 1;
     }
+    (covering, count)
+}
+
+/// [`coverage_density`] from [`coverage_counts`] (summed over batches).
+pub fn density_of((covering, count): (u64, u64)) -> f32 {
     (covering as f32 / count.max(1) as f32).max(1.0)
 }
 
 /// Disks [`coverage_density`] looks at.
 const DENSITY_SAMPLES: usize = 4096;
+
+/// The stride through `n` disks (or blocks) that samples about [`DENSITY_SAMPLES`] of them.
+pub fn density_stride(n: usize) -> usize {
+    (n / DENSITY_SAMPLES).max(1)
+}
 
 #[cfg(test)]
 mod tests {

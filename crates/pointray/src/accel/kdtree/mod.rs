@@ -22,7 +22,7 @@ pub use build::{KdTreeParams, MAX_BINS};
 use crate::accel::packet::LANES;
 use crate::accel::{Accel, SplatVisitor, TraversalStats};
 use crate::math::{Aabb, Ray};
-use crate::splat::footprint::{Beam, FootprintVisitor, coverage_density};
+use crate::splat::footprint::{Beam, FootprintVisitor, coverage_density, density_stride};
 use crate::splat::{DiskShape, Splat};
 use glam::Vec3;
 
@@ -223,7 +223,9 @@ impl Accel for KdTree {
     }
 
     fn coverage_density(&self) -> f32 {
-        *self.coverage_density.get_or_init(|| coverage_density(self, self.splats().iter().copied()))
+        *self.coverage_density.get_or_init(|| {
+            coverage_density(self, self.splats().iter().copied().step_by(density_stride(self.splat_count())))
+        })
     }
 
     fn gather<V: FootprintVisitor>(&self, beam: &Beam, tau: f32, visitor: &mut V, stats: &mut TraversalStats) {
