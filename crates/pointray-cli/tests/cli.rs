@@ -768,10 +768,11 @@ fn a_prepared_scene_file_renders_as_its_cloud_does() {
 
 /// A binary PLY of `n` disks on a unit sphere with their normals pointing in, then repeats of
 /// the first ten points and one point at NaN: what preprocessing turns, drops and drops.
-fn write_inward_sphere(dir: &std::path::Path, n: usize) {
+fn write_inward_sphere(dir: &std::path::Path, n: usize, name: &str, with_normals: bool) {
     let mut body = Vec::new();
     let mut push = |p: [f32; 3], normal: [f32; 3]| {
-        for v in p.into_iter().chain(normal).chain([0.06]) {
+        let attributes: &[f32] = if with_normals { &[normal[0], normal[1], normal[2], 0.06] } else { &[] };
+        for &v in p.iter().chain(attributes) {
             body.extend_from_slice(&v.to_le_bytes());
         }
     };
@@ -785,27 +786,34 @@ fn write_inward_sphere(dir: &std::path::Path, n: usize) {
         push(p, p.map(|v| -v));
     }
     push([f32::NAN, 0.0, 0.0], [0.0, 0.0, 1.0]);
+    let attributes = "property float nx\nproperty float ny\nproperty float nz\nproperty float radius\n";
     let header = format!(
         "ply\nformat binary_little_endian 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\n\
-         property float nx\nproperty float ny\nproperty float nz\nproperty float radius\nend_header\n",
-        n + 11
+         {}end_header\n",
+        n + 11,
+        if with_normals { attributes } else { "" }
     );
-    write_file(dir, "inward.ply", [header.into_bytes(), body].concat());
+    write_file(dir, name, [header.into_bytes(), body].concat());
 }
 
 #[test]
 fn a_scene_file_prepared_out_of_core_is_the_one_prepared_in_memory() {
     let dir = temp_dir();
-    write_inward_sphere(dir.path(), 5_000);
-    run_in(dir.path(), &["-q", "prepare", "inward.ply", "-o", "memory.prs"]).assert_success();
-    run_in(dir.path(), &["prepare", "inward.ply", "-o", "streamed.prs", "--memory-budget", "1KiB"])
-        .assert_success()
-        .assert_stderr_contains("5000 points in 1 chunks, out of core");
-    let (memory, streamed) = (dir.path().join("memory.prs"), dir.path().join("streamed.prs"));
-    assert!(std::fs::read(&memory).unwrap() == std::fs::read(&streamed).unwrap(), "the two files differ");
+    write_inward_sphere(dir.path(), 5_000, "inward.ply", true);
+    // Normals and radii computed: in one chunk, as in memory (`pointray_io::prepare`'s tests
+    // check their orientation across the chunks of a larger cloud).
+    write_inward_sphere(dir.path(), 5_000, "bare.ply", false);
+    for input in ["inward.ply", "bare.ply"] {
+        run_in(dir.path(), &["-q", "prepare", input, "-o", "memory.prs"]).assert_success();
+        run_in(dir.path(), &["prepare", input, "-o", "streamed.prs", "--memory-budget", "1KiB"])
+            .assert_success()
+            .assert_stderr_contains("5000 points in 1 chunks, out of core");
+        let (memory, streamed) = (dir.path().join("memory.prs"), dir.path().join("streamed.prs"));
+        assert!(std::fs::read(&memory).unwrap() == std::fs::read(&streamed).unwrap(), "{input}: the files differ");
+    }
     render_in(dir.path(), &["streamed.prs", "-o", "s.png"]).assert_success();
     assert!(read_png(&dir.path().join("s.png")).count_not(background_srgb8()) > 100);
-    // What it cannot do yet is refused, naming the way: a cloud without normals, build flags.
+    // What it cannot do yet is refused, naming the way: a text PLY, build flags.
     write_sphere(dir.path());
     run_in(dir.path(), &["prepare", "sphere.ply", "-o", "raw.prs", "--memory-budget", "1KiB"])
         .assert_failure(1)

@@ -40,8 +40,13 @@ struct Record {
     normal: [f32; 3],
     radius: f32,
     color: u32,
-    pad: u32,
+    /// [`GIVEN_NORMAL`], [`GIVEN_RADIUS`]: which are valid (given by the file, or computed).
+    flags: u32,
 }
+
+const GIVEN_NORMAL: u32 = 1;
+const GIVEN_RADIUS: u32 = 2;
+const GIVEN: u32 = GIVEN_NORMAL | GIVEN_RADIUS;
 
 /// What preparing out of core did.
 #[derive(Clone, Debug)]
@@ -91,36 +96,37 @@ pub fn points_in(input: &Path) -> Option<usize> {
 }
 
 /// Why [`prepare_out_of_core`] would refuse `input` with `config` from its header alone (none
-/// if it would not; a normal or radius that is not valid is found only reading the points).
+/// if it would not).
 pub fn out_of_core_refusal(input: &Path, config: &PreprocessConfig) -> Option<String> {
     let refusal = || -> Result<(), IoError> {
         check_config(input, config)?;
-        VertexStream::open(input).and_then(|s| check_attributes(input, &s))
+        VertexStream::open(input).map(|_| ())
     };
     refusal().err().map(|e| e.to_string())
 }
 
 fn check_config(input: &Path, config: &PreprocessConfig) -> Result<(), IoError> {
-    // With every normal and radius given, only these settings change what preprocessing does.
-    let standard = PreprocessConfig::standard();
-    if (config.sort, config.recompute, config.outlier_std) != (standard.sort, standard.recompute, standard.outlier_std)
-    {
-        return Err(IoError::invalid(
-            input,
-            "out of core, only the default preprocessing (sorted, no outlier filter, nothing recomputed) is done",
-        ));
+    config.check().map_err(|e| IoError::invalid(input, e.to_string()))?;
+    if !config.sort || config.outlier_std.is_some() {
+        return Err(IoError::invalid(input, "out of core, points are always sorted and no outlier filter runs yet"));
     }
     Ok(())
 }
 
-fn check_attributes(input: &Path, stream: &VertexStream) -> Result<(), IoError> {
-    if !stream.has_normals_and_radii() {
-        return Err(IoError::invalid(
-            input,
-            "out of core, a cloud must come with normals and radii: prepare it without --memory-budget",
-        ));
+/// What [`prepare_out_of_core`] takes besides the files.
+#[derive(Clone, Copy, Debug)]
+pub struct OutOfCore {
+    pub preprocess: PreprocessConfig,
+    /// `BvhParams::chunk_splats`: the build's chunks, and the cells whose normals and radii
+    /// are computed together (with a halo round each). The default's tree is the one a build
+    /// in memory makes.
+    pub chunk_splats: usize,
+}
+
+impl Default for OutOfCore {
+    fn default() -> Self {
+        Self { preprocess: PreprocessConfig::standard(), chunk_splats: BvhParams::standard().chunk_splats }
     }
-    Ok(())
 }
 
 /// Prepares the cloud at `input` into the scene file `output` out of core (see the module);
@@ -128,29 +134,35 @@ fn check_attributes(input: &Path, stream: &VertexStream) -> Result<(), IoError> 
 pub fn prepare_out_of_core(
     input: &Path,
     output: &Path,
-    config: &PreprocessConfig,
+    options: &OutOfCore,
     progress: &dyn Fn(&Progress),
 ) -> Result<Prepared, IoError> {
+    let config = &options.preprocess;
     check_config(input, config)?;
     let mut stream = VertexStream::open(input)?;
-    check_attributes(input, &stream)?;
     let points_read = stream.count;
     let ticker = |stage, total| Ticker::new(progress, stage, total);
     let origin = world_origin(&mut stream, &mut ticker("read: origin", points_read))?;
-    let (bounds, kept) = local_bounds(input, &mut stream, origin, &mut ticker("read: bounds", points_read))?;
+    let (bounds, kept) = local_bounds(&mut stream, origin, &mut ticker("read: bounds", points_read))?;
     if kept == 0 {
         return Err(IoError::invalid(input, "no point with finite coordinates"));
     }
-    let params = BvhParams::standard();
+    let params = BvhParams { chunk_splats: options.chunk_splats, ..BvhParams::standard() };
     let dir = crate::ScratchDir::beside(output)?;
     let provisional = plan(&mut stream, origin, bounds, kept, params.chunk_splats, &mut ticker("read: cells", 0))?;
-    let buckets = route(&mut stream, origin, &provisional, dir.path(), &mut ticker("read: route", points_read))?;
-    let cleaned = clean(&buckets, &mut ticker("sort cells", kept))?;
-    let plan = if cleaned.duplicates == 0 { provisional } else { replan(&buckets, bounds, kept - cleaned.duplicates)? };
+    let route_ticker = &mut ticker("read: route", points_read);
+    let mut buckets = route(&mut stream, origin, &provisional, dir.path(), config.recompute, route_ticker)?;
+    let cleaned = clean(&mut buckets, &mut ticker("sort cells", kept))?;
     let inward = pointing_in(&buckets, cleaned.center, &mut ticker("orient", kept))?;
     if inward {
         tracing::warn!("{}: the given normals pointed inward; turned them outward", input.display());
+        turn_given(&buckets, &mut ticker("turn normals", kept))?;
     }
+    let sensor = stream.viewpoint.map(|v| (DVec3::from(v) - origin).as_vec3());
+    let strays =
+        if cleaned.missing == 0 { 0 } else { fill(&buckets, config, sensor, &mut ticker("normals, radii", kept))? };
+    let dropped = cleaned.duplicates + strays;
+    let plan = if dropped == 0 { provisional } else { replan(&buckets, bounds, kept - dropped, params.chunk_splats)? };
     if cleaned.duplicates > 0 {
         tracing::info!(
             "{}: dropped {} points repeating an earlier point's position",
@@ -160,9 +172,8 @@ pub fn prepare_out_of_core(
     }
     let build = StreamedBvh::new(plan, &params);
     let mut spill = Files::new(dir.path())?;
-    let (build, cloud) = build_chunks(build, &buckets, inward, origin, &mut spill, &mut ticker("build", kept))?;
+    let (build, cloud) = build_chunks(build, &buckets, origin, &mut spill, &mut ticker("build", kept - dropped))?;
     ticker("write", 0);
-    let sensor = stream.viewpoint.map(|v| (DVec3::from(v) - origin).as_vec3());
     let view = sensor.and_then(|sensor| crate::source::sensor_view_of(sensor, cloud.bounds));
     let lone = crate::source::lone_cloud_parts(stream.info.up.map(Vec3::from), stream.info.sun.map(Vec3::from));
     let parts = SceneParts { view, ..lone };
@@ -195,30 +206,16 @@ fn local(position: DVec3, origin: DVec3) -> Option<Vec3> {
     Some((position - origin).as_vec3()).filter(|p| p.is_finite())
 }
 
-/// The bounds of the points kept and how many, checking their normals and radii.
-fn local_bounds(
-    path: &Path,
-    stream: &mut VertexStream,
-    origin: DVec3,
-    ticker: &mut Ticker,
-) -> Result<(Aabb, usize), IoError> {
-    let (mut bounds, mut kept, mut invalid) = (Aabb::EMPTY, 0usize, 0usize);
+/// The bounds of the points kept and how many.
+fn local_bounds(stream: &mut VertexStream, origin: DVec3, ticker: &mut Ticker) -> Result<(Aabb, usize), IoError> {
+    let (mut bounds, mut kept) = (Aabb::EMPTY, 0usize);
     stream.for_each(|r| {
         ticker.tick(1);
         if let Some(p) = local(r.position, origin) {
             bounds = bounds.union(Aabb::new(p, p));
             kept += 1;
-            invalid += usize::from(r.normal.try_normalize().is_none() || !(r.radius.is_finite() && r.radius > 0.0));
         }
     })?;
-    if invalid > 0 {
-        return Err(IoError::invalid(
-            path,
-            format!(
-                "{invalid} points have no valid normal or radius: out of core they cannot be computed yet, prepare it without --memory-budget"
-            ),
-        ));
-    }
     Ok((bounds, kept))
 }
 
@@ -248,9 +245,9 @@ fn plan(
 
 /// The chunks of the `count` points the buckets hold once cleaned (fewer than the plan they were
 /// routed by counted: each new chunk is one or more of the buckets, which are finer).
-fn replan(buckets: &[Bucket], bounds: Aabb, count: usize) -> Result<ChunkPlan, IoError> {
+fn replan(buckets: &[Bucket], bounds: Aabb, count: usize, most: usize) -> Result<ChunkPlan, IoError> {
     let mut failed = None;
-    let plan = ChunkPlan::new(bounds, count, BvhParams::standard().chunk_splats, |f| {
+    let plan = ChunkPlan::new(bounds, count, most, |f| {
         for b in buckets {
             if let Err(e) = for_each_record(b, |r| f(r.code)) {
                 failed = failed.take().or(Some(e));
@@ -264,6 +261,8 @@ fn replan(buckets: &[Bucket], bounds: Aabb, count: usize) -> Result<ChunkPlan, I
 struct Bucket {
     path: PathBuf,
     first_code: u64,
+    /// Of its points' positions, once cleaned.
+    bounds: Aabb,
 }
 
 /// Every kept point written to its chunk's file, in file order.
@@ -272,6 +271,7 @@ fn route(
     origin: DVec3,
     plan: &ChunkPlan,
     dir: &Path,
+    recompute: bool,
     ticker: &mut Ticker,
 ) -> Result<Vec<Bucket>, IoError> {
     let io = |path: &Path, e| IoError::io(path, e);
@@ -279,7 +279,11 @@ fn route(
         .chunks()
         .iter()
         .enumerate()
-        .map(|(c, cell)| Bucket { path: dir.join(format!("chunk{c}")), first_code: cell.first_code() })
+        .map(|(c, cell)| Bucket {
+            path: dir.join(format!("chunk{c}")),
+            first_code: cell.first_code(),
+            bounds: Aabb::EMPTY,
+        })
         .collect();
     let mut writers = Vec::with_capacity(buckets.len());
     for b in &buckets {
@@ -291,14 +295,18 @@ fn route(
         ticker.tick(1);
         if let Some(p) = local(r.position, origin) {
             let code = plan.code(p);
+            // Normalised as preprocessing normalises the given normals; invalid ones, and
+            // invalid radii, are missing (a file without them gives zeros).
+            let normal = r.normal.try_normalize().filter(|_| !recompute);
+            let radius = Some(r.radius).filter(|r| r.is_finite() && *r > 0.0 && !recompute);
             let record = Record {
                 code,
                 index,
                 position: p.to_array(),
-                normal: r.normal.try_normalize().unwrap_or(Vec3::Z).to_array(),
-                radius: r.radius,
+                normal: normal.unwrap_or(Vec3::Z).to_array(),
+                radius: radius.unwrap_or(0.0),
                 color: pack_color(if colors { r.color } else { DEFAULT_COLOR }),
-                pad: 0,
+                flags: (u32::from(normal.is_some()) * GIVEN_NORMAL) | (u32::from(radius.is_some()) * GIVEN_RADIUS),
             };
             let c = plan.chunk_of(code);
             if let Err(e) = writers[c].write_all(bytemuck::bytes_of(&record)) {
@@ -339,15 +347,18 @@ fn read_bucket(bucket: &Bucket) -> Result<Vec<Record>, IoError> {
 /// What cleaning the buckets found: repeats dropped, and the centre of the points kept.
 struct Cleaned {
     duplicates: usize,
+    /// Of the points with given normals.
     center: DVec3,
+    /// Points missing a normal or a radius.
+    missing: usize,
 }
 
 /// Sorts each bucket as the in-memory Morton sort orders its points, drops every point whose
 /// position repeats an earlier one's (preprocessing's `drop_duplicates`: repeats share a code,
-/// so a bucket), and sums the positions as `orient::turn_given_outward` does, in blocks of the
-/// sorted order.
-fn clean(buckets: &[Bucket], ticker: &mut Ticker) -> Result<Cleaned, IoError> {
-    let (mut duplicates, mut sums) = (0, BlockSums::default());
+/// so a bucket), and sums the positions with given normals as `orient::turn_given_outward`
+/// does, in blocks of the sorted order; notes each bucket's bounds.
+fn clean(buckets: &mut [Bucket], ticker: &mut Ticker) -> Result<Cleaned, IoError> {
+    let (mut duplicates, mut missing, mut sums) = (0, 0, BlockSums::default());
     for b in buckets {
         let mut records = read_bucket(b)?;
         ticker.tick(records.len());
@@ -356,13 +367,16 @@ fn clean(buckets: &[Bucket], ticker: &mut Ticker) -> Result<Cleaned, IoError> {
         records = without_repeats(records);
         duplicates += before - records.len();
         for r in &records {
-            let p = Vec3::from(r.position).as_dvec3();
-            sums.add([p.x, p.y, p.z, 1.0]);
+            let p = Vec3::from(r.position);
+            let d = p.as_dvec3();
+            sums.add((r.flags & GIVEN_NORMAL != 0).then_some([d.x, d.y, d.z, 1.0]));
+            missing += usize::from(r.flags != GIVEN);
+            b.bounds = b.bounds.union(Aabb::new(p, p));
         }
         std::fs::write(&b.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&b.path, e))?;
     }
     let [x, y, z, count] = sums.total();
-    Ok(Cleaned { duplicates, center: DVec3::new(x, y, z) / count })
+    Ok(Cleaned { duplicates, center: DVec3::new(x, y, z) / count, missing })
 }
 
 /// `records` (sorted by code) without those whose position (bit for bit, −0 as +0) an earlier
@@ -398,8 +412,11 @@ struct BlockSums {
 impl BlockSums {
     const BLOCK: usize = 1 << 16;
 
-    fn add(&mut self, term: [f64; 4]) {
-        self.block = std::array::from_fn(|k| self.block[k] + term[k]);
+    /// The next point's term (`None`: a point not summed, which still counts to its block).
+    fn add(&mut self, term: Option<[f64; 4]>) {
+        if let Some(term) = term {
+            self.block = std::array::from_fn(|k| self.block[k] + term[k]);
+        }
         self.in_block += 1;
         if self.in_block == Self::BLOCK {
             self.flush();
@@ -427,18 +444,109 @@ fn pointing_in(buckets: &[Bucket], center: DVec3, ticker: &mut Ticker) -> Result
         for_each_record(b, |r| {
             ticker.tick(1);
             let d = Vec3::from(r.position).as_dvec3() - center;
-            sums.add([Vec3::from(r.normal).as_dvec3().normalize_or_zero().dot(d), d.length(), 0.0, 0.0]);
+            let given = r.flags & GIVEN_NORMAL != 0;
+            sums.add(given.then(|| [Vec3::from(r.normal).as_dvec3().normalize_or_zero().dot(d), d.length(), 0.0, 0.0]));
         })?;
     }
     let [along, away, ..] = sums.total();
     Ok(along < pointray::preprocess::orient::INWARD * away)
 }
 
+/// Turns every given normal (`pointing_in` found them pointing in), rewriting the buckets.
+fn turn_given(buckets: &[Bucket], ticker: &mut Ticker) -> Result<(), IoError> {
+    for b in buckets {
+        let mut records = read_bucket(b)?;
+        ticker.tick(records.len());
+        for r in records.iter_mut().filter(|r| r.flags & GIVEN_NORMAL != 0) {
+            r.normal = r.normal.map(|v| -v);
+        }
+        std::fs::write(&b.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&b.path, e))?;
+    }
+    Ok(())
+}
+
+/// Computes the missing normals and radii a bucket at a time, with the halo of points round it
+/// that its points' neighbourhoods reach ([`halo_reach`]): the normals of the buckets before
+/// it, final, are fixed and orient its own across the border, as given normals orient computed
+/// ones in memory (`preprocess::fill_chunk`). Rewrites each bucket, its strays dropped (or
+/// clamped, as `config.strays` says); returns how many were dropped.
+fn fill(
+    buckets: &[Bucket],
+    config: &PreprocessConfig,
+    sensor: Option<Vec3>,
+    ticker: &mut Ticker,
+) -> Result<usize, IoError> {
+    let k = config.k_normals.max(config.k_radius);
+    let mut dropped = 0;
+    for (b, bucket) in buckets.iter().enumerate() {
+        let mut records = read_bucket(bucket)?;
+        ticker.tick(records.len());
+        if records.iter().all(|r| r.flags == GIVEN) {
+            continue;
+        }
+        let positions: Vec<Vec3> = records.iter().map(|r| Vec3::from(r.position)).collect();
+        let reach = halo_reach(&positions, k, &bucket.bounds);
+        let zone = Aabb::new(bucket.bounds.min - reach, bucket.bounds.max + reach);
+        let mut halo = Vec::new();
+        for (o, other) in buckets.iter().enumerate().filter(|&(o, other)| o != b && overlap(&other.bounds, &zone)) {
+            for_each_record(other, |r| {
+                if zone.contains_box(&Aabb::new(Vec3::from(r.position), Vec3::from(r.position))) {
+                    // Done before this one: final, and fixed.
+                    halo.push(if o < b { Record { flags: GIVEN, ..*r } } else { *r });
+                }
+            })?;
+        }
+        let all = || records.iter().chain(&halo);
+        let mut cloud = pointray::PointCloud {
+            positions: all().map(|r| Vec3::from(r.position)).collect(),
+            normals: Some(all().map(|r| Vec3::from(r.normal)).collect()),
+            radii: Some(all().map(|r| r.radius).collect()),
+            viewpoints: sensor.into_iter().collect(),
+            ..Default::default()
+        };
+        let missing = |flag: u32| all().map(|r| r.flags & flag == 0).collect::<Vec<bool>>();
+        let strays =
+            pointray::preprocess::fill_chunk(&mut cloud, [&missing(GIVEN_NORMAL), &missing(GIVEN_RADIUS)], config)
+                .map_err(|e| IoError::invalid(&bucket.path, format!("preprocessing: {e}")))?;
+        let (normals, radii) = (cloud.normals.unwrap_or_default(), cloud.radii.unwrap_or_default());
+        for (i, r) in records.iter_mut().enumerate() {
+            (r.normal, r.radius, r.flags) = (normals[i].to_array(), radii[i], GIVEN);
+        }
+        if config.strays == pointray::preprocess::Strays::Drop {
+            let own: Vec<usize> = strays.iter().map(|&i| i as usize).filter(|&i| i < records.len()).collect();
+            dropped += own.len();
+            let mut keep = vec![true; records.len()];
+            own.iter().for_each(|&i| keep[i] = false);
+            records = records.into_iter().zip(keep).filter(|(_, k)| *k).map(|(r, _)| r).collect();
+        }
+        std::fs::write(&bucket.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&bucket.path, e))?;
+    }
+    Ok(dropped)
+}
+
+/// How far round a bucket its points' `k` nearest neighbours may lie: the farthest k-th
+/// neighbour among its own points, which no point outside can make farther (so the halo holds
+/// every true neighbour); at most the bucket's diagonal (a stray's neighbours beyond stay
+/// unseen: it is a stray either way).
+fn halo_reach(positions: &[Vec3], k: usize, bounds: &Aabb) -> f32 {
+    let diagonal = bounds.diagonal();
+    if positions.len() <= k {
+        return diagonal;
+    }
+    let nbrs = pointray::knn::k_nearest(positions, k);
+    let farthest =
+        (0..positions.len()).map(|i| nbrs.sq_dists_of(i).last().copied().unwrap_or(f32::INFINITY)).fold(0.0, f32::max);
+    farthest.sqrt().min(diagonal) * (1.0 + 1e-5) + f32::MIN_POSITIVE
+}
+
+fn overlap(a: &Aabb, b: &Aabb) -> bool {
+    a.min.cmple(b.max).all() && b.min.cmple(a.max).all()
+}
+
 /// Every chunk built in turn from its buckets' points, as splats; the cloud's scalars.
 fn build_chunks(
     mut build: StreamedBvh,
     buckets: &[Bucket],
-    inward: bool,
     origin: DVec3,
     spill: &mut Files,
     ticker: &mut Ticker,
@@ -450,11 +558,10 @@ fn build_chunks(
         let mut splats = Vec::new();
         while next < buckets.len() && build.plan().chunk_of(buckets[next].first_code) == c {
             for_each_record(&buckets[next], |r| {
-                let normal = Vec3::from(r.normal);
                 let s = Splat {
                     center: Vec3::from(r.position),
                     radius: r.radius,
-                    normal: if inward { -normal } else { normal },
+                    normal: Vec3::from(r.normal),
                     color: r.color,
                 };
                 bounds = bounds.union(Aabb::new(s.center, s.center));
@@ -577,4 +684,74 @@ fn write(
         }
     })
     .map_err(|e| failed.take().unwrap_or(e))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use pointray::PointCloud;
+
+    /// A thin wall: two sheets 0.03 apart, of `n` × `n / 6` points each, a little jittered.
+    fn wall(n: usize) -> PointCloud {
+        let mut positions = Vec::new();
+        let jitter = |i: usize| ((i * 7_919) % 101) as f32 * 1e-5;
+        for z in [0.0, 0.03] {
+            for i in 0..n {
+                for j in 0..n / 6 {
+                    positions.push(Vec3::new(i as f32 * 0.01 + jitter(i + j), j as f32 * 0.01 + jitter(j * 3 + i), z));
+                }
+            }
+        }
+        PointCloud { positions, ..PointCloud::default() }
+    }
+
+    /// The points' normals, read back from the buckets, by their positions' bits.
+    fn normals_in(buckets: &[Bucket]) -> std::collections::HashMap<[u32; 3], Vec3> {
+        let mut normals = std::collections::HashMap::new();
+        for b in buckets {
+            for_each_record(b, |r| {
+                assert_eq!(r.flags, GIVEN);
+                normals.insert(r.position.map(f32::to_bits), Vec3::from(r.normal));
+            })
+            .unwrap();
+        }
+        normals
+    }
+
+    #[test]
+    fn normals_computed_a_cell_at_a_time_agree_across_the_cells_borders() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("wall.ply");
+        crate::write_ply(&path, &wall(240)).unwrap();
+        let config = PreprocessConfig::standard();
+        // In memory, as one.
+        let mut whole = crate::read_cloud(&path).unwrap().cloud;
+        pointray::preprocess::preprocess(&mut whole, &config).unwrap();
+        // Out of core, in cells of at most 1,500 points.
+        let ticker = &mut Ticker::new(&|_| {}, "test", 0);
+        let mut stream = VertexStream::open(&path).unwrap();
+        let origin = world_origin(&mut stream, ticker).unwrap();
+        assert_eq!(origin, whole.origin);
+        let (bounds, kept) = local_bounds(&mut stream, origin, ticker).unwrap();
+        let plan = plan(&mut stream, origin, bounds, kept, 1_500, ticker).unwrap();
+        let mut buckets = route(&mut stream, origin, &plan, dir.path(), false, ticker).unwrap();
+        assert!(buckets.len() >= 8, "{} cells", buckets.len());
+        let cleaned = clean(&mut buckets, ticker).unwrap();
+        assert_eq!((cleaned.duplicates, cleaned.missing), (0, kept));
+        assert_eq!(fill(&buckets, &config, None, ticker).unwrap(), whole.len().abs_diff(kept));
+        let normals = normals_in(&buckets);
+        let given = whole.normals.as_ref().unwrap();
+        let agree = whole
+            .positions
+            .iter()
+            .zip(given)
+            .filter(|(p, n)| normals[&p.to_array().map(f32::to_bits)].dot(**n) > 0.9)
+            .count();
+        // Every sheet's side, in every cell, as the whole cloud orients it.
+        assert!(agree as f64 >= 0.995 * whole.len() as f64, "{agree} of {} agree", whole.len());
+        // And the two sheets (at z = ±0.015 about the origin) face away from each other, as a
+        // wall's sides do.
+        let outward = normals.iter().filter(|(p, n)| (n.z > 0.0) == (f32::from_bits(p[2]) > 0.0)).count();
+        assert!(outward as f64 >= 0.97 * whole.len() as f64, "{outward} of {} face out", whole.len());
+    }
 }

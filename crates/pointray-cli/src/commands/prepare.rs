@@ -125,7 +125,8 @@ fn out_of_core(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig,
         bar.set_length(p.total as u64);
         bar.set_position(p.done as u64);
     };
-    let done = pointray_io::prepare::prepare_out_of_core(&a.input, &a.output, config, &progress)?;
+    let options = pointray_io::prepare::OutOfCore { preprocess: *config, ..Default::default() };
+    let done = pointray_io::prepare::prepare_out_of_core(&a.input, &a.output, &options, &progress)?;
     bar.finish_and_clear();
     if !quiet {
         let bytes = std::fs::metadata(&a.output).map(|m| m.len()).unwrap_or(0);

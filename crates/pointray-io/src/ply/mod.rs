@@ -106,12 +106,6 @@ impl VertexStream {
         })
     }
 
-    /// Whether every record has a normal and a radius.
-    pub(crate) fn has_normals_and_radii(&self) -> bool {
-        let a = self.layout.attributes();
-        a.normals && a.radii
-    }
-
     pub(crate) fn has_colors(&self) -> bool {
         self.layout.attributes().colors
     }

@@ -363,6 +363,38 @@ pub fn preprocess_with_progress(
         return Ok(stats);
     }
 
+    let strays = fill_in(cloud, cfg, [&normals_missing, &radii_missing], &mut stats, stage);
+    match cfg.strays {
+        Strays::Clamp => stats.clamped_radii = strays.len(),
+        Strays::Drop => stats.dropped_strays = drop_indices(cloud, &strays),
+    }
+    info!(
+        points = cloud.len(),
+        dropped = stats.dropped_non_finite,
+        degenerate = stats.degenerate_normals,
+        flipped = stats.flipped_normals,
+        components = stats.orientation_components,
+        seconds = stats.seconds.total(),
+        "preprocess done"
+    );
+    Ok(stats)
+}
+
+/// The missing normals (PCA, oriented) and radii (`missing`: normals', radii's) of `cloud`, whose
+/// other normals and radii are given; the strays, whose radii are clamped (ascending indices).
+fn fill_in(
+    cloud: &mut PointCloud,
+    cfg: &PreprocessConfig,
+    [normals_missing, radii_missing]: [&[bool]; 2],
+    stats: &mut PreprocessStats,
+    stage: &dyn Fn(&'static str),
+) -> Vec<u32> {
+    let n = cloud.len();
+    let need_normals = cloud.normals.is_none() || normals_missing.contains(&true);
+    let need_radii = cloud.radii.is_none() || radii_missing.contains(&true);
+    if !need_normals && !need_radii {
+        return Vec::new();
+    }
     let k = match (need_normals, need_radii) {
         (true, true) => cfg.k_normals.max(cfg.k_radius),
         (true, false) => cfg.k_normals,
@@ -375,36 +407,49 @@ pub fn preprocess_with_progress(
     debug!(k = nbrs.k, seconds = stats.seconds.knn, "kNN");
 
     if need_normals {
-        fill_normals(cloud, &nbrs, cfg.k_normals, &normals_missing, &mut stats, stage);
+        fill_normals(cloud, &nbrs, cfg.k_normals, normals_missing, stats, stage);
     }
-    if need_radii {
-        stage("radii");
-        let start = Instant::now();
-        let computed = radii::splat_radii(&cloud.positions, &nbrs, cfg.k_radius, cfg.radius_scale);
-        let radii = cloud.radii.get_or_insert_with(|| vec![0.0; n]);
-        for ((r, c), &missing) in radii.iter_mut().zip(computed).zip(&radii_missing) {
-            if missing {
-                *r = c;
-            }
-        }
-        let strays = radii::clamp_to_neighbours(radii, &radii_missing, &nbrs);
-        match cfg.strays {
-            Strays::Clamp => stats.clamped_radii = strays.len(),
-            Strays::Drop => stats.dropped_strays = drop_indices(cloud, &strays),
-        }
-        stats.seconds.radii = start.elapsed().as_secs_f64();
-        debug!(seconds = stats.seconds.radii, "radii");
+    if !need_radii {
+        return Vec::new();
     }
-    info!(
-        points = cloud.len(),
-        dropped = stats.dropped_non_finite,
-        degenerate = stats.degenerate_normals,
-        flipped = stats.flipped_normals,
-        components = stats.orientation_components,
-        seconds = stats.seconds.total(),
-        "preprocess done"
-    );
-    Ok(stats)
+    stage("radii");
+    let start = Instant::now();
+    let computed = radii::splat_radii(&cloud.positions, &nbrs, cfg.k_radius, cfg.radius_scale);
+    let radii = cloud.radii.get_or_insert_with(|| vec![0.0; n]);
+    for ((r, c), &missing) in radii.iter_mut().zip(computed).zip(radii_missing) {
+        if missing {
+            *r = c;
+        }
+    }
+    let strays = radii::clamp_to_neighbours(radii, radii_missing, &nbrs);
+    stats.seconds.radii = start.elapsed().as_secs_f64();
+    debug!(seconds = stats.seconds.radii, "radii");
+    strays
+}
+
+/// What preprocessing computes of one chunk of a cloud prepared out of core
+/// (`pointray_io::prepare`), its points with the halo round it: the normals and radii
+/// `missing` says, computed and oriented as [`preprocess`] does (the given normals, the halo's
+/// already made among them, fixed and seeding the rest; a cloud's `viewpoints` faced). Returns
+/// the strays (ascending indices), their radii clamped; dropping them is the caller's, as
+/// `cfg.strays` says. Nothing is cleaned, sorted or turned: the caller did that for the cloud.
+///
+/// # Panics
+/// If `missing` or an attribute does not have one entry per point.
+pub fn fill_chunk(
+    cloud: &mut PointCloud,
+    missing: [&[bool]; 2],
+    cfg: &PreprocessConfig,
+) -> Result<Vec<u32>, PreprocessError> {
+    if let Err(e) = cloud.check_lengths() {
+        panic!("fill_chunk: inconsistent point cloud: {e}");
+    }
+    assert!(missing.iter().all(|m| m.len() == cloud.len()), "fill_chunk: a mask per point");
+    check_neighbours(cfg)?;
+    if missing[1].contains(&true) && cloud.len() < 2 {
+        return Err(PreprocessError::SinglePointWithoutRadius);
+    }
+    Ok(fill_in(cloud, cfg, missing, &mut PreprocessStats::default(), &|_| {}))
 }
 
 /// Removes the statistical outliers among `k` neighbours ([`outliers`]); returns how many.
