@@ -508,8 +508,8 @@ pub struct PrepareArgs {
     /// memory (some 90 bytes a point) is read in passes and built a chunk at a time, with
     /// temporary files beside the output, normals and radii computed a cell at a time. The
     /// same file either way where the file gives normals and radii. For now out of core takes a
-    /// binary PLY, sorted, no outlier filter, the default build (asked for, others are refused;
-    /// by default, they are prepared in memory).
+    /// binary PLY or LAS/LAZ, sorted, no outlier filter, the default build (asked for, others
+    /// are refused; by default, they are prepared in memory).
     #[arg(long, value_parser = parse_bytes, value_name = "SIZE")]
     pub memory_budget: Option<u64>,
 }

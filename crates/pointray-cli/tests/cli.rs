@@ -803,11 +803,14 @@ fn a_scene_file_prepared_out_of_core_is_the_one_prepared_in_memory() {
     // Normals and radii computed: in one chunk, as in memory (`pointray_io::prepare`'s tests
     // check their orientation across the chunks of a larger cloud).
     write_inward_sphere(dir.path(), 5_000, "bare.ply", false);
-    for input in ["inward.ply", "bare.ply"] {
+    // And a LAZ file, read as a stream (laspy's plane, 18,335 points).
+    let laz = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../pointray-io/tests/data/plane.laz");
+    std::fs::copy(laz, dir.path().join("plane.laz")).unwrap();
+    for input in ["inward.ply", "bare.ply", "plane.laz"] {
         run_in(dir.path(), &["-q", "prepare", input, "-o", "memory.prs"]).assert_success();
         run_in(dir.path(), &["prepare", input, "-o", "streamed.prs", "--memory-budget", "1KiB"])
             .assert_success()
-            .assert_stderr_contains("5000 points in 1 chunks, out of core");
+            .assert_stderr_contains("points in 1 chunks, out of core");
         let (memory, streamed) = (dir.path().join("memory.prs"), dir.path().join("streamed.prs"));
         assert!(std::fs::read(&memory).unwrap() == std::fs::read(&streamed).unwrap(), "{input}: the files differ");
     }

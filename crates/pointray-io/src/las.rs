@@ -105,6 +105,31 @@ fn class_code(point: &las::Point, extended: bool) -> u8 {
     if point.is_overlap && !extended { 12 } else { u8::from(point.classification) }
 }
 
+/// A point as the builder takes it: colours raw (16-bit channels, see [`color_scale`]).
+fn record(point: &las::Point, extended: bool) -> PointRecord {
+    let color = point.color.map_or([0; 3], |c| [c.red, c.green, c.blue]);
+    PointRecord {
+        position: DVec3::new(point.x, point.y, point.z),
+        color: color.map(f32::from),
+        intensity: f32::from(point.intensity),
+        classification: class_code(point, extended),
+        return_number: point.return_number,
+        gps_time: point.gps_time.unwrap_or(0.0),
+        ..PointRecord::default()
+    }
+}
+
+/// What a file's colours are divided by, from its largest channel: 8-bit values in 16-bit
+/// channels where none exceeds 255; none where every one is 0 (a point format with colour
+/// whose writer had none to give, as laspy's plane.laz: black everywhere is no colour).
+fn color_scale(max_channel: u16) -> Option<f32> {
+    match max_channel {
+        0 => None,
+        1..=255 => Some(255.0),
+        _ => Some(65535.0),
+    }
+}
+
 /// Points decoded at a time: the header's count is not trusted for an allocation.
 const BATCH: u64 = 1 << 16;
 
@@ -153,32 +178,28 @@ fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
         for (i, point) in batch.points().enumerate() {
             let point =
                 point.map_err(|e| IoError::invalid(path, format!("point {} of {count}: {e}", done + i as u64)))?;
-            let color = point.color.map_or([0; 3], |c| [c.red, c.green, c.blue]);
-            max_channel = color.into_iter().fold(max_channel, u16::max);
-            let position = DVec3::new(point.x, point.y, point.z);
-            builder.push(&PointRecord {
-                position,
-                color: color.map(f32::from),
-                intensity: f32::from(point.intensity),
-                classification: class_code(&point, format.is_extended),
-                return_number: point.return_number,
-                gps_time: point.gps_time.unwrap_or(0.0),
-                ..PointRecord::default()
-            });
+            let record = record(&point, format.is_extended);
+            max_channel = record.color.into_iter().fold(max_channel, |m, c| m.max(c as u16));
+            builder.push(&record);
         }
     }
     let mut cloud = builder.finish();
-    if max_channel == 0 && cloud.colors.is_some() {
-        // A point format with colour whose writer had none to give (laspy's plane.laz): black
-        // everywhere is no colour.
-        tracing::info!("{}: every colour is black; taken as none", path.display());
-        cloud.colors = None;
+    match (color_scale(max_channel), &mut cloud.colors) {
+        (None, Some(_)) => {
+            tracing::info!("{}: every colour is black; taken as none", path.display());
+            cloud.colors = None;
+        }
+        (Some(scale), Some(colors)) => colors.iter_mut().for_each(|c| *c = c.map(|v| v / scale)),
+        (_, None) => {}
     }
-    if let Some(colors) = &mut cloud.colors {
-        let scale = if max_channel <= 255 { 255.0 } else { 65535.0 };
-        colors.iter_mut().for_each(|c| *c = c.map(|v| v / scale));
-    }
-    let info = FileInfo {
+    let info = file_info(&format, version, cloud.len(), file_bytes);
+    Ok(LoadedCloud { cloud, info })
+}
+
+/// What [`crate::read_cloud`] tells of a LAS file of `points` points.
+fn file_info(format: &las::point::Format, version: (u8, u8), points: usize, file_bytes: u64) -> FileInfo {
+    let scan = ScanFields { intensity: true, classification: true, return_number: true, gps_time: format.has_gps_time };
+    FileInfo {
         format: format!(
             "{} {}.{}, point format {}",
             if format.is_compressed { "LAZ" } else { "LAS" },
@@ -186,7 +207,7 @@ fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
             version.1,
             format.to_u8().map_or_else(|_| "?".to_string(), |n| n.to_string())
         ),
-        elements: vec![("point".into(), cloud.len())],
+        elements: vec![("point".into(), points)],
         vertex_properties: ["x", "y", "z"]
             .into_iter()
             .chain(format.has_color.then_some(["red", "green", "blue"]).into_iter().flatten())
@@ -197,6 +218,84 @@ fn decode(path: &Path, bytes: FileBytes) -> Result<LoadedCloud, IoError> {
         file_bytes,
         up: Some([0.0, 0.0, 1.0]),
         sun: Some(crate::SURVEY_SUN),
-    };
-    Ok(LoadedCloud { cloud, info })
+    }
+}
+
+/// A LAS or LAZ file's points read from the file in batches, as often as asked: for preparing a
+/// cloud larger than memory (`crate::prepare`). Opening makes `parse`'s checks (the header and
+/// the chunk table, mapped); each pass reads the file through the crate's reader.
+pub(crate) struct LasStream {
+    path: std::path::PathBuf,
+    pub(crate) count: usize,
+    pub(crate) info: FileInfo,
+    extended: bool,
+    has_color: bool,
+    /// The colours' divisor ([`color_scale`]) once a pass has seen every point.
+    scale: Option<Option<f32>>,
+}
+
+impl LasStream {
+    pub(crate) fn open(path: &Path) -> Result<Self, IoError> {
+        let bytes = crate::file::read_file(path, true)?;
+        check_point_extent(path, &bytes)?;
+        check_first_evlr(path, &bytes)?;
+        check_laz_chunk_table(path, &bytes)?;
+        let version = (bytes.get(24).copied().unwrap_or(0), bytes.get(25).copied().unwrap_or(0));
+        let file = std::fs::File::open(path).map_err(|e| IoError::io(path, e))?;
+        let header = las::Reader::new(std::io::BufReader::new(file))
+            .map_err(|e| IoError::invalid(path, format!("not a readable LAS file: {e}")))?
+            .header()
+            .clone();
+        let format = *header.point_format();
+        let count = usize::try_from(header.number_of_points())
+            .map_err(|_| IoError::invalid(path, "more points than this machine can count"))?;
+        let info = file_info(&format, version, count, bytes.len() as u64);
+        let (extended, has_color) = (format.is_extended, format.has_color);
+        Ok(Self { path: path.to_path_buf(), count, info, extended, has_color, scale: None })
+    }
+
+    /// Whether the points have colours (known after the first pass).
+    pub(crate) fn has_colors(&self) -> bool {
+        self.has_color && self.scale.expect("a pass first").is_some()
+    }
+
+    /// Calls `visit` with every point in file order, its colour scaled once a pass has found
+    /// the scale (raw before).
+    pub(crate) fn for_each(&mut self, mut visit: impl FnMut(&PointRecord)) -> Result<(), IoError> {
+        let path = self.path.clone();
+        let invalid = |message: String| IoError::invalid(&path, message);
+        let file = std::fs::File::open(&self.path).map_err(|e| IoError::io(&self.path, e))?;
+        let scale = self.scale.flatten();
+        let (extended, count) = (self.extended, self.count as u64);
+        let mut max_channel = 0u16;
+        // As `parse`: the LAZ decoder can panic on corrupt data.
+        let pass = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| -> Result<(), IoError> {
+            let mut reader = las::Reader::new(std::io::BufReader::with_capacity(1 << 20, file))
+                .map_err(|e| invalid(format!("not a readable LAS file: {e}")))?;
+            let mut batch = las::PointDataBuilder::new().for_header(reader.header()).build();
+            let mut done = 0u64;
+            while done < count {
+                let read = reader
+                    .fill_points(BATCH.min(count - done), &mut batch)
+                    .map_err(|e| invalid(format!("point {done} of {count}: {e}")))?;
+                if read == 0 {
+                    return Err(invalid(format!("the file ends after {done} of its {count} points")));
+                }
+                for point in batch.points() {
+                    let point = point.map_err(|e| invalid(format!("point {done} of {count}: {e}")))?;
+                    let mut record = record(&point, extended);
+                    max_channel = record.color.into_iter().fold(max_channel, |m, c| m.max(c as u16));
+                    if let Some(scale) = scale {
+                        record.color = record.color.map(|v| v / scale);
+                    }
+                    visit(&record);
+                    done += 1;
+                }
+            }
+            Ok(())
+        }));
+        pass.unwrap_or_else(|_| Err(invalid("corrupt LAS/LAZ data: the decoder failed".into())))?;
+        self.scale.get_or_insert(color_scale(max_channel));
+        Ok(())
+    }
 }

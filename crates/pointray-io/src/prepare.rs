@@ -5,9 +5,9 @@
 //! a time ([`StreamedBvh`]) straight into the file. The file holds the same bytes as preparing
 //! the cloud in memory writes (`tests`), so it renders the same images.
 //!
-//! What it takes, for now: a binary PLY whose vertices all carry a valid normal and radius
-//! (what `pointray prepare -o x.ply`, CloudCompare or a scanner's software writes), with the
-//! default preprocessing and build settings. Anything else is refused, naming what to do.
+//! What it takes, for now: a binary PLY or a LAS/LAZ file (read as streams, [`VertexStream`],
+//! [`LasStream`]), sorted, without the outlier filter, and the default build settings. Anything
+//! else is refused, naming what to do.
 
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
@@ -27,6 +27,8 @@ use pointray::splat::footprint::{coverage_counts, density_of};
 use pointray::splat::{DEFAULT_COLOR, Splat, pack_color};
 
 use crate::IoError;
+use crate::builder::PointRecord;
+use crate::las::LasStream;
 use crate::ply::VertexStream;
 
 /// One point as the passes keep it in their temporary files.
@@ -90,9 +92,65 @@ impl<'a> Ticker<'a> {
     }
 }
 
-/// The points of `input` if its header says (a PLY's), for estimating what preparing it takes.
+/// A cloud file read in passes: a binary PLY's vertices or a LAS/LAZ file's points.
+enum Input {
+    Ply(Box<VertexStream>),
+    Las(LasStream),
+}
+
+impl Input {
+    fn open(path: &Path) -> Result<Self, IoError> {
+        let mut start = [0; 4];
+        let read = File::open(path).and_then(|mut f| f.read_exact(&mut start));
+        if read.is_ok() && crate::las::looks_like_las(&start) {
+            return LasStream::open(path).map(Input::Las);
+        }
+        VertexStream::open(path).map(|s| Input::Ply(Box::new(s)))
+    }
+
+    fn count(&self) -> usize {
+        match self {
+            Input::Ply(s) => s.count,
+            Input::Las(s) => s.count,
+        }
+    }
+
+    fn info(&self) -> &crate::FileInfo {
+        match self {
+            Input::Ply(s) => &s.info,
+            Input::Las(s) => &s.info,
+        }
+    }
+
+    /// A sensor's position in the file's coordinates, if it says.
+    fn viewpoint(&self) -> Option<[f64; 3]> {
+        match self {
+            Input::Ply(s) => s.viewpoint,
+            Input::Las(_) => None,
+        }
+    }
+
+    /// Whether the points have colours (for a LAS file, known after a pass).
+    fn has_colors(&self) -> bool {
+        match self {
+            Input::Ply(s) => s.has_colors(),
+            Input::Las(s) => s.has_colors(),
+        }
+    }
+
+    /// Calls `visit` with every point in file order.
+    fn for_each(&mut self, visit: impl FnMut(&PointRecord)) -> Result<(), IoError> {
+        match self {
+            Input::Ply(s) => s.for_each(visit),
+            Input::Las(s) => s.for_each(visit),
+        }
+    }
+}
+
+/// The points of `input` if its header says (a binary PLY's, a LAS file's), for estimating
+/// what preparing it takes.
 pub fn points_in(input: &Path) -> Option<usize> {
-    crate::ply::VertexStream::open(input).ok().map(|s| s.count)
+    Input::open(input).ok().map(|s| s.count())
 }
 
 /// Why [`prepare_out_of_core`] would refuse `input` with `config` from its header alone (none
@@ -100,7 +158,7 @@ pub fn points_in(input: &Path) -> Option<usize> {
 pub fn out_of_core_refusal(input: &Path, config: &PreprocessConfig) -> Option<String> {
     let refusal = || -> Result<(), IoError> {
         check_config(input, config)?;
-        VertexStream::open(input).map(|_| ())
+        Input::open(input).map(|_| ())
     };
     refusal().err().map(|e| e.to_string())
 }
@@ -139,8 +197,8 @@ pub fn prepare_out_of_core(
 ) -> Result<Prepared, IoError> {
     let config = &options.preprocess;
     check_config(input, config)?;
-    let mut stream = VertexStream::open(input)?;
-    let points_read = stream.count;
+    let mut stream = Input::open(input)?;
+    let points_read = stream.count();
     let ticker = |stage, total| Ticker::new(progress, stage, total);
     let origin = world_origin(&mut stream, &mut ticker("read: origin", points_read))?;
     let (bounds, kept) = local_bounds(&mut stream, origin, &mut ticker("read: bounds", points_read))?;
@@ -158,7 +216,7 @@ pub fn prepare_out_of_core(
         tracing::warn!("{}: the given normals pointed inward; turned them outward", input.display());
         turn_given(&buckets, &mut ticker("turn normals", kept))?;
     }
-    let sensor = stream.viewpoint.map(|v| (DVec3::from(v) - origin).as_vec3());
+    let sensor = stream.viewpoint().map(|v| (DVec3::from(v) - origin).as_vec3());
     let strays =
         if cleaned.missing == 0 { 0 } else { fill(&buckets, config, sensor, &mut ticker("normals, radii", kept))? };
     let dropped = cleaned.duplicates + strays;
@@ -175,7 +233,8 @@ pub fn prepare_out_of_core(
     let (build, cloud) = build_chunks(build, &buckets, origin, &mut spill, &mut ticker("build", kept - dropped))?;
     ticker("write", 0);
     let view = sensor.and_then(|sensor| crate::source::sensor_view_of(sensor, cloud.bounds));
-    let lone = crate::source::lone_cloud_parts(stream.info.up.map(Vec3::from), stream.info.sun.map(Vec3::from));
+    let info = stream.info();
+    let lone = crate::source::lone_cloud_parts(info.up.map(Vec3::from), info.sun.map(Vec3::from));
     let parts = SceneParts { view, ..lone };
     write(output, build, &mut spill, &parts, &cloud)?;
     Ok(Prepared {
@@ -190,7 +249,7 @@ pub fn prepare_out_of_core(
 
 /// The origin reading the cloud in memory gives it (`PointCloud::from_world_positions`): the
 /// centre of its finite points' bounds.
-fn world_origin(stream: &mut VertexStream, ticker: &mut Ticker) -> Result<DVec3, IoError> {
+fn world_origin(stream: &mut Input, ticker: &mut Ticker) -> Result<DVec3, IoError> {
     let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
     stream.for_each(|r| {
         ticker.tick(1);
@@ -207,7 +266,7 @@ fn local(position: DVec3, origin: DVec3) -> Option<Vec3> {
 }
 
 /// The bounds of the points kept and how many.
-fn local_bounds(stream: &mut VertexStream, origin: DVec3, ticker: &mut Ticker) -> Result<(Aabb, usize), IoError> {
+fn local_bounds(stream: &mut Input, origin: DVec3, ticker: &mut Ticker) -> Result<(Aabb, usize), IoError> {
     let (mut bounds, mut kept) = (Aabb::EMPTY, 0usize);
     stream.for_each(|r| {
         ticker.tick(1);
@@ -221,7 +280,7 @@ fn local_bounds(stream: &mut VertexStream, origin: DVec3, ticker: &mut Ticker) -
 
 /// The chunks of the kept points, repeats counted (they cannot be told apart before routing).
 fn plan(
-    stream: &mut VertexStream,
+    stream: &mut Input,
     origin: DVec3,
     bounds: Aabb,
     kept: usize,
@@ -231,7 +290,7 @@ fn plan(
     let mut failed = None;
     let plan = ChunkPlan::new(bounds, kept, most, |f| {
         // A pass for each level of cells split: the total grows as they are made.
-        ticker.total += stream.count;
+        ticker.total += stream.count();
         let pass = stream.for_each(|r| {
             ticker.tick(1);
             if let Some(p) = local(r.position, origin) {
@@ -267,7 +326,7 @@ struct Bucket {
 
 /// Every kept point written to its chunk's file, in file order.
 fn route(
-    stream: &mut VertexStream,
+    stream: &mut Input,
     origin: DVec3,
     plan: &ChunkPlan,
     dir: &Path,
@@ -729,7 +788,7 @@ mod tests {
         pointray::preprocess::preprocess(&mut whole, &config).unwrap();
         // Out of core, in cells of at most 1,500 points.
         let ticker = &mut Ticker::new(&|_| {}, "test", 0);
-        let mut stream = VertexStream::open(&path).unwrap();
+        let mut stream = Input::open(&path).unwrap();
         let origin = world_origin(&mut stream, ticker).unwrap();
         assert_eq!(origin, whole.origin);
         let (bounds, kept) = local_bounds(&mut stream, origin, ticker).unwrap();
