@@ -58,6 +58,8 @@ pub struct Prepared {
     pub chunks: usize,
     pub dropped_non_finite: usize,
     pub dropped_duplicates: usize,
+    /// Points whose computed radius made them strays, dropped.
+    pub dropped_strays: usize,
     pub turned_outward: bool,
 }
 
@@ -220,6 +222,9 @@ pub fn prepare_out_of_core(
     let strays =
         if cleaned.missing == 0 { 0 } else { fill(&buckets, config, sensor, &mut ticker("normals, radii", kept))? };
     let dropped = cleaned.duplicates + strays;
+    if dropped == kept {
+        return Err(IoError::invalid(input, "preprocessing: no points left"));
+    }
     let plan = if dropped == 0 { provisional } else { replan(&buckets, bounds, kept - dropped, params.chunk_splats)? };
     if cleaned.duplicates > 0 {
         tracing::info!(
@@ -228,6 +233,7 @@ pub fn prepare_out_of_core(
             cleaned.duplicates
         );
     }
+    let chunks = plan.chunks().len();
     let build = StreamedBvh::new(plan, &params);
     let mut spill = Files::new(dir.path())?;
     let (build, cloud) = build_chunks(build, &buckets, origin, &mut spill, &mut ticker("build", kept - dropped))?;
@@ -240,9 +246,10 @@ pub fn prepare_out_of_core(
     Ok(Prepared {
         points_read,
         points: cloud.points,
-        chunks: buckets.len(),
+        chunks,
         dropped_non_finite: points_read - kept,
         dropped_duplicates: cleaned.duplicates,
+        dropped_strays: strays,
         turned_outward: inward,
     })
 }

@@ -221,14 +221,14 @@ fn in_chunk_order(input: Vec<Splat>, plan: &ChunkPlan) -> (Vec<Splat>, Option<Ve
 
 /// A chunked tree assembled chunk by chunk: the top's nodes (filled in last), then each
 /// chunk's nodes and blocks appended, their references moved past what came before.
-pub(super) struct Merge {
+struct Merge {
     tree: Tree,
     /// Each chunk's root and bounds, as appended.
     roots: Vec<(u32, Aabb)>,
 }
 
 impl Merge {
-    pub(super) fn new(top: &Top, splats: usize) -> Merge {
+    fn new(top: &Top, splats: usize) -> Merge {
         let tree = Tree {
             nodes: vec![Node::new(&[]); top.nodes.len()],
             blocks: Vec::new(),
@@ -243,7 +243,7 @@ impl Merge {
     }
 
     /// Appends the next chunk's tree (its ids the input's already), `depth` top nodes down.
-    pub(super) fn append(&mut self, chunk: Tree, depth: usize) -> Result<(), TooLarge> {
+    fn append(&mut self, chunk: Tree, depth: usize) -> Result<(), TooLarge> {
         let (node_offset, block_offset) = (self.tree.nodes.len() as u32, self.tree.blocks.len() as u32);
         if self.tree.blocks.len() + chunk.blocks.len() > MAX_BLOCKS {
             return Err(TooLarge::Blocks(self.tree.blocks.len() + chunk.blocks.len()));
@@ -259,7 +259,7 @@ impl Merge {
     }
 
     /// The tree, its top's nodes made from the chunks' bounds.
-    pub(super) fn finish(mut self, top: &Top) -> Tree {
+    fn finish(mut self, top: &Top) -> Tree {
         top_nodes(top, &self.roots, &mut self.tree.nodes);
         self.tree
     }
