@@ -258,6 +258,9 @@ pub(super) struct Tree {
     pub(super) depth: usize,
     pub(super) splat_count: usize,
     pub(super) wide_radius: f32,
+    /// The nodes first in `nodes` that stay in the top whatever they hold: a chunked tree's
+    /// octree nodes (`super::chunk`), which its chunks' treelets never include.
+    pub(super) octree_nodes: usize,
 }
 
 impl Tree {
@@ -306,17 +309,18 @@ impl Tree {
             ids[b * BLOCK..b * BLOCK + count].copy_from_slice(&order[first..first + count]);
         }
         let counts: Vec<u8> = spans.iter().map(|&(_, count)| count as u8).collect();
-        Ok(Tree { nodes, blocks, counts, ids, bounds, depth, splat_count: input.len(), wide_radius: 0.0 })
+        let splat_count = input.len();
+        Ok(Tree { nodes, blocks, counts, ids, bounds, depth, splat_count, wide_radius: 0.0, octree_nodes: 0 })
     }
 
     /// The level of detail, the treelets: the BVH, and the input's index of each block slot.
     pub(super) fn finish(self, params: &BvhParams) -> (Bvh, Vec<u32>) {
-        let Tree { mut nodes, blocks, counts, ids, bounds, depth, splat_count, wide_radius } = self;
+        let Tree { mut nodes, blocks, counts, ids, bounds, depth, splat_count, wide_radius, octree_nodes } = self;
         let disks = super::lod::Disks { blocks: &blocks, counts: &counts };
         let lod = super::lod::build(&mut nodes, &disks, params.shape);
         drop(counts);
         let lod_floor = radius_quantile(nodes.iter().map(|n| n.min_radius).collect(), LOD_FLOOR_QUANTILE);
-        let cut = super::treelet::partition(nodes, lod, true);
+        let cut = super::treelet::partition(nodes, lod, octree_nodes.max(1));
         let mut bvh = Bvh {
             nodes: cut.nodes.into(),
             lod: cut.lod.into(),

@@ -238,6 +238,7 @@ impl Merge {
             depth: 0,
             splat_count: splats,
             wide_radius: 0.0,
+            octree_nodes: top.nodes.len(),
         };
         Merge { tree, roots: Vec::new() }
     }

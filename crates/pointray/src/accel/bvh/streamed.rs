@@ -158,7 +158,9 @@ impl StreamedBvh {
         self.sphere_nodes += tree.nodes.iter().filter(|n| n.used & SPHERE_NODE != 0).count();
         self.min_radii.extend(tree.nodes.iter().map(|n| n.min_radius));
         self.moments.push(lod.root.clone());
-        let cut = treelet::partition(std::mem::take(&mut tree.nodes), lod, self.top.nodes.is_empty());
+        // A chunk's root is in the top only as the whole tree's (no octree above it).
+        let always = usize::from(self.top.nodes.is_empty());
+        let cut = treelet::partition(std::mem::take(&mut tree.nodes), lod, always);
         let (top_at, tree_at, t0) = (self.nodes.len() as u32, self.spilled_nodes as u32, self.treelets.len());
         let node_at = |k: u32| if (k as usize) < cut.top { top_at + k } else { tree_at + k - cut.top as u32 };
         let moved = |c: u32| if c & LEAF != 0 { c + blocks as u32 } else { node_at(c) };
@@ -569,8 +571,10 @@ mod tests {
     #[test]
     fn a_build_out_of_core_stores_the_bytes_of_the_build_in_memory() {
         let splats = scene(60_000);
-        for node_bounds in [NodeBounds::Boxes, NodeBounds::SpheresFrom(2), NodeBounds::Auto] {
-            let params = BvhParams { chunk_splats: 6_000, node_bounds, ..BvhParams::standard() };
+        // Chunks of 6,000, and of 1,000 (octree nodes over fewer splats than a treelet holds).
+        let variants = [(NodeBounds::Boxes, 6_000), (NodeBounds::SpheresFrom(2), 6_000), (NodeBounds::Auto, 1_000)];
+        for (node_bounds, chunk_splats) in variants {
+            let params = BvhParams { chunk_splats, node_bounds, ..BvhParams::standard() };
             let (bvh, ids) = Bvh::build_with_ids(splats.clone(), &params);
             let (arrays, meta) = bvh.arrays();
             let (sink, Finished { meta: streamed_meta, ids_crc, coverage_samples }) = streamed(&splats, &params);

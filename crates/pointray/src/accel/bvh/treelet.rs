@@ -68,10 +68,11 @@ pub(super) struct Partition {
 }
 
 /// Cuts the tree (children stored after their parents, depth first, as the build leaves them)
-/// into its top, every node above more than [`TREELET_SPLATS`] splats (and the root if
-/// `root_in_top`: a whole tree's, not a chunk's, see `super::streamed`), and the treelets below.
-/// A root below the top is a treelet's, with no parent yet (`u32::MAX`).
-pub(super) fn partition(nodes: Vec<Node>, lod: Lod, root_in_top: bool) -> Partition {
+/// into its top, every node above more than [`TREELET_SPLATS`] splats and the first `always`
+/// (a whole tree's root; a chunked tree's octree nodes, `super::chunk`; none for a chunk's own,
+/// `super::streamed`), and the treelets below. A root below the top is a treelet's, with no
+/// parent yet (`u32::MAX`).
+pub(super) fn partition(nodes: Vec<Node>, lod: Lod, always: usize) -> Partition {
     let Lod { lod, representatives, aggregates, .. } = lod;
     let n = nodes.len();
     // Splats and nodes below each node, children first.
@@ -87,7 +88,7 @@ pub(super) fn partition(nodes: Vec<Node>, lod: Lod, root_in_top: bool) -> Partit
             }
         }
     }
-    let top: Vec<bool> = (0..n).map(|k| k == 0 && root_in_top || splats[k] > TREELET_SPLATS).collect();
+    let top: Vec<bool> = (0..n).map(|k| k < always || splats[k] > TREELET_SPLATS).collect();
     // Depth first, the top's nodes are those of a subtree about the root, and every treelet is
     // a run of the rest.
     let order: Vec<usize> = (0..n).filter(|&k| top[k]).chain((0..n).filter(|&k| !top[k])).collect();
