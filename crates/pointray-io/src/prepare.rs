@@ -532,62 +532,152 @@ fn turn_given(buckets: &[Bucket], ticker: &mut Ticker) -> Result<(), IoError> {
 }
 
 /// Computes the missing normals and radii a bucket at a time, with the halo of points round it
-/// that its points' neighbourhoods reach ([`halo_reach`]): the normals of the buckets before
+/// that its points' neighbourhoods reach ([`halo_reach`]): the normals of the buckets done before
 /// it, final, are fixed and orient its own across the border, as given normals orient computed
-/// ones in memory (`preprocess::fill_chunk`). Rewrites each bucket, its strays dropped (or
-/// clamped, as `config.strays` says); returns how many were dropped.
+/// ones in memory (`preprocess::fill_chunk`). The buckets are taken breadth first from bucket to
+/// overlapping bucket, so that only the first of each connected set decides its orientation
+/// alone, on a part of the surface; [`turn_outward`] then turns a set whose normals point in.
+/// Rewrites each bucket, its strays dropped (or clamped, as `config.strays` says); returns how
+/// many were dropped.
 fn fill(
     buckets: &[Bucket],
     config: &PreprocessConfig,
     sensor: Option<Vec3>,
     ticker: &mut Ticker,
 ) -> Result<usize, IoError> {
-    let k = config.k_normals.max(config.k_radius);
-    let mut dropped = 0;
-    for (b, bucket) in buckets.iter().enumerate() {
-        let mut records = read_bucket(bucket)?;
-        ticker.tick(records.len());
-        if records.iter().all(|r| r.flags == GIVEN) {
+    let n = buckets.len();
+    // Queued: met by the walk; filled: done, its normals final (fixed in later halos).
+    let (mut queued, mut filled, mut dropped) = (vec![false; n], vec![false; n], 0);
+    // Each connected set of buckets, and whether the file gave some of its normals.
+    let mut sets: Vec<(Vec<usize>, bool)> = Vec::new();
+    for seed in 0..n {
+        if queued[seed] {
             continue;
         }
-        let positions: Vec<Vec3> = records.iter().map(|r| Vec3::from(r.position)).collect();
-        let reach = halo_reach(&positions, k, &bucket.bounds);
-        let zone = Aabb::new(bucket.bounds.min - reach, bucket.bounds.max + reach);
-        let mut halo = Vec::new();
-        for (o, other) in buckets.iter().enumerate().filter(|&(o, other)| o != b && overlap(&other.bounds, &zone)) {
-            for_each_record(other, |r| {
-                if zone.contains_box(&Aabb::new(Vec3::from(r.position), Vec3::from(r.position))) {
-                    // Done before this one: final, and fixed.
-                    halo.push(if o < b { Record { flags: GIVEN, ..*r } } else { *r });
+        let (mut queue, mut set, mut given) = (std::collections::VecDeque::from([seed]), Vec::new(), false);
+        queued[seed] = true;
+        while let Some(b) = queue.pop_front() {
+            let done = fill_bucket(buckets, b, &filled, config, sensor, ticker)?;
+            filled[b] = true;
+            (dropped, given) = (dropped + done.dropped, given || done.given);
+            set.push(b);
+            for (o, other) in buckets.iter().enumerate() {
+                if !queued[o] && overlap(&other.bounds, &done.zone) {
+                    queued[o] = true;
+                    queue.push_back(o);
                 }
-            })?;
+            }
         }
-        let all = || records.iter().chain(&halo);
-        let mut cloud = pointray::PointCloud {
-            positions: all().map(|r| Vec3::from(r.position)).collect(),
-            normals: Some(all().map(|r| Vec3::from(r.normal)).collect()),
-            radii: Some(all().map(|r| r.radius).collect()),
-            viewpoints: sensor.into_iter().collect(),
-            ..Default::default()
-        };
-        let missing = |flag: u32| all().map(|r| r.flags & flag == 0).collect::<Vec<bool>>();
-        let strays =
-            pointray::preprocess::fill_chunk(&mut cloud, [&missing(GIVEN_NORMAL), &missing(GIVEN_RADIUS)], config)
-                .map_err(|e| IoError::invalid(&bucket.path, format!("preprocessing: {e}")))?;
-        let (normals, radii) = (cloud.normals.unwrap_or_default(), cloud.radii.unwrap_or_default());
-        for (i, r) in records.iter_mut().enumerate() {
-            (r.normal, r.radius, r.flags) = (normals[i].to_array(), radii[i], GIVEN);
+        sets.push((set, given));
+    }
+    if sensor.is_none() {
+        for (set, given) in &sets {
+            if !given {
+                turn_outward(buckets, set)?;
+            }
         }
-        if config.strays == pointray::preprocess::Strays::Drop {
-            let own: Vec<usize> = strays.iter().map(|&i| i as usize).filter(|&i| i < records.len()).collect();
-            dropped += own.len();
-            let mut keep = vec![true; records.len()];
-            own.iter().for_each(|&i| keep[i] = false);
-            records = records.into_iter().zip(keep).filter(|(_, k)| *k).map(|(r, _)| r).collect();
-        }
-        std::fs::write(&bucket.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&bucket.path, e))?;
     }
     Ok(dropped)
+}
+
+/// What [`fill_bucket`] found.
+struct Filled {
+    dropped: usize,
+    /// The box its halo came from.
+    zone: Aabb,
+    /// Whether the file gave some of its normals.
+    given: bool,
+}
+
+/// [`fill`]'s work on bucket `b`: its halo from the others (fixed where `filled`), its normals
+/// and radii computed, the bucket rewritten.
+fn fill_bucket(
+    buckets: &[Bucket],
+    b: usize,
+    filled: &[bool],
+    config: &PreprocessConfig,
+    sensor: Option<Vec3>,
+    ticker: &mut Ticker,
+) -> Result<Filled, IoError> {
+    let bucket = &buckets[b];
+    let mut records = read_bucket(bucket)?;
+    ticker.tick(records.len());
+    let given = records.iter().any(|r| r.flags & GIVEN_NORMAL != 0);
+    if records.iter().all(|r| r.flags == GIVEN) {
+        return Ok(Filled { dropped: 0, zone: bucket.bounds, given });
+    }
+    let positions: Vec<Vec3> = records.iter().map(|r| Vec3::from(r.position)).collect();
+    let reach = halo_reach(&positions, config.k_normals.max(config.k_radius), &bucket.bounds);
+    let zone = Aabb::new(bucket.bounds.min - reach, bucket.bounds.max + reach);
+    let mut halo = Vec::new();
+    for (o, other) in buckets.iter().enumerate().filter(|&(o, other)| o != b && overlap(&other.bounds, &zone)) {
+        for_each_record(other, |r| {
+            let p = Vec3::from(r.position);
+            if zone.contains_box(&Aabb::new(p, p)) {
+                // Done before this one: final, and fixed.
+                halo.push(if filled[o] { Record { flags: GIVEN, ..*r } } else { *r });
+            }
+        })?;
+    }
+    let all = || records.iter().chain(&halo);
+    let mut cloud = pointray::PointCloud {
+        positions: all().map(|r| Vec3::from(r.position)).collect(),
+        normals: Some(all().map(|r| Vec3::from(r.normal)).collect()),
+        radii: Some(all().map(|r| r.radius).collect()),
+        viewpoints: sensor.into_iter().collect(),
+        ..Default::default()
+    };
+    let missing = |flag: u32| all().map(|r| r.flags & flag == 0).collect::<Vec<bool>>();
+    let strays = pointray::preprocess::fill_chunk(&mut cloud, [&missing(GIVEN_NORMAL), &missing(GIVEN_RADIUS)], config)
+        .map_err(|e| IoError::invalid(&bucket.path, format!("preprocessing: {e}")))?;
+    let (normals, radii) = (cloud.normals.unwrap_or_default(), cloud.radii.unwrap_or_default());
+    for (i, r) in records.iter_mut().enumerate() {
+        (r.normal, r.radius, r.flags) = (normals[i].to_array(), radii[i], GIVEN);
+    }
+    let mut dropped = 0;
+    if config.strays == pointray::preprocess::Strays::Drop {
+        let own: Vec<usize> = strays.iter().map(|&i| i as usize).filter(|&i| i < records.len()).collect();
+        dropped = own.len();
+        let mut keep = vec![true; records.len()];
+        own.iter().for_each(|&i| keep[i] = false);
+        records = records.into_iter().zip(keep).filter(|(_, k)| *k).map(|(r, _)| r).collect();
+    }
+    std::fs::write(&bucket.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&bucket.path, e))?;
+    Ok(Filled { dropped, zone, given })
+}
+
+/// Turns the computed normals of a connected `set` of buckets outward where they point in, by
+/// `orient::turn_given_outward`'s test about the set's centre: a closed surface whose first
+/// bucket, a part of it, was oriented inward is turned whole; an open one (terrain, a wall)
+/// tests near 0 and stays.
+fn turn_outward(buckets: &[Bucket], set: &[usize]) -> Result<(), IoError> {
+    let mut sums = BlockSums::default();
+    for &b in set {
+        for_each_record(&buckets[b], |r| {
+            let d = Vec3::from(r.position).as_dvec3();
+            sums.add(Some([d.x, d.y, d.z, 1.0]));
+        })?;
+    }
+    let [x, y, z, count] = sums.total();
+    let center = DVec3::new(x, y, z) / count;
+    let mut sums = BlockSums::default();
+    for &b in set {
+        for_each_record(&buckets[b], |r| {
+            let d = Vec3::from(r.position).as_dvec3() - center;
+            sums.add(Some([Vec3::from(r.normal).as_dvec3().normalize_or_zero().dot(d), d.length(), 0.0, 0.0]));
+        })?;
+    }
+    let [along, away, ..] = sums.total();
+    if along < pointray::preprocess::orient::INWARD * away {
+        tracing::info!("turned the normals of {} cells outward", set.len());
+        for &b in set {
+            let mut records = read_bucket(&buckets[b])?;
+            records.iter_mut().for_each(|r| r.normal = r.normal.map(|v| -v));
+            std::fs::write(&buckets[b].path, bytemuck::cast_slice(&records))
+                .map_err(|e| IoError::io(&buckets[b].path, e))?;
+        }
+    }
+    Ok(())
 }
 
 /// How far round a bucket its points' `k` nearest neighbours may lie: the farthest k-th
@@ -784,40 +874,57 @@ mod tests {
         normals
     }
 
-    #[test]
-    fn normals_computed_a_cell_at_a_time_agree_across_the_cells_borders() {
+    /// `cloud` written and prepared out of core in cells of at most `cell` points up to its
+    /// normals: the normals read back by position, and the cloud preprocessed in memory.
+    fn out_of_core_normals(cloud: &PointCloud, cell: usize) -> (std::collections::HashMap<[u32; 3], Vec3>, PointCloud) {
         let dir = tempfile::tempdir().unwrap();
-        let path = dir.path().join("wall.ply");
-        crate::write_ply(&path, &wall(240)).unwrap();
+        let path = dir.path().join("cloud.ply");
+        crate::write_ply(&path, cloud).unwrap();
         let config = PreprocessConfig::standard();
-        // In memory, as one.
         let mut whole = crate::read_cloud(&path).unwrap().cloud;
         pointray::preprocess::preprocess(&mut whole, &config).unwrap();
-        // Out of core, in cells of at most 1,500 points.
         let ticker = &mut Ticker::new(&|_| {}, "test", 0);
         let mut stream = Input::open(&path).unwrap();
         let origin = world_origin(&mut stream, ticker).unwrap();
         assert_eq!(origin, whole.origin);
         let (bounds, kept) = local_bounds(&mut stream, origin, ticker).unwrap();
-        let plan = plan(&mut stream, origin, bounds, kept, 1_500, ticker).unwrap();
+        let plan = plan(&mut stream, origin, bounds, kept, cell, ticker).unwrap();
         let mut buckets = route(&mut stream, origin, &plan, dir.path(), false, ticker).unwrap();
         assert!(buckets.len() >= 8, "{} cells", buckets.len());
         let cleaned = clean(&mut buckets, ticker).unwrap();
         assert_eq!((cleaned.duplicates, cleaned.missing), (0, kept));
         assert_eq!(fill(&buckets, &config, None, ticker).unwrap(), whole.len().abs_diff(kept));
-        let normals = normals_in(&buckets);
+        (normals_in(&buckets), whole)
+    }
+
+    #[test]
+    fn normals_computed_a_cell_at_a_time_agree_across_the_cells_borders() {
+        let (normals, whole) = out_of_core_normals(&wall(240), 1_500);
         let given = whole.normals.as_ref().unwrap();
-        let agree = whole
-            .positions
-            .iter()
-            .zip(given)
-            .filter(|(p, n)| normals[&p.to_array().map(f32::to_bits)].dot(**n) > 0.9)
-            .count();
+        let agree =
+            whole.positions.iter().zip(given).filter(|(p, n)| normals[&p.to_array().map(f32::to_bits)].dot(**n) > 0.9);
         // Every sheet's side, in every cell, as the whole cloud orients it.
-        assert!(agree as f64 >= 0.995 * whole.len() as f64, "{agree} of {} agree", whole.len());
+        assert_eq!(agree.count(), whole.len());
         // And the two sheets (at z = ±0.015 about the origin) face away from each other, as a
         // wall's sides do.
         let outward = normals.iter().filter(|(p, n)| (n.z > 0.0) == (f32::from_bits(p[2]) > 0.0)).count();
         assert!(outward as f64 >= 0.97 * whole.len() as f64, "{outward} of {} face out", whole.len());
+    }
+
+    #[test]
+    fn a_closed_surface_in_many_cells_faces_out() {
+        // A sphere of 20,000 points in cells of at most 800: the first cell of the walk, a cap,
+        // decides its side alone; the sphere as a whole is turned out if it chose in.
+        let n = 20_000;
+        let positions = (0..n)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+                let (r, phi) = ((1.0 - z * z).sqrt(), i as f32 * 2.399_963);
+                Vec3::new(r * phi.cos(), r * phi.sin(), z) * 3.0
+            })
+            .collect();
+        let (normals, whole) = out_of_core_normals(&PointCloud { positions, ..PointCloud::default() }, 800);
+        let outward = normals.iter().filter(|(p, n)| n.dot(Vec3::from(p.map(f32::from_bits))) > 0.0).count();
+        assert_eq!(outward, whole.len(), "{outward} of {} face out", whole.len());
     }
 }
