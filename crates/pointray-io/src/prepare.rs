@@ -213,10 +213,11 @@ pub fn prepare_out_of_core(
     let route_ticker = &mut ticker("read: route", points_read);
     let mut buckets = route(&mut stream, origin, &provisional, dir.path(), config.recompute, route_ticker)?;
     let cleaned = clean(&mut buckets, &mut ticker("sort cells", kept))?;
-    let inward = pointing_in(&buckets, cleaned.center, &mut ticker("orient", kept))?;
+    let (all, given): (Vec<&Bucket>, _) = (buckets.iter().collect(), |r: &Record| r.flags & GIVEN_NORMAL != 0);
+    let inward = pointing_in(&all, given, &mut ticker("orient", kept))?;
     if inward {
         tracing::warn!("{}: the given normals pointed inward; turned them outward", input.display());
-        turn_given(&buckets, &mut ticker("turn normals", kept))?;
+        turn(&all, given, &mut ticker("turn normals", kept))?;
     }
     let sensor = stream.viewpoint().map(|v| (DVec3::from(v) - origin).as_vec3());
     let strays =
@@ -257,14 +258,12 @@ pub fn prepare_out_of_core(
 /// The origin reading the cloud in memory gives it (`PointCloud::from_world_positions`): the
 /// centre of its finite points' bounds.
 fn world_origin(stream: &mut Input, ticker: &mut Ticker) -> Result<DVec3, IoError> {
-    let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
+    let mut bounds = pointray::cloud::WorldBounds::default();
     stream.for_each(|r| {
         ticker.tick(1);
-        if r.position.abs().max_element() <= f64::from(f32::MAX) {
-            (lo, hi) = (lo.min(r.position), hi.max(r.position));
-        }
+        bounds = bounds.with(r.position);
     })?;
-    Ok(if lo.x <= hi.x { (lo + hi) * 0.5 } else { DVec3::ZERO })
+    Ok(bounds.origin())
 }
 
 /// A point's position as the cloud in memory holds it (`None`: dropped as non-finite).
@@ -413,8 +412,6 @@ fn read_bucket(bucket: &Bucket) -> Result<Vec<Record>, IoError> {
 /// What cleaning the buckets found: repeats dropped, and the centre of the points kept.
 struct Cleaned {
     duplicates: usize,
-    /// Of the points with given normals.
-    center: DVec3,
     /// Points missing a normal or a radius.
     missing: usize,
 }
@@ -424,7 +421,7 @@ struct Cleaned {
 /// so a bucket), and sums the positions with given normals as `orient::turn_given_outward`
 /// does, in blocks of the sorted order; notes each bucket's bounds.
 fn clean(buckets: &mut [Bucket], ticker: &mut Ticker) -> Result<Cleaned, IoError> {
-    let (mut duplicates, mut missing, mut sums) = (0, 0, BlockSums::default());
+    let (mut duplicates, mut missing) = (0, 0);
     for b in buckets {
         let mut records = read_bucket(b)?;
         ticker.tick(records.len());
@@ -434,15 +431,12 @@ fn clean(buckets: &mut [Bucket], ticker: &mut Ticker) -> Result<Cleaned, IoError
         duplicates += before - records.len();
         for r in &records {
             let p = Vec3::from(r.position);
-            let d = p.as_dvec3();
-            sums.add((r.flags & GIVEN_NORMAL != 0).then_some([d.x, d.y, d.z, 1.0]));
             missing += usize::from(r.flags != GIVEN);
             b.bounds = b.bounds.union(Aabb::new(p, p));
         }
         std::fs::write(&b.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&b.path, e))?;
     }
-    let [x, y, z, count] = sums.total();
-    Ok(Cleaned { duplicates, center: DVec3::new(x, y, z) / count, missing })
+    Ok(Cleaned { duplicates, missing })
 }
 
 /// `records` (sorted by code) without those whose position (bit for bit, −0 as +0) an earlier
@@ -476,7 +470,7 @@ struct BlockSums {
 }
 
 impl BlockSums {
-    const BLOCK: usize = 1 << 16;
+    const BLOCK: usize = pointray::preprocess::orient::SUM_BLOCK;
 
     /// The next point's term (`None`: a point not summed, which still counts to its block).
     fn add(&mut self, term: Option<[f64; 4]>) {
@@ -502,28 +496,38 @@ impl BlockSums {
     }
 }
 
-/// Whether the given normals point inward (`orient::turn_given_outward`'s test), from the
-/// centre of the points.
-fn pointing_in(buckets: &[Bucket], center: DVec3, ticker: &mut Ticker) -> Result<bool, IoError> {
+/// Whether the normals of the points `counted` picks in `set` (buckets in the sorted order) point
+/// inward, by `orient::turn_given_outward`'s test in its blocks: their centre, then their normals
+/// along their offsets from it.
+fn pointing_in(set: &[&Bucket], counted: impl Fn(&Record) -> bool, ticker: &mut Ticker) -> Result<bool, IoError> {
     let mut sums = BlockSums::default();
-    for b in buckets {
+    for b in set {
+        for_each_record(b, |r| {
+            let d = Vec3::from(r.position).as_dvec3();
+            sums.add(counted(r).then_some([d.x, d.y, d.z, 1.0]));
+        })?;
+    }
+    let [x, y, z, count] = sums.total();
+    let center = DVec3::new(x, y, z) / count;
+    let mut sums = BlockSums::default();
+    for b in set {
         for_each_record(b, |r| {
             ticker.tick(1);
             let d = Vec3::from(r.position).as_dvec3() - center;
-            let given = r.flags & GIVEN_NORMAL != 0;
-            sums.add(given.then(|| [Vec3::from(r.normal).as_dvec3().normalize_or_zero().dot(d), d.length(), 0.0, 0.0]));
+            let normal = Vec3::from(r.normal).as_dvec3().normalize_or_zero();
+            sums.add(counted(r).then(|| [normal.dot(d), d.length(), 0.0, 0.0]));
         })?;
     }
     let [along, away, ..] = sums.total();
     Ok(along < pointray::preprocess::orient::INWARD * away)
 }
 
-/// Turns every given normal (`pointing_in` found them pointing in), rewriting the buckets.
-fn turn_given(buckets: &[Bucket], ticker: &mut Ticker) -> Result<(), IoError> {
-    for b in buckets {
+/// Turns the normals `turned` picks in `set`, rewriting the buckets.
+fn turn(set: &[&Bucket], turned: impl Fn(&Record) -> bool, ticker: &mut Ticker) -> Result<(), IoError> {
+    for b in set {
         let mut records = read_bucket(b)?;
         ticker.tick(records.len());
-        for r in records.iter_mut().filter(|r| r.flags & GIVEN_NORMAL != 0) {
+        for r in records.iter_mut().filter(|r| turned(r)) {
             r.normal = r.normal.map(|v| -v);
         }
         std::fs::write(&b.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&b.path, e))?;
@@ -536,7 +540,7 @@ fn turn_given(buckets: &[Bucket], ticker: &mut Ticker) -> Result<(), IoError> {
 /// it, final, are fixed and orient its own across the border, as given normals orient computed
 /// ones in memory (`preprocess::fill_chunk`). The buckets are taken breadth first from bucket to
 /// overlapping bucket, so that only the first of each connected set decides its orientation
-/// alone, on a part of the surface; [`turn_outward`] then turns a set whose normals point in.
+/// alone, on a part of the surface; a set whose normals then point in is turned whole.
 /// Rewrites each bucket, its strays dropped (or clamped, as `config.strays` says); returns how
 /// many were dropped.
 fn fill(
@@ -570,11 +574,14 @@ fn fill(
         }
         sets.push((set, given));
     }
-    if sensor.is_none() {
-        for (set, given) in &sets {
-            if !given {
-                turn_outward(buckets, set)?;
-            }
+    // A closed surface whose first bucket, a part of it, was oriented inward is turned whole;
+    // an open one (terrain, a wall) tests near 0 and stays. (Facing a sensor needs no turn;
+    // given normals orient their sets.)
+    for (set, _) in sets.iter().filter(|(_, given)| sensor.is_none() && !given) {
+        let set: Vec<&Bucket> = set.iter().map(|&b| &buckets[b]).collect();
+        if pointing_in(&set, |_| true, ticker)? {
+            tracing::info!("turned the normals of {} cells outward", set.len());
+            turn(&set, |_| true, ticker)?;
         }
     }
     Ok(dropped)
@@ -644,40 +651,6 @@ fn fill_bucket(
     }
     std::fs::write(&bucket.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&bucket.path, e))?;
     Ok(Filled { dropped, zone, given })
-}
-
-/// Turns the computed normals of a connected `set` of buckets outward where they point in, by
-/// `orient::turn_given_outward`'s test about the set's centre: a closed surface whose first
-/// bucket, a part of it, was oriented inward is turned whole; an open one (terrain, a wall)
-/// tests near 0 and stays.
-fn turn_outward(buckets: &[Bucket], set: &[usize]) -> Result<(), IoError> {
-    let mut sums = BlockSums::default();
-    for &b in set {
-        for_each_record(&buckets[b], |r| {
-            let d = Vec3::from(r.position).as_dvec3();
-            sums.add(Some([d.x, d.y, d.z, 1.0]));
-        })?;
-    }
-    let [x, y, z, count] = sums.total();
-    let center = DVec3::new(x, y, z) / count;
-    let mut sums = BlockSums::default();
-    for &b in set {
-        for_each_record(&buckets[b], |r| {
-            let d = Vec3::from(r.position).as_dvec3() - center;
-            sums.add(Some([Vec3::from(r.normal).as_dvec3().normalize_or_zero().dot(d), d.length(), 0.0, 0.0]));
-        })?;
-    }
-    let [along, away, ..] = sums.total();
-    if along < pointray::preprocess::orient::INWARD * away {
-        tracing::info!("turned the normals of {} cells outward", set.len());
-        for &b in set {
-            let mut records = read_bucket(&buckets[b])?;
-            records.iter_mut().for_each(|r| r.normal = r.normal.map(|v| -v));
-            std::fs::write(&buckets[b].path, bytemuck::cast_slice(&records))
-                .map_err(|e| IoError::io(&buckets[b].path, e))?;
-        }
-    }
-    Ok(())
 }
 
 /// How far round a bucket its points' `k` nearest neighbours may lie: the farthest k-th

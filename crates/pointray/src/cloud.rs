@@ -100,6 +100,37 @@ fn append_some<T: Copy + Default>(a: &mut Option<Vec<T>>, len: usize, b: Option<
     a.extend(b.unwrap_or_else(|| vec![T::default(); b_len]));
 }
 
+/// The bounds of a cloud's finite world positions, whose centre is its origin
+/// ([`PointCloud::from_world_positions`]; a cloud read in passes, `pointray_io::prepare`, finds
+/// the same).
+#[derive(Clone, Copy, Debug)]
+pub struct WorldBounds {
+    lo: DVec3,
+    hi: DVec3,
+}
+
+impl Default for WorldBounds {
+    fn default() -> Self {
+        Self { lo: DVec3::splat(f64::INFINITY), hi: DVec3::splat(f64::NEG_INFINITY) }
+    }
+}
+
+impl WorldBounds {
+    /// With `p`, unless it is not finite or beyond f32's range.
+    pub fn with(self, p: DVec3) -> Self {
+        if p.abs().max_element() <= f64::from(f32::MAX) {
+            Self { lo: self.lo.min(p), hi: self.hi.max(p) }
+        } else {
+            self
+        }
+    }
+
+    /// Their centre (zero without a point).
+    pub fn origin(&self) -> DVec3 {
+        if self.lo.x <= self.hi.x { (self.lo + self.hi) * 0.5 } else { DVec3::ZERO }
+    }
+}
+
 impl PointCloud {
     /// A cloud of bare positions, already local (origin zero).
     pub fn from_positions(positions: Vec<Vec3>) -> Self {
@@ -111,13 +142,7 @@ impl PointCloud {
     /// non-finite (preprocessing drops them); they do not move the origin. Neither do
     /// coordinates beyond `f32`'s range (±3.4·10³⁸), which become infinite.
     pub fn from_world_positions(world: &[DVec3]) -> Self {
-        let (lo, hi) = world
-            .iter()
-            .filter(|p| p.abs().max_element() <= f64::from(f32::MAX))
-            .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(lo, hi), p| {
-                (lo.min(*p), hi.max(*p))
-            });
-        let origin = if lo.x <= hi.x { (lo + hi) * 0.5 } else { DVec3::ZERO };
+        let origin = world.iter().fold(WorldBounds::default(), |b, p| b.with(*p)).origin();
         let positions = world.iter().map(|p| (*p - origin).as_vec3()).collect();
         Self { positions, origin, ..Self::default() }
     }

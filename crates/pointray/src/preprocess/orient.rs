@@ -65,10 +65,14 @@ pub fn turn_given_outward(points: &[Vec3], normals: &mut [Vec3], given: &[bool])
     inward
 }
 
+/// Points summed a block at a time by [`turn_given_outward`]'s test (a cloud read in passes,
+/// `pointray_io::prepare`, sums in the same blocks for the same bits).
+pub const SUM_BLOCK: usize = 1 << 16;
+
 /// Σ `term(i)` over the indices `given` marks, in parallel over fixed chunks added in order: the
 /// same bits for any number of threads.
 fn given_sums(given: &[bool], term: impl Fn(usize) -> [f64; 4] + Sync) -> [f64; 4] {
-    const CHUNK: usize = 1 << 16;
+    const CHUNK: usize = SUM_BLOCK;
     let add = |a: [f64; 4], b: [f64; 4]| std::array::from_fn(|k| a[k] + b[k]);
     let chunk =
         |start: usize| (start..(start + CHUNK).min(given.len())).filter(|&i| given[i]).map(&term).fold([0.0; 4], add);
