@@ -490,8 +490,10 @@ impl BuildArgs {
 
 #[derive(Args, Debug)]
 pub struct PrepareArgs {
-    /// Point cloud (PLY, LAS/LAZ, E57, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf).
-    pub input: PathBuf,
+    /// Point cloud (PLY, LAS/LAZ, E57, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a
+    /// Stanford scan set .conf); several: the tiles of one survey, prepared as one cloud.
+    #[arg(required = true, value_name = "INPUT")]
+    pub inputs: Vec<PathBuf>,
     /// Output PLY (binary, with normals, radii and any colours; written atomically), or a
     /// scene file (`.prs`: the BVH a default render builds, memory-mapped by `render`).
     #[arg(short, long)]
@@ -507,9 +509,9 @@ pub struct PrepareArgs {
     /// are powers of 1024; default: half this machine's): a cloud that would need more in
     /// memory (some 90 bytes a point) is read in passes and built a chunk at a time, with
     /// temporary files beside the output, normals and radii computed a cell at a time. The
-    /// same file either way where the file gives normals and radii. For now out of core takes a
-    /// binary PLY or LAS/LAZ, sorted, no outlier filter, the default build (asked for, others
-    /// are refused; by default, they are prepared in memory).
+    /// same file either way where the file gives normals and radii. For now out of core takes
+    /// binary PLYs or LAS/LAZ files (or tiles of them), sorted, and the default build (asked for,
+    /// others are refused; by default, they are prepared in memory).
     #[arg(long, value_parser = parse_bytes, value_name = "SIZE")]
     pub memory_budget: Option<u64>,
 }

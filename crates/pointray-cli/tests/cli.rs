@@ -769,6 +769,11 @@ fn a_prepared_scene_file_renders_as_its_cloud_does() {
 /// A binary PLY of `n` disks on a unit sphere with their normals pointing in, then repeats of
 /// the first ten points and one point at NaN: what preprocessing turns, drops and drops.
 fn write_inward_sphere(dir: &std::path::Path, n: usize, name: &str, with_normals: bool) {
+    write_inward_sphere_at(dir, n, name, with_normals, 0.0);
+}
+
+/// [`write_inward_sphere`] centred at `x` on the x axis.
+fn write_inward_sphere_at(dir: &std::path::Path, n: usize, name: &str, with_normals: bool, x: f32) {
     let mut body = Vec::new();
     let mut push = |p: [f32; 3], normal: [f32; 3]| {
         let attributes: &[f32] = if with_normals { &[normal[0], normal[1], normal[2], 0.06] } else { &[] };
@@ -783,7 +788,7 @@ fn write_inward_sphere(dir: &std::path::Path, n: usize, name: &str, with_normals
     };
     for i in (0..n).chain(0..10) {
         let p = point(i);
-        push(p, p.map(|v| -v));
+        push([p[0] + x, p[1], p[2]], p.map(|v| -v));
     }
     push([f32::NAN, 0.0, 0.0], [0.0, 0.0, 1.0]);
     let attributes = "property float nx\nproperty float ny\nproperty float nz\nproperty float radius\n";
@@ -806,14 +811,34 @@ fn a_scene_file_prepared_out_of_core_is_the_one_prepared_in_memory() {
     // And a LAZ file, read as a stream (laspy's plane, 18,335 points).
     let laz = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../pointray-io/tests/data/plane.laz");
     std::fs::copy(laz, dir.path().join("plane.laz")).unwrap();
-    for input in ["inward.ply", "bare.ply", "plane.laz"] {
-        run_in(dir.path(), &["-q", "prepare", input, "-o", "memory.prs"]).assert_success();
-        run_in(dir.path(), &["prepare", input, "-o", "streamed.prs", "--memory-budget", "1KiB"])
-            .assert_success()
-            .assert_stderr_contains("points in 1 chunks, out of core");
+    // Tiles of one survey, read as one cloud: two with normals (kept), and one without (the
+    // set's normals computed), each placed as its points are read alone.
+    write_inward_sphere_at(dir.path(), 3_000, "east.ply", true, 2.5);
+    write_inward_sphere_at(dir.path(), 3_000, "east_bare.ply", false, 2.5);
+    // And the statistical outlier filter (the points it drops move the bounds the chunks are
+    // planned over).
+    let inputs: [&[&str]; 7] = [
+        &["inward.ply"],
+        &["bare.ply"],
+        &["plane.laz"],
+        &["inward.ply", "east.ply"],
+        &["inward.ply", "east_bare.ply"],
+        &["inward.ply", "east.ply", "--outlier-std", "1"],
+        &["bare.ply", "--outlier-std", "1.5"],
+    ];
+    for input in inputs {
+        run_in(dir.path(), &[&["-q", "prepare"], input, &["-o", "memory.prs"]].concat()).assert_success();
+        let out =
+            run_in(dir.path(), &[&["prepare"], input, &["-o", "streamed.prs", "--memory-budget", "1KiB"]].concat());
+        out.assert_success().assert_stderr_contains("points in 1 chunks, out of core");
+        if input.contains(&"--outlier-std") {
+            out.assert_stderr_contains("points far from their neighbours (statistical outliers)");
+        }
         let (memory, streamed) = (dir.path().join("memory.prs"), dir.path().join("streamed.prs"));
-        assert!(std::fs::read(&memory).unwrap() == std::fs::read(&streamed).unwrap(), "{input}: the files differ");
+        assert!(std::fs::read(&memory).unwrap() == std::fs::read(&streamed).unwrap(), "{input:?}: the files differ");
     }
+    let both = run_in(dir.path(), &["prepare", "inward.ply", "east.ply", "-o", "both.ply"]);
+    both.assert_success().assert_stderr_contains("inward.ply and east.ply: 8000 points, normals from file");
     render_in(dir.path(), &["streamed.prs", "-o", "s.png"]).assert_success();
     assert!(read_png(&dir.path().join("s.png")).count_not(background_srgb8()) > 100);
     // What it cannot do yet is refused, naming the way: a text PLY, build flags.

@@ -148,6 +148,45 @@ impl CloudBuilder {
     }
 }
 
+/// Clouds read one by one, merged in order into one: each point's world position (its cloud's
+/// origin plus its offset, as reading the cloud alone holds it) placed by `place`, its normal
+/// turned by `turn` (both told the cloud's number); normals, radii and colours kept where every
+/// cloud has them, scan attributes where any has (zeros for the others); the merged cloud
+/// recentred as a file's.
+pub(crate) fn merge(
+    clouds: Vec<PointCloud>,
+    place: impl Fn(usize, DVec3) -> DVec3,
+    turn: impl Fn(usize, Vec3) -> Vec3,
+) -> PointCloud {
+    let all = |has: fn(&PointCloud) -> bool| clouds.iter().all(has);
+    let attributes = Attributes {
+        normals: all(|c| c.normals.is_some()),
+        radii: all(|c| c.radii.is_some()),
+        colors: all(|c| c.colors.is_some()),
+        ..Attributes::default()
+    };
+    let mut builder = CloudBuilder::new(clouds.iter().map(PointCloud::len).sum(), attributes);
+    for (k, c) in clouds.iter().enumerate() {
+        for i in 0..c.len() {
+            builder.push(&PointRecord {
+                position: place(k, c.origin + c.positions[i].as_dvec3()),
+                normal: c.normals.as_ref().map_or(Vec3::ZERO, |n| turn(k, n[i])),
+                radius: c.radii.as_ref().map_or(0.0, |r| r[i]),
+                color: c.colors.as_ref().map_or([0.0; 3], |col| col[i]),
+                ..PointRecord::default()
+            });
+        }
+    }
+    let mut merged = builder.finish();
+    let mut len = 0;
+    for c in clouds {
+        let n = c.len();
+        merged.scan.append(len, c.scan, n);
+        len += n;
+    }
+    merged
+}
+
 fn push_some<T>(values: &mut Option<Vec<T>>, value: T) {
     if let Some(values) = values {
         values.push(value);

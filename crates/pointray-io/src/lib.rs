@@ -18,6 +18,7 @@ pub mod prs;
 mod scanset;
 pub mod scene;
 pub mod source;
+mod tiles;
 pub mod xyz;
 
 mod builder;
@@ -35,6 +36,7 @@ pub use image::{
     decode_png, encode_png, read_png, write_exr, write_png, write_png_rgba, write_png16, write_png16_rgba,
 };
 pub use ply::{Mesh, read_ply, write_ply, write_ply_with_axes};
+pub use tiles::{read_tiles, set_name};
 pub use xyz::{Column, TextColumns, read_xyz};
 
 /// What a reader cannot learn from the file itself.

@@ -1,13 +1,14 @@
 //! Preparing a scene file out of core (`pointray prepare IN -o OUT.prs --memory-budget SIZE`):
 //! the cloud read in passes, never whole; its points routed by Morton cell to temporary files,
 //! each cell then sorted and cleaned as preprocessing does in memory (repeated positions
-//! dropped, the given normals turned outward where they point in), and the BVH built a chunk at
-//! a time ([`StreamedBvh`]) straight into the file. The file holds the same bytes as preparing
-//! the cloud in memory writes (`tests`), so it renders the same images.
+//! dropped, statistical outliers on request, the given normals turned outward where they point
+//! in), the missing normals and radii computed a cell at a time with a halo, and the BVH built
+//! a chunk at a time ([`StreamedBvh`]) straight into the file. The file holds the same bytes as
+//! preparing the cloud in memory writes (`tests`), so it renders the same images.
 //!
-//! What it takes, for now: a binary PLY or a LAS/LAZ file (read as streams, [`VertexStream`],
-//! [`LasStream`]), sorted, without the outlier filter, and the default build settings. Anything
-//! else is refused, naming what to do.
+//! What it takes, for now: binary PLY and LAS/LAZ files (read as streams, [`VertexStream`],
+//! [`LasStream`]; several are the tiles of one survey, `crate::tiles`), sorted, and the default
+//! build settings. Anything else is refused, naming what to do.
 
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
@@ -21,7 +22,7 @@ use pointray::accel::Bvh;
 use pointray::accel::bvh::{BvhMeta, BvhParams, ChunkPlan, Sink, Spill, Spilled, StreamedBvh};
 use pointray::accel::stored::StableBytes;
 use pointray::math::{Aabb, morton};
-use pointray::preprocess::PreprocessConfig;
+use pointray::preprocess::{PreprocessConfig, outliers};
 use pointray::scene::{SceneMeta, SceneParts, StreamedCloud};
 use pointray::splat::footprint::{coverage_counts, density_of};
 use pointray::splat::{DEFAULT_COLOR, Splat, pack_color};
@@ -58,9 +59,26 @@ pub struct Prepared {
     pub chunks: usize,
     pub dropped_non_finite: usize,
     pub dropped_duplicates: usize,
+    /// Statistical outliers dropped (`PreprocessConfig::outlier_std`).
+    pub dropped_outliers: usize,
     /// Points whose computed radius made them strays, dropped.
     pub dropped_strays: usize,
     pub turned_outward: bool,
+}
+
+impl Prepared {
+    /// The warnings preprocessing in memory gives of what it dropped or turned, naming `input`.
+    fn warn_repairs(&self, input: &Path) {
+        let stats = pointray::preprocess::PreprocessStats {
+            dropped_non_finite: self.dropped_non_finite,
+            dropped_duplicates: self.dropped_duplicates,
+            dropped_outliers: self.dropped_outliers,
+            dropped_strays: self.dropped_strays,
+            turned_outward: self.turned_outward,
+            ..Default::default()
+        };
+        stats.warn_repairs(&input.display().to_string());
+    }
 }
 
 /// How far a pass of [`prepare_out_of_core`] is: `done` of its `total` points.
@@ -95,80 +113,164 @@ impl<'a> Ticker<'a> {
 }
 
 /// A cloud file read in passes: a binary PLY's vertices or a LAS/LAZ file's points.
-enum Input {
+enum Stream {
     Ply(Box<VertexStream>),
     Las(LasStream),
 }
 
-impl Input {
+impl Stream {
     fn open(path: &Path) -> Result<Self, IoError> {
         let mut start = [0; 4];
         let read = File::open(path).and_then(|mut f| f.read_exact(&mut start));
         if read.is_ok() && crate::las::looks_like_las(&start) {
-            return LasStream::open(path).map(Input::Las);
+            return LasStream::open(path).map(Stream::Las);
         }
-        VertexStream::open(path).map(|s| Input::Ply(Box::new(s)))
+        VertexStream::open(path).map(|s| Stream::Ply(Box::new(s)))
     }
 
     fn count(&self) -> usize {
         match self {
-            Input::Ply(s) => s.count,
-            Input::Las(s) => s.count,
+            Stream::Ply(s) => s.count,
+            Stream::Las(s) => s.count,
         }
     }
 
     fn info(&self) -> &crate::FileInfo {
         match self {
-            Input::Ply(s) => &s.info,
-            Input::Las(s) => &s.info,
+            Stream::Ply(s) => &s.info,
+            Stream::Las(s) => &s.info,
         }
     }
 
-    /// A sensor's position in the file's coordinates, if it says.
-    fn viewpoint(&self) -> Option<[f64; 3]> {
+    /// Whether the points have normals, and radii.
+    fn given(&self) -> [bool; 2] {
         match self {
-            Input::Ply(s) => s.viewpoint,
-            Input::Las(_) => None,
+            Stream::Ply(s) => [s.attributes().normals, s.attributes().radii],
+            Stream::Las(_) => [false; 2],
         }
     }
 
-    /// Whether the points have colours (for a LAS file, known after a pass).
+    /// Whether the points have colours (a LAS file's known after a pass).
     fn has_colors(&self) -> bool {
         match self {
-            Input::Ply(s) => s.has_colors(),
-            Input::Las(s) => s.has_colors(),
+            Stream::Ply(s) => s.attributes().colors,
+            Stream::Las(s) => s.has_colors(),
         }
     }
 
-    /// Calls `visit` with every point in file order.
     fn for_each(&mut self, visit: impl FnMut(&PointRecord)) -> Result<(), IoError> {
         match self {
-            Input::Ply(s) => s.for_each(visit),
-            Input::Las(s) => s.for_each(visit),
+            Stream::Ply(s) => s.for_each(visit),
+            Stream::Las(s) => s.for_each(visit),
         }
     }
 }
 
-/// The points of `input` if its header says (a binary PLY's, a LAS file's), for estimating
-/// what preparing it takes.
-pub fn points_in(input: &Path) -> Option<usize> {
-    Input::open(input).ok().map(|s| s.count())
+/// The input read in passes: a cloud file, or the tiles of a survey ([`crate::tiles`]), each
+/// point placed and given what reading the tiles in memory gives it.
+struct Input {
+    streams: Vec<Stream>,
+    /// With several tiles, each one's origin, once [`Input::find_tile_origins`] has found them.
+    tile_origins: Vec<DVec3>,
 }
 
-/// Why [`prepare_out_of_core`] would refuse `input` with `config` from its header alone (none
-/// if it would not).
-pub fn out_of_core_refusal(input: &Path, config: &PreprocessConfig) -> Option<String> {
+impl Input {
+    fn open(paths: &[PathBuf]) -> Result<Self, IoError> {
+        let streams = paths.iter().map(|p| Stream::open(p)).collect::<Result<Vec<_>, _>>()?;
+        if streams.is_empty() {
+            return Err(IoError::invalid(Path::new(""), "no input file"));
+        }
+        Ok(Self { streams, tile_origins: Vec::new() })
+    }
+
+    fn count(&self) -> usize {
+        self.streams.iter().map(Stream::count).sum()
+    }
+
+    /// The up axis and sun every tile gives alike.
+    fn up_and_sun(&self) -> (Option<Vec3>, Option<Vec3>) {
+        let up = crate::tiles::agreed(self.streams.iter().map(|s| s.info().up));
+        let sun = crate::tiles::agreed(self.streams.iter().map(|s| s.info().sun));
+        (up.map(Vec3::from), sun.map(Vec3::from))
+    }
+
+    /// A sensor's position in the file's coordinates, if a lone file says.
+    fn viewpoint(&self) -> Option<[f64; 3]> {
+        match self.streams.as_slice() {
+            [Stream::Ply(s)] => s.viewpoint,
+            _ => None,
+        }
+    }
+
+    /// Whether every tile has colours (known after a pass).
+    fn has_colors(&self) -> bool {
+        self.streams.iter().all(Stream::has_colors)
+    }
+
+    /// With several tiles, a pass finding each one's origin, as reading it alone would.
+    fn find_tile_origins(&mut self, ticker: &mut Ticker) -> Result<(), IoError> {
+        if self.streams.len() > 1 {
+            ticker.total += self.count();
+            self.tile_origins = Vec::with_capacity(self.streams.len());
+            for stream in &mut self.streams {
+                self.tile_origins.push(world_bounds(stream, ticker)?.origin());
+            }
+        }
+        Ok(())
+    }
+
+    /// Calls `visit` with every point in file order, tile after tile (a tile's point placed,
+    /// and without a normal or radius some other tile lacks).
+    fn for_each(&mut self, mut visit: impl FnMut(&PointRecord)) -> Result<(), IoError> {
+        // Normals and radii where every tile gives them.
+        let given = self.streams.iter().map(Stream::given);
+        let [normals, radii] = given.fold([true; 2], |all, g| [all[0] && g[0], all[1] && g[1]]);
+        for (k, stream) in self.streams.iter_mut().enumerate() {
+            let origin = self.tile_origins.get(k).copied();
+            stream.for_each(|r| match origin {
+                None => visit(r),
+                Some(origin) => visit(&PointRecord {
+                    position: crate::tiles::placed(r.position, origin),
+                    normal: if normals { r.normal } else { Vec3::ZERO },
+                    radius: if radii { r.radius } else { 0.0 },
+                    ..*r
+                }),
+            })?;
+        }
+        Ok(())
+    }
+}
+
+/// The bounds of `stream`'s points as one cloud read in memory finds them.
+fn world_bounds(stream: &mut Stream, ticker: &mut Ticker) -> Result<pointray::cloud::WorldBounds, IoError> {
+    let mut bounds = pointray::cloud::WorldBounds::default();
+    stream.for_each(|r| {
+        ticker.tick(1);
+        bounds = bounds.with(r.position);
+    })?;
+    Ok(bounds)
+}
+
+/// The points of `inputs` if their headers say (a binary PLY's, a LAS file's), for estimating
+/// what preparing them takes.
+pub fn points_in(inputs: &[PathBuf]) -> Option<usize> {
+    Input::open(inputs).ok().map(|s| s.count())
+}
+
+/// Why [`prepare_out_of_core`] would refuse `inputs` with `config` from their headers alone
+/// (none if it would not).
+pub fn out_of_core_refusal(inputs: &[PathBuf], config: &PreprocessConfig) -> Option<String> {
     let refusal = || -> Result<(), IoError> {
-        check_config(input, config)?;
-        Input::open(input).map(|_| ())
+        check_config(&crate::set_name(inputs), config)?;
+        Input::open(inputs).map(|_| ())
     };
     refusal().err().map(|e| e.to_string())
 }
 
 fn check_config(input: &Path, config: &PreprocessConfig) -> Result<(), IoError> {
     config.check().map_err(|e| IoError::invalid(input, e.to_string()))?;
-    if !config.sort || config.outlier_std.is_some() {
-        return Err(IoError::invalid(input, "out of core, points are always sorted and no outlier filter runs yet"));
+    if !config.sort {
+        return Err(IoError::invalid(input, "out of core, points are always sorted"));
     }
     Ok(())
 }
@@ -189,17 +291,18 @@ impl Default for OutOfCore {
     }
 }
 
-/// Prepares the cloud at `input` into the scene file `output` out of core (see the module);
-/// `progress` is told how far each pass is.
+/// Prepares the cloud at `inputs` (a file, or a survey's tiles) into the scene file `output`
+/// out of core (see the module); `progress` is told how far each pass is.
 pub fn prepare_out_of_core(
-    input: &Path,
+    inputs: &[PathBuf],
     output: &Path,
     options: &OutOfCore,
     progress: &dyn Fn(&Progress),
 ) -> Result<Prepared, IoError> {
     let config = &options.preprocess;
+    let input = &crate::set_name(inputs);
     check_config(input, config)?;
-    let mut stream = Input::open(input)?;
+    let mut stream = Input::open(inputs)?;
     let points_read = stream.count();
     let ticker = |stage, total| Ticker::new(progress, stage, total);
     let origin = world_origin(&mut stream, &mut ticker("read: origin", points_read))?;
@@ -213,51 +316,56 @@ pub fn prepare_out_of_core(
     let route_ticker = &mut ticker("read: route", points_read);
     let mut buckets = route(&mut stream, origin, &provisional, dir.path(), config.recompute, route_ticker)?;
     let cleaned = clean(&mut buckets, &mut ticker("sort cells", kept))?;
+    let outliers = match config.outlier_std {
+        Some(ratio) if kept - cleaned.duplicates > 1 => {
+            drop_outliers(&buckets, config.k_normals, ratio, &mut ticker("outliers", kept))?
+        }
+        _ => 0,
+    };
     let (all, given): (Vec<&Bucket>, _) = (buckets.iter().collect(), |r: &Record| r.flags & GIVEN_NORMAL != 0);
     let inward = pointing_in(&all, given, &mut ticker("orient", kept))?;
     if inward {
-        tracing::warn!("{}: the given normals pointed inward; turned them outward", input.display());
         turn(&all, given, &mut ticker("turn normals", kept))?;
     }
     let sensor = stream.viewpoint().map(|v| (DVec3::from(v) - origin).as_vec3());
     let strays =
         if cleaned.missing == 0 { 0 } else { fill(&buckets, config, sensor, &mut ticker("normals, radii", kept))? };
-    let dropped = cleaned.duplicates + strays;
+    let dropped = cleaned.duplicates + outliers + strays;
     if dropped == kept {
         return Err(IoError::invalid(input, "preprocessing: no points left"));
     }
-    let plan = if dropped == 0 { provisional } else { replan(&buckets, bounds, kept - dropped, params.chunk_splats)? };
-    if cleaned.duplicates > 0 {
-        tracing::info!(
-            "{}: dropped {} points repeating an earlier point's position",
-            input.display(),
-            cleaned.duplicates
-        );
-    }
+    let plan = match dropped {
+        0 => provisional,
+        _ => final_plan(&mut buckets, bounds, kept - dropped, params.chunk_splats, dir.path())?,
+    };
     let chunks = plan.chunks().len();
     let build = StreamedBvh::new(plan, &params);
     let mut spill = Files::new(dir.path())?;
     let (build, cloud) = build_chunks(build, &buckets, origin, &mut spill, &mut ticker("build", kept - dropped))?;
     ticker("write", 0);
     let view = sensor.and_then(|sensor| crate::source::sensor_view_of(sensor, cloud.bounds));
-    let info = stream.info();
-    let lone = crate::source::lone_cloud_parts(info.up.map(Vec3::from), info.sun.map(Vec3::from));
+    let (up, sun) = stream.up_and_sun();
+    let lone = crate::source::lone_cloud_parts(up, sun);
     let parts = SceneParts { view, ..lone };
     write(output, build, &mut spill, &parts, &cloud)?;
-    Ok(Prepared {
+    let done = Prepared {
         points_read,
         points: cloud.points,
         chunks,
         dropped_non_finite: points_read - kept,
         dropped_duplicates: cleaned.duplicates,
+        dropped_outliers: outliers,
         dropped_strays: strays,
         turned_outward: inward,
-    })
+    };
+    done.warn_repairs(input);
+    Ok(done)
 }
 
 /// The origin reading the cloud in memory gives it (`PointCloud::from_world_positions`): the
 /// centre of its finite points' bounds.
 fn world_origin(stream: &mut Input, ticker: &mut Ticker) -> Result<DVec3, IoError> {
+    stream.find_tile_origins(ticker)?;
     let mut bounds = pointray::cloud::WorldBounds::default();
     stream.for_each(|r| {
         ticker.tick(1);
@@ -330,6 +438,52 @@ struct Bucket {
     bounds: Aabb,
 }
 
+/// The buckets of a plan's cells being written, a record at a time.
+struct Cells<'a> {
+    plan: &'a ChunkPlan,
+    buckets: Vec<Bucket>,
+    writers: Vec<BufWriter<File>>,
+    failed: Option<IoError>,
+}
+
+impl<'a> Cells<'a> {
+    /// A file in `dir` for each of `plan`'s cells, named `name` and the cell's number.
+    fn create(plan: &'a ChunkPlan, dir: &Path, name: &str) -> Result<Self, IoError> {
+        let cells = plan.chunks().iter().enumerate();
+        let buckets: Vec<Bucket> = cells
+            .map(|(c, cell)| Bucket {
+                path: dir.join(format!("{name}{c}")),
+                first_code: cell.first_code(),
+                bounds: Aabb::EMPTY,
+            })
+            .collect();
+        let mut writers = Vec::with_capacity(buckets.len());
+        for b in &buckets {
+            writers
+                .push(BufWriter::with_capacity(1 << 16, File::create(&b.path).map_err(|e| IoError::io(&b.path, e))?));
+        }
+        Ok(Self { plan, buckets, writers, failed: None })
+    }
+
+    /// Appends `record` to its cell's file (the first failure kept for [`Cells::finish`]).
+    fn write(&mut self, record: &Record) {
+        let c = self.plan.chunk_of(record.code);
+        if let Err(e) = self.writers[c].write_all(bytemuck::bytes_of(record)) {
+            self.failed = self.failed.take().or(Some(IoError::io(&self.buckets[c].path, e)));
+        }
+    }
+
+    fn finish(self) -> Result<Vec<Bucket>, IoError> {
+        if let Some(e) = self.failed {
+            return Err(e);
+        }
+        for (w, b) in self.writers.into_iter().zip(&self.buckets) {
+            w.into_inner().map_err(|e| IoError::io(&b.path, e.into_error()))?;
+        }
+        Ok(self.buckets)
+    }
+}
+
 /// Every kept point written to its chunk's file, in file order.
 fn route(
     stream: &mut Input,
@@ -339,54 +493,68 @@ fn route(
     recompute: bool,
     ticker: &mut Ticker,
 ) -> Result<Vec<Bucket>, IoError> {
-    let io = |path: &Path, e| IoError::io(path, e);
-    let buckets: Vec<Bucket> = plan
-        .chunks()
-        .iter()
-        .enumerate()
-        .map(|(c, cell)| Bucket {
-            path: dir.join(format!("chunk{c}")),
-            first_code: cell.first_code(),
-            bounds: Aabb::EMPTY,
-        })
-        .collect();
-    let mut writers = Vec::with_capacity(buckets.len());
-    for b in &buckets {
-        writers.push(BufWriter::with_capacity(1 << 16, File::create(&b.path).map_err(|e| io(&b.path, e))?));
-    }
-    let (mut index, mut failed) = (0u32, None);
+    let mut cells = Cells::create(plan, dir, "chunk")?;
+    let mut index = 0u32;
     let colors = stream.has_colors();
     stream.for_each(|r| {
         ticker.tick(1);
         if let Some(p) = local(r.position, origin) {
-            let code = plan.code(p);
             // Normalised as preprocessing normalises the given normals; invalid ones, and
             // invalid radii, are missing (a file without them gives zeros).
             let normal = r.normal.try_normalize().filter(|_| !recompute);
             let radius = Some(r.radius).filter(|r| r.is_finite() && *r > 0.0 && !recompute);
-            let record = Record {
-                code,
+            cells.write(&Record {
+                code: plan.code(p),
                 index,
                 position: p.to_array(),
                 normal: normal.unwrap_or(Vec3::Z).to_array(),
                 radius: radius.unwrap_or(0.0),
                 color: pack_color(if colors { r.color } else { DEFAULT_COLOR }),
                 flags: (u32::from(normal.is_some()) * GIVEN_NORMAL) | (u32::from(radius.is_some()) * GIVEN_RADIUS),
-            };
-            let c = plan.chunk_of(code);
-            if let Err(e) = writers[c].write_all(bytemuck::bytes_of(&record)) {
-                failed = failed.take().or(Some(io(&buckets[c].path, e)));
-            }
+            });
         }
         index += 1;
     })?;
+    cells.finish()
+}
+
+/// The chunks of the points left after some were dropped, as the build in memory plans them
+/// over their bounds: the cells' codes stand where the bounds did not change; otherwise every
+/// point's code is found again over the new bounds and the points routed again to the new
+/// plan's cells (in order: the cloud's order stays).
+fn final_plan(
+    buckets: &mut Vec<Bucket>,
+    bounds: Aabb,
+    count: usize,
+    most: usize,
+    dir: &Path,
+) -> Result<ChunkPlan, IoError> {
+    let mut left = Aabb::EMPTY;
+    for b in buckets.iter() {
+        for_each_record(b, |r| left = left.union(Aabb::new(r.position.into(), r.position.into())))?;
+    }
+    if left == bounds {
+        return replan(buckets, bounds, count, most);
+    }
+    let code = |r: &Record| morton::encode(Vec3::from(r.position), &left);
+    let mut failed = None;
+    let plan = ChunkPlan::new(left, count, most, |f| {
+        for b in buckets.iter() {
+            if let Err(e) = for_each_record(b, |r| f(code(r))) {
+                failed = failed.take().or(Some(e));
+            }
+        }
+    });
     if let Some(e) = failed {
         return Err(e);
     }
-    for (w, b) in writers.into_iter().zip(&buckets) {
-        w.into_inner().map_err(|e| io(&b.path, e.into_error()))?;
+    let mut cells = Cells::create(&plan, dir, "final")?;
+    for b in buckets.iter() {
+        for_each_record(b, |r| cells.write(&Record { code: code(r), ..*r }))?;
+        std::fs::remove_file(&b.path).map_err(|e| IoError::io(&b.path, e))?;
     }
-    Ok(buckets)
+    *buckets = cells.finish()?;
+    Ok(plan)
 }
 
 /// Calls `visit` with every record of `bucket`, in order.
@@ -496,6 +664,46 @@ impl BlockSums {
     }
 }
 
+/// Drops the statistical outliers as preprocessing does ([`outliers`]), a bucket at a time: each
+/// point's mean distance to its `k` nearest neighbours, found with the halo they reach and kept
+/// beside the bucket; the limit from two passes over those in the sorted order; then each bucket
+/// rewritten without the points beyond it. Returns how many were dropped.
+fn drop_outliers(buckets: &[Bucket], k: usize, std_ratio: f32, ticker: &mut Ticker) -> Result<usize, IoError> {
+    let distances = |b: &Bucket| b.path.with_extension("distances");
+    let read_distances = |b: &Bucket| {
+        let bytes = std::fs::read(distances(b)).map_err(|e| IoError::io(&distances(b), e))?;
+        Ok::<Vec<f64>, IoError>(bytes.chunks_exact(8).map(|d| f64::from_ne_bytes(d.try_into().unwrap())).collect())
+    };
+    for (b, bucket) in buckets.iter().enumerate() {
+        let records = read_bucket(bucket)?;
+        ticker.tick(records.len());
+        let mut positions: Vec<Vec3> = records.iter().map(|r| Vec3::from(r.position)).collect();
+        let zone = halo_zone(buckets, b, &positions, k)?;
+        for_each_in_zone(buckets, b, &zone, |_, r| positions.push(Vec3::from(r.position)))?;
+        let mean = outliers::mean_distances(&pointray::knn::k_nearest(&positions, k), records.len());
+        std::fs::write(distances(bucket), bytemuck::cast_slice(&mean))
+            .map_err(|e| IoError::io(&distances(bucket), e))?;
+    }
+    let limit = outliers::limit(
+        |visit| {
+            for b in buckets {
+                read_distances(b)?.into_iter().for_each(&mut *visit);
+            }
+            Ok(())
+        },
+        std_ratio,
+    )?;
+    let mut dropped = 0;
+    for b in buckets {
+        let (records, mean) = (read_bucket(b)?, read_distances(b)?);
+        let kept: Vec<Record> = records.iter().zip(&mean).filter(|(_, d)| **d <= limit).map(|(r, _)| *r).collect();
+        dropped += records.len() - kept.len();
+        std::fs::write(&b.path, bytemuck::cast_slice(&kept)).map_err(|e| IoError::io(&b.path, e))?;
+        std::fs::remove_file(distances(b)).map_err(|e| IoError::io(&distances(b), e))?;
+    }
+    Ok(dropped)
+}
+
 /// Whether the normals of the points `counted` picks in `set` (buckets in the sorted order) point
 /// inward, by `orient::turn_given_outward`'s test in its blocks: their centre, then their normals
 /// along their offsets from it.
@@ -536,7 +744,7 @@ fn turn(set: &[&Bucket], turned: impl Fn(&Record) -> bool, ticker: &mut Ticker) 
 }
 
 /// Computes the missing normals and radii a bucket at a time, with the halo of points round it
-/// that its points' neighbourhoods reach ([`halo_reach`]): the normals of the buckets done before
+/// that its points' neighbourhoods reach ([`halo_zone`]): the normals of the buckets done before
 /// it, final, are fixed and orient its own across the border, as given normals orient computed
 /// ones in memory (`preprocess::fill_chunk`). The buckets are taken breadth first from bucket to
 /// overlapping bucket, so that only the first of each connected set decides its orientation
@@ -576,8 +784,9 @@ fn fill(
     }
     // A closed surface whose first bucket, a part of it, was oriented inward is turned whole;
     // an open one (terrain, a wall) tests near 0 and stays. (Facing a sensor needs no turn;
-    // given normals orient their sets.)
-    for (set, _) in sets.iter().filter(|(_, given)| sensor.is_none() && !given) {
+    // given normals orient their sets; a set of one bucket was oriented as the cloud in memory
+    // is, by the same code, and is left as it is.)
+    for (set, _) in sets.iter().filter(|(set, given)| sensor.is_none() && !given && set.len() > 1) {
         let set: Vec<&Bucket> = set.iter().map(|&b| &buckets[b]).collect();
         if pointing_in(&set, |_| true, ticker)? {
             tracing::info!("turned the normals of {} cells outward", set.len());
@@ -614,18 +823,10 @@ fn fill_bucket(
         return Ok(Filled { dropped: 0, zone: bucket.bounds, given });
     }
     let positions: Vec<Vec3> = records.iter().map(|r| Vec3::from(r.position)).collect();
-    let reach = halo_reach(&positions, config.k_normals.max(config.k_radius), &bucket.bounds);
-    let zone = Aabb::new(bucket.bounds.min - reach, bucket.bounds.max + reach);
+    let zone = halo_zone(buckets, b, &positions, config.k_normals.max(config.k_radius))?;
     let mut halo = Vec::new();
-    for (o, other) in buckets.iter().enumerate().filter(|&(o, other)| o != b && overlap(&other.bounds, &zone)) {
-        for_each_record(other, |r| {
-            let p = Vec3::from(r.position);
-            if zone.contains_box(&Aabb::new(p, p)) {
-                // Done before this one: final, and fixed.
-                halo.push(if filled[o] { Record { flags: GIVEN, ..*r } } else { *r });
-            }
-        })?;
-    }
+    // Those done before this one: final, and fixed.
+    for_each_in_zone(buckets, b, &zone, |o, r| halo.push(if filled[o] { Record { flags: GIVEN, ..*r } } else { *r }))?;
     let all = || records.iter().chain(&halo);
     let mut cloud = pointray::PointCloud {
         positions: all().map(|r| Vec3::from(r.position)).collect(),
@@ -653,19 +854,51 @@ fn fill_bucket(
     Ok(Filled { dropped, zone, given })
 }
 
-/// How far round a bucket its points' `k` nearest neighbours may lie: the farthest k-th
-/// neighbour among its own points, which no point outside can make farther (so the halo holds
-/// every true neighbour); at most the bucket's diagonal (a stray's neighbours beyond stay
-/// unseen: it is a stray either way).
-fn halo_reach(positions: &[Vec3], k: usize, bounds: &Aabb) -> f32 {
-    let diagonal = bounds.diagonal();
-    if positions.len() <= k {
-        return diagonal;
+/// Calls `visit` with every record of the buckets but `b` that lies in `zone`, and its bucket.
+fn for_each_in_zone(
+    buckets: &[Bucket],
+    b: usize,
+    zone: &Aabb,
+    mut visit: impl FnMut(usize, &Record),
+) -> Result<(), IoError> {
+    for (o, other) in buckets.iter().enumerate().filter(|&(o, other)| o != b && overlap(&other.bounds, zone)) {
+        for_each_record(other, |r| {
+            let p = Vec3::from(r.position);
+            if zone.contains_box(&Aabb::new(p, p)) {
+                visit(o, r);
+            }
+        })?;
     }
-    let nbrs = pointray::knn::k_nearest(positions, k);
-    let farthest =
-        (0..positions.len()).map(|i| nbrs.sq_dists_of(i).last().copied().unwrap_or(f32::INFINITY)).fold(0.0, f32::max);
-    farthest.sqrt().min(diagonal) * (1.0 + 1e-5) + f32::MIN_POSITIVE
+    Ok(())
+}
+
+/// The box round bucket `b` that holds its `positions`' `k` nearest neighbours, its halo's zone.
+/// With more than `k` points: reaching the farthest k-th neighbour among its own points, which
+/// no point outside can make farther (within the bucket's diagonal). With `k` or fewer (a cell
+/// at the cloud's fringe): a box round it, doubled from its size until it holds `k` other
+/// points, then widened by its own diagonal, within which each point has them.
+fn halo_zone(buckets: &[Bucket], b: usize, positions: &[Vec3], k: usize) -> Result<Aabb, IoError> {
+    let bounds = buckets[b].bounds;
+    let around = |reach: f32| {
+        let reach = reach * (1.0 + 1e-5) + f32::MIN_POSITIVE;
+        Aabb::new(bounds.min - reach, bounds.max + reach)
+    };
+    if positions.len() > k {
+        let nbrs = pointray::knn::k_nearest(positions, k);
+        let last = |i| nbrs.sq_dists_of(i).last().copied().unwrap_or(f32::INFINITY);
+        let farthest = (0..positions.len()).map(last).fold(0.0, f32::max);
+        return Ok(around(farthest.sqrt().min(bounds.diagonal())));
+    }
+    let whole = buckets.iter().fold(Aabb::EMPTY, |w, b| w.union(b.bounds));
+    let mut reach = bounds.diagonal().max(whole.diagonal() * 1e-4);
+    loop {
+        let (zone, mut count) = (around(reach), positions.len());
+        for_each_in_zone(buckets, b, &zone, |_, _| count += 1)?;
+        if count > k || zone.contains_box(&whole) {
+            return Ok(around(zone.diagonal()));
+        }
+        reach *= 2.0;
+    }
 }
 
 fn overlap(a: &Aabb, b: &Aabb) -> bool {
@@ -857,7 +1090,7 @@ mod tests {
         let mut whole = crate::read_cloud(&path).unwrap().cloud;
         pointray::preprocess::preprocess(&mut whole, &config).unwrap();
         let ticker = &mut Ticker::new(&|_| {}, "test", 0);
-        let mut stream = Input::open(&path).unwrap();
+        let mut stream = Input::open(std::slice::from_ref(&path)).unwrap();
         let origin = world_origin(&mut stream, ticker).unwrap();
         assert_eq!(origin, whole.origin);
         let (bounds, kept) = local_bounds(&mut stream, origin, ticker).unwrap();
@@ -882,6 +1115,61 @@ mod tests {
         // wall's sides do.
         let outward = normals.iter().filter(|(p, n)| (n.z > 0.0) == (f32::from_bits(p[2]) > 0.0)).count();
         assert!(outward as f64 >= 0.97 * whole.len() as f64, "{outward} of {} face out", whole.len());
+    }
+
+    /// The statistical outlier filter, a cell at a time with halos, drops exactly the points the
+    /// filter over the whole cloud drops: a sphere with its normals and radii (nothing else
+    /// dropped) and 40 points strewn round it, in cells of at most 800.
+    #[test]
+    fn outliers_dropped_a_cell_at_a_time_are_those_dropped_in_memory() {
+        let n = 12_000;
+        let mut positions: Vec<Vec3> = (0..n)
+            .map(|i| {
+                let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+                let (r, phi) = ((1.0 - z * z).sqrt(), i as f32 * 2.399_963);
+                Vec3::new(r * phi.cos(), r * phi.sin(), z) * 3.0
+            })
+            .collect();
+        positions.extend((0..40).map(|i| {
+            let a = i as f32 * 0.7;
+            Vec3::new(a.cos(), a.sin(), (a * 0.3).cos()) * (3.2 + 0.05 * i as f32)
+        }));
+        let normals = Some(positions.iter().map(|p| p.normalize()).collect());
+        let radii = Some(vec![0.05; positions.len()]);
+        let cloud = PointCloud { positions, normals, radii, ..PointCloud::default() };
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("cloud.ply");
+        crate::write_ply(&path, &cloud).unwrap();
+        let config = PreprocessConfig { outlier_std: Some(1.0), ..PreprocessConfig::standard() };
+        let mut whole = crate::read_cloud(&path).unwrap().cloud;
+        let stats = pointray::preprocess::preprocess(&mut whole, &config).unwrap();
+        assert!(stats.dropped_outliers >= 40, "{}", stats.dropped_outliers);
+        let ticker = &mut Ticker::new(&|_| {}, "test", 0);
+        let mut stream = Input::open(&[path]).unwrap();
+        let origin = world_origin(&mut stream, ticker).unwrap();
+        let (bounds, kept) = local_bounds(&mut stream, origin, ticker).unwrap();
+        let plan = plan(&mut stream, origin, bounds, kept, 800, ticker).unwrap();
+        let mut buckets = route(&mut stream, origin, &plan, dir.path(), false, ticker).unwrap();
+        assert!(buckets.len() >= 16, "{} cells", buckets.len());
+        clean(&mut buckets, ticker).unwrap();
+        let dropped = drop_outliers(&buckets, config.k_normals, 1.0, ticker).unwrap();
+        assert_eq!(dropped, stats.dropped_outliers);
+        let mut left = Vec::new();
+        for b in &buckets {
+            for_each_record(b, |r| left.push(r.position)).unwrap();
+        }
+        let whole: Vec<[f32; 3]> = whole.positions.iter().map(|p| p.to_array()).collect();
+        assert_eq!(left, whole, "the same points, in the same order");
+        // The points left are planned over their own bounds, as a build in memory plans them.
+        let final_plan = final_plan(&mut buckets, bounds, kept - dropped, 800, dir.path()).unwrap();
+        let left_bounds = Aabb::from_points(whole.iter().map(|&p| Vec3::from(p)));
+        for (c, b) in buckets.iter().enumerate() {
+            for_each_record(b, |r| {
+                assert_eq!(r.code, morton::encode(Vec3::from(r.position), &left_bounds));
+                assert_eq!(final_plan.chunk_of(r.code), c);
+            })
+            .unwrap();
+        }
     }
 
     #[test]

@@ -19,7 +19,7 @@ use std::path::Path;
 
 use glam::{DQuat, DVec3};
 
-use crate::builder::{Attributes, CloudBuilder, PointRecord};
+use crate::builder::merge;
 use crate::text::{Lines, as_text, data_part, split_values};
 use crate::{FileInfo, IoError, LoadedCloud, read_any};
 
@@ -76,45 +76,21 @@ pub(crate) fn parse(path: &Path, bytes: &[u8]) -> Result<LoadedCloud, IoError> {
             .map_err(|e| IoError::at_line(path, scan.line, format!("bmesh {}: {e}", scan.file)))?;
         loaded.push(cloud);
     }
-    let all = |has: fn(&LoadedCloud) -> bool| loaded.iter().all(has);
-    let attributes = Attributes {
-        normals: all(|l| l.cloud.normals.is_some()),
-        radii: all(|l| l.cloud.radii.is_some()),
-        colors: all(|l| l.cloud.colors.is_some()),
-        ..Attributes::default()
-    };
-    let total = loaded.iter().map(|l| l.cloud.len()).sum();
-    let mut builder = CloudBuilder::new(total, attributes);
-    for (scan, l) in scans.iter().zip(&loaded) {
-        let c = &l.cloud;
-        let to_world = scan.rotation.inverse();
-        for i in 0..c.len() {
-            let world = c.origin + c.positions[i].as_dvec3();
-            builder.push(&PointRecord {
-                position: to_world * world + scan.translation,
-                normal: c.normals.as_ref().map_or(glam::Vec3::ZERO, |n| (to_world * n[i].as_dvec3()).as_vec3()),
-                radius: c.radii.as_ref().map_or(0.0, |r| r[i]),
-                color: c.colors.as_ref().map_or([0.0; 3], |col| col[i]),
-                ..PointRecord::default()
-            });
-        }
-    }
+    let (clouds, infos): (Vec<_>, Vec<_>) = loaded.into_iter().map(|l| (l.cloud, l.info)).unzip();
     let info = FileInfo {
         format: format!("Stanford scan set, {} scans", scans.len()),
-        elements: scans.iter().zip(&loaded).map(|(s, l)| (s.file.clone(), l.cloud.len())).collect(),
-        vertex_properties: loaded[0].info.vertex_properties.clone(),
+        elements: scans.iter().zip(&clouds).map(|(s, c)| (s.file.clone(), c.len())).collect(),
+        vertex_properties: infos[0].vertex_properties.clone(),
         comments: Vec::new(),
-        file_bytes: bytes.len() as u64 + loaded.iter().map(|l| l.info.file_bytes).sum::<u64>(),
+        file_bytes: bytes.len() as u64 + infos.iter().map(|i| i.file_bytes).sum::<u64>(),
         up: None,
         sun: None,
     };
-    let mut cloud = builder.finish();
-    // The scans' attributes, one after another (zeros for a scan without one another has).
-    let mut len = 0;
-    for l in loaded {
-        let n = l.cloud.len();
-        cloud.scan.append(len, l.cloud.scan, n);
-        len += n;
-    }
+    let to_world: Vec<DQuat> = scans.iter().map(|s| s.rotation.inverse()).collect();
+    let cloud = merge(
+        clouds,
+        |k, world| to_world[k] * world + scans[k].translation,
+        |k, normal| (to_world[k] * normal.as_dvec3()).as_vec3(),
+    );
     Ok(LoadedCloud { cloud, info })
 }

@@ -57,7 +57,30 @@ pub fn load(
     if crate::prs::is_prs(path) {
         return load_prs(path, stage);
     }
-    let p = read_prepared(path, preprocess, read, stage)?;
+    load_cloud(&[path.to_path_buf()], preprocess, read, stage)
+}
+
+/// [`load`] for several cloud files, the tiles of one survey read as one cloud
+/// ([`crate::read_tiles`]); a lone path is [`load`]'s.
+pub fn load_tiles(
+    paths: &[PathBuf],
+    preprocess: &PreprocessConfig,
+    read: &ReadOptions,
+    stage: &dyn Fn(&str),
+) -> Result<Source, IoError> {
+    match paths {
+        [path] => load(path, preprocess, read, stage),
+        _ => load_cloud(paths, preprocess, read, stage),
+    }
+}
+
+fn load_cloud(
+    paths: &[PathBuf],
+    preprocess: &PreprocessConfig,
+    read: &ReadOptions,
+    stage: &dyn Fn(&str),
+) -> Result<Source, IoError> {
+    let p = read_prepared(paths, preprocess, read, stage)?;
     let parts = SceneParts { view: sensor_view(&p.cloud), cloud: p.cloud, ..lone_cloud_parts(p.up, p.sun) };
     Ok(Source {
         parts,
@@ -126,23 +149,25 @@ pub struct PreparedCloud {
     pub read_seconds: f64,
 }
 
-/// Reads a cloud file (as `read` says) and preprocesses it.
+/// Reads a cloud file (as `read` says), or a survey's tiles as one ([`crate::read_tiles`]), and
+/// preprocesses it.
 pub fn read_prepared(
-    path: &Path,
+    paths: &[PathBuf],
     config: &PreprocessConfig,
     read: &ReadOptions,
     stage: &dyn Fn(&str),
 ) -> Result<PreparedCloud, IoError> {
-    config.check().map_err(|e| IoError::invalid(path, e.to_string()))?;
+    let name = crate::set_name(paths);
+    config.check().map_err(|e| IoError::invalid(&name, e.to_string()))?;
     let start = Instant::now();
     stage("read");
-    let loaded = crate::read_cloud_with(path, read)?;
+    let loaded = crate::read_tiles(paths, read)?;
     let read_seconds = start.elapsed().as_secs_f64();
     let (mut cloud, up, sun) = (loaded.cloud, loaded.info.up.map(Vec3::from), loaded.info.sun.map(Vec3::from));
-    tracing::info!("read {} points from {} in {read_seconds:.3} s", cloud.len(), path.display());
+    tracing::info!("read {} points from {} in {read_seconds:.3} s", cloud.len(), name.display());
     let points_read = cloud.len();
-    let preprocess = prepare(&mut cloud, config, &path.display().to_string(), stage)
-        .map_err(|message| IoError::invalid(path, message))?;
+    let preprocess = prepare(&mut cloud, config, &name.display().to_string(), stage)
+        .map_err(|message| IoError::invalid(&name, message))?;
     Ok(PreparedCloud { cloud, up, sun, points_read, preprocess, read_seconds })
 }
 

@@ -992,6 +992,44 @@ fn las_and_laz_read_to_the_same_survey_cloud_with_its_colours() {
     assert_eq!(a.cloud.colors, b.cloud.colors);
 }
 
+/// A survey in tiles (a LAS and a LAZ file, side by side in survey coordinates) reads as one
+/// cloud, and prepares to the same scene file in memory and out of core, each tile's points
+/// placed as reading it alone places them.
+#[test]
+fn a_survey_in_tiles_is_one_cloud_and_one_scene_file_either_way() {
+    let dir = temp_dir();
+    // The east tile 1 km wide, the west one 10 m: the set's centre falls inside the east tile,
+    // 500 m from its own, where the tile's f32 offsets are coarser than the set's.
+    let mut points = survey_points(4_000, |i| (i % 200) as u16 + 40);
+    for (p, _) in &mut points[..1_000] {
+        p.x = ((634_500.0 + (p.x - 635_501.0) / 100.0) * 100.0).round() / 100.0;
+    }
+    let (west, east) = points.split_at(1_000);
+    let tiles = [
+        write_file(dir.path(), "west.las", &las_bytes(west, false)),
+        write_file(dir.path(), "east.laz", &las_bytes(east, true)),
+    ];
+    let loaded = pointray_io::read_tiles(&tiles, &Default::default()).unwrap();
+    assert_eq!(loaded.cloud.len(), 4_000);
+    assert_eq!((loaded.info.up, loaded.info.sun), (Some([0.0, 0.0, 1.0]), Some(pointray_io::SURVEY_SUN)));
+    assert!(loaded.cloud.colors.is_some() && loaded.cloud.scan.gps_time.is_some());
+    for (w, (p, _)) in world_positions(&loaded.cloud).iter().zip(&points) {
+        assert_close(*w, *p, 1e-4);
+    }
+    let config = pointray::preprocess::PreprocessConfig::standard();
+    let source = pointray_io::source::load_tiles(&tiles, &config, &Default::default(), &|_| {}).unwrap();
+    let scene = pointray::Scene::build(source.parts, &pointray::Settings::default()).unwrap();
+    let (memory, streamed) = (dir.path().join("memory.prs"), dir.path().join("streamed.prs"));
+    pointray_io::prs::write_prs(&memory, &scene).unwrap();
+    let options = pointray_io::prepare::OutOfCore { preprocess: config, ..Default::default() };
+    pointray_io::prepare::prepare_out_of_core(&tiles, &streamed, &options, &|_| {}).unwrap();
+    assert!(std::fs::read(&memory).unwrap() == std::fs::read(&streamed).unwrap(), "the files differ");
+    // A tile that is not there is named.
+    let missing = [tiles[0].clone(), dir.path().join("north.las")];
+    let e = pointray_io::prepare::prepare_out_of_core(&missing, &streamed, &options, &|_| {}).unwrap_err();
+    assert!(e.to_string().contains("north.las"), "{e}");
+}
+
 /// A survey loaded to render is lit by its sun, at the settings' intensity, and a sky, unless
 /// a light is named or an environment map lights it alone.
 #[test]

@@ -295,7 +295,8 @@ fn load_model(spec: &ModelSpec, e: &Experiment, folder: &Path, a: &BenchArgs, qu
     let stage = |s: &str| spinner.set_message(s.to_string());
     let (cloud, source, points_read, preprocess, load_seconds) = match spec.source(folder)? {
         Source::Cloud(path) => {
-            let p = pointray_io::source::read_prepared(&path, &config, &Default::default(), &stage)?;
+            let p =
+                pointray_io::source::read_prepared(std::slice::from_ref(&path), &config, &Default::default(), &stage)?;
             (p.cloud, path.display().to_string(), p.points_read, p.preprocess, p.read_seconds)
         }
         Source::Mesh { path, points } => {

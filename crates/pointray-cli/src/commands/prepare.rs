@@ -20,7 +20,7 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     }
     let spinner = crate::progress::spinner("read", quiet);
     let stage = |s: &str| spinner.set_message(s.to_string());
-    let prepared = pointray_io::source::read_prepared(&a.input, &config, &a.read.options(), &stage)?;
+    let prepared = pointray_io::source::read_prepared(&a.inputs, &config, &a.read.options(), &stage)?;
     let axes = pointray_io::Axes { up: prepared.up.map(|u| u.to_array()), sun: prepared.sun.map(|s| s.to_array()) };
     let (cloud, stats) = (prepared.cloud, prepared.preprocess);
     spinner.finish_and_clear();
@@ -29,7 +29,7 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     if !quiet {
         eprintln!(
             "{}: {} {}, normals {}, radii {}, wrote {}",
-            a.input.display(),
+            pointray_io::set_name(&a.inputs).display(),
             cloud.len(),
             if cloud.len() == 1 { "point" } else { "points" },
             if stats.computed_normals { "computed" } else { "from file" },
@@ -56,9 +56,10 @@ fn default_budget() -> u64 {
 
 /// `prepare IN -o OUT.prs`: the scene a render of IN with the same build flags builds, stored.
 fn scene_file(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig, quiet: bool) -> anyhow::Result<()> {
-    // The points the header gives, or as many as fit the file at 28 bytes (a binary PLY's least).
-    let size = std::fs::metadata(&a.input).map_or(0, |m| m.len());
-    let points = pointray_io::prepare::points_in(&a.input).map_or(size / 28, |n| n as u64);
+    // The points the headers give, or as many as fit the files at 28 bytes (a binary PLY's least).
+    let size: u64 = a.inputs.iter().map(|i| std::fs::metadata(i).map_or(0, |m| m.len())).sum();
+    let points = pointray_io::prepare::points_in(&a.inputs).map_or(size / 28, |n| n as u64);
+    let name = pointray_io::set_name(&a.inputs);
     let need = points * BYTES_A_POINT;
     match a.memory_budget {
         // Asked for: out of core or refused, naming why.
@@ -68,20 +69,20 @@ fn scene_file(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig, 
             None => return out_of_core(a, config, quiet),
             Some(why) => tracing::warn!(
                 "{}: preparing it takes more than half this machine's memory; it is prepared in memory ({why})",
-                a.input.display()
+                name.display()
             ),
         },
         _ => {}
     }
     let spinner = crate::progress::spinner("read", quiet);
     let stage = |s: &str| spinner.set_message(s.to_string());
-    let source = pointray_io::source::load(&a.input, config, &a.read.options(), &stage)?;
+    let source = pointray_io::source::load_tiles(&a.inputs, config, &a.read.options(), &stage)?;
     stage("build");
     let settings = a.build.settings();
     settings.check().map_err(|e| crate::failure::usage(super::render::flag_error(e)))?;
     let scene = pointray::Scene::build(source.parts, &settings).map_err(|e| match e {
-        pointray::scene::SceneError::Settings(e) => super::render::flag_error(e).context(a.input.display().to_string()),
-        e => anyhow::anyhow!("{}: {e}", a.input.display()),
+        pointray::scene::SceneError::Settings(e) => super::render::flag_error(e).context(name.display().to_string()),
+        e => anyhow::anyhow!("{}: {e}", name.display()),
     })?;
     spinner.finish_and_clear();
     crate::progress::spinning("write", quiet, || pointray_io::prs::write_prs(&a.output, &scene))
@@ -91,7 +92,7 @@ fn scene_file(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig, 
         let per_point = bytes as f64 / scene.points().max(1) as f64;
         eprintln!(
             "{}: {} points in a BVH, wrote {} ({bytes} bytes, {per_point:.1} a point)",
-            a.input.display(),
+            name.display(),
             scene.points(),
             a.output.display()
         );
@@ -104,7 +105,7 @@ fn out_of_core_refusal(a: &PrepareArgs, config: &pointray::preprocess::Preproces
     if a.build.settings() != pointray::Settings::default() {
         return Some("out of core, only the default build settings are prepared for now".into());
     }
-    pointray_io::prepare::out_of_core_refusal(&a.input, config)
+    pointray_io::prepare::out_of_core_refusal(&a.inputs, config)
 }
 
 /// `prepare IN -o OUT.prs --memory-budget SIZE` for a cloud larger than the budget.
@@ -126,13 +127,13 @@ fn out_of_core(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig,
         bar.set_position(p.done as u64);
     };
     let options = pointray_io::prepare::OutOfCore { preprocess: *config, ..Default::default() };
-    let done = pointray_io::prepare::prepare_out_of_core(&a.input, &a.output, &options, &progress)?;
+    let done = pointray_io::prepare::prepare_out_of_core(&a.inputs, &a.output, &options, &progress)?;
     bar.finish_and_clear();
     if !quiet {
         let bytes = std::fs::metadata(&a.output).map(|m| m.len()).unwrap_or(0);
         eprintln!(
             "{}: {} points in {} chunks, out of core, wrote {} ({bytes} bytes, {:.1} a point)",
-            a.input.display(),
+            pointray_io::set_name(&a.inputs).display(),
             done.points,
             done.chunks,
             a.output.display(),

@@ -107,8 +107,8 @@ impl VertexStream {
         })
     }
 
-    pub(crate) fn has_colors(&self) -> bool {
-        self.layout.attributes().colors
+    pub(crate) fn attributes(&self) -> crate::builder::Attributes {
+        self.layout.attributes()
     }
 
     /// Calls `visit` with every vertex in file order, reading 8 MB at a time.

@@ -15,14 +15,37 @@ pub fn statistical_inliers(nbrs: &Neighbourhoods, std_ratio: f32) -> Vec<u32> {
     if nbrs.k == 0 || n == 0 {
         return (0..n as u32).collect();
     }
-    let mean_distance: Vec<f64> = (0..n)
+    let mean_distance = mean_distances(nbrs, n);
+    let Ok(limit) = limit(
+        |visit| {
+            mean_distance.iter().for_each(|&d| visit(d));
+            Ok::<_, std::convert::Infallible>(())
+        },
+        std_ratio,
+    );
+    (0..n as u32).filter(|&i| mean_distance[i as usize] <= limit).collect()
+}
+
+/// The mean distance of each of the first `count` points of `nbrs` to its neighbours (a cloud
+/// prepared out of core finds its cells' with their halos).
+pub fn mean_distances(nbrs: &Neighbourhoods, count: usize) -> Vec<f64> {
+    (0..count)
         .into_par_iter()
         .map(|i| nbrs.sq_dists_of(i).iter().map(|d| f64::from(d.sqrt())).sum::<f64>() / nbrs.k as f64)
-        .collect();
-    let mean = mean_distance.iter().sum::<f64>() / n as f64;
-    let variance = mean_distance.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / n as f64;
-    let limit = mean + f64::from(std_ratio) * variance.sqrt();
-    (0..n as u32).filter(|&i| mean_distance[i as usize] <= limit).collect()
+        .collect()
+}
+
+/// The mean distance above which a point is an outlier: the mean over the cloud plus
+/// `std_ratio` standard deviations. `pass` calls its argument with every point's mean distance
+/// in the cloud's order; it is called twice (the mean, then the variance), so that a cloud read
+/// in passes sums the same numbers in the same order.
+pub fn limit<E>(mut pass: impl FnMut(&mut dyn FnMut(f64)) -> Result<(), E>, std_ratio: f32) -> Result<f64, E> {
+    let (mut sum, mut n) = (0.0f64, 0usize);
+    pass(&mut |d| (sum, n) = (sum + d, n + 1))?;
+    let mean = sum / n as f64;
+    let mut squares = 0.0f64;
+    pass(&mut |d| squares += (d - mean).powi(2))?;
+    Ok(mean + f64::from(std_ratio) * (squares / n as f64).sqrt())
 }
 
 #[cfg(test)]
