@@ -468,6 +468,8 @@ impl<'a> Cells<'a> {
     /// Appends `record` to its cell's file (the first failure kept for [`Cells::finish`]).
     fn write(&mut self, record: &Record) {
         let c = self.plan.chunk_of(record.code);
+        let p = Vec3::from(record.position);
+        self.buckets[c].bounds = self.buckets[c].bounds.union(Aabb::new(p, p));
         if let Err(e) = self.writers[c].write_all(bytemuck::bytes_of(record)) {
             self.failed = self.failed.take().or(Some(IoError::io(&self.buckets[c].path, e)));
         }
