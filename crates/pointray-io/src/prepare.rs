@@ -1,5 +1,7 @@
-//! Preparing a scene file out of core (`pointray prepare IN -o OUT.prs --memory-budget SIZE`):
-//! the cloud read in passes, never whole; its points routed by Morton cell to temporary files,
+//! Preparing a scene file (`pointray prepare IN... -o OUT.prs`, `pointray.prepare_file`):
+//! [`prepare_scene_file`] builds the scene in memory and stores it, or where that would take more
+//! than the memory budget, prepares it out of core ([`prepare_out_of_core`]): the cloud read in
+//! passes, never whole; its points routed by Morton cell to temporary files,
 //! each cell then sorted and cleaned as preprocessing does in memory (repeated positions
 //! dropped, statistical outliers on request, the given normals turned outward where they point
 //! in), the missing normals and radii computed a cell at a time with a halo, and the BVH built
@@ -31,6 +33,114 @@ use crate::IoError;
 use crate::builder::PointRecord;
 use crate::las::LasStream;
 use crate::ply::VertexStream;
+
+/// What [`prepare_scene_file`] takes besides the files.
+#[derive(Clone, Debug, Default)]
+pub struct SceneFileOptions {
+    pub preprocess: PreprocessConfig,
+    pub read: crate::ReadOptions,
+    /// The build settings the file holds (a render of it must ask for the same).
+    pub settings: Settings,
+    /// Prepare within about this much memory: out of core where preparing in memory would take
+    /// more ([`BYTES_A_POINT`]), refused where that cannot be done. `None`: half this machine's
+    /// memory, out of core only where it can be done (in memory otherwise, with a warning).
+    pub memory_budget: Option<u64>,
+}
+
+/// Bytes a point takes preparing a cloud with normals and radii in memory (the 30-million-point
+/// torus peaked at 2.35 GB: 78 a point).
+pub const BYTES_A_POINT: u64 = 90;
+
+/// What [`prepare_scene_file`] did.
+#[derive(Clone, Debug)]
+pub struct SceneFileSummary {
+    /// The points stored.
+    pub points: usize,
+    /// Out of core: the build's chunks (`None`: prepared in memory).
+    pub chunks: Option<usize>,
+    /// The file's size.
+    pub bytes: u64,
+}
+
+/// Why [`prepare_scene_file`] failed.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneFileError {
+    /// A setting is out of range, needs what the cloud lacks, or cannot be had out of core.
+    #[error("{}: {}", .0.option, .0.problem)]
+    Settings(pointray::settings::SettingsError),
+    /// An input could not be read or prepared.
+    #[error(transparent)]
+    Input(IoError),
+    /// The output could not be written.
+    #[error(transparent)]
+    Output(IoError),
+}
+
+/// Prepares the cloud at `inputs` (a file, or a survey's tiles) into the scene file `output`, in
+/// memory or out of core as `options.memory_budget` says; `progress` is told each stage (with
+/// its points done and in all where they are counted, out of core).
+pub fn prepare_scene_file(
+    inputs: &[PathBuf],
+    output: &Path,
+    options: &SceneFileOptions,
+    progress: &dyn Fn(&Progress),
+) -> Result<SceneFileSummary, SceneFileError> {
+    options.preprocess.check().map_err(SceneFileError::Settings)?;
+    options.settings.check().map_err(SceneFileError::Settings)?;
+    // The points the headers give, or as many as fit the files at 28 bytes (a binary PLY's least).
+    let size: u64 = inputs.iter().map(|i| std::fs::metadata(i).map_or(0, |m| m.len())).sum();
+    let need = points_in(inputs).map_or(size / 28, |n| n as u64) * BYTES_A_POINT;
+    let build = pointray::scene::Build::of;
+    let default_settings = build(&options.settings) == build(&Settings::default());
+    let out_of_core = match options.memory_budget {
+        Some(budget) if need > budget && !default_settings => {
+            let why = "out of core, only the default build settings are prepared for now";
+            return Err(SceneFileError::Settings(pointray::settings::SettingsError::new("memory_budget", why)));
+        }
+        Some(budget) => need > budget,
+        None if need > default_budget() => match out_of_core_refusal(inputs, &options.preprocess) {
+            None if default_settings => true,
+            why => {
+                let why = why.unwrap_or_else(|| "out of core, only the default build settings are prepared".into());
+                let name = crate::set_name(inputs);
+                tracing::warn!(
+                    "{}: preparing it takes more than half this machine's memory; it is prepared in memory ({why})",
+                    name.display()
+                );
+                false
+            }
+        },
+        None => false,
+    };
+    if out_of_core {
+        let config = OutOfCore { preprocess: options.preprocess, ..Default::default() };
+        let done = prepare_out_of_core(inputs, output, &config, progress).map_err(SceneFileError::Input)?;
+        let bytes = std::fs::metadata(output).map_or(0, |m| m.len());
+        return Ok(SceneFileSummary { points: done.points, chunks: Some(done.chunks), bytes });
+    }
+    let stage = |stage: &str| progress(&Progress { stage, done: 0, total: 0 });
+    let source =
+        crate::source::load_tiles(inputs, &options.preprocess, &options.read, &stage).map_err(SceneFileError::Input)?;
+    stage("build");
+    let scene = pointray::Scene::build(source.parts, &options.settings).map_err(|e| match e {
+        pointray::scene::SceneError::Settings(e) => SceneFileError::Settings(e),
+        e => SceneFileError::Input(IoError::invalid(&crate::set_name(inputs), e.to_string())),
+    })?;
+    stage("write");
+    crate::prs::write_prs(output, &scene).map_err(SceneFileError::Output)?;
+    let bytes = std::fs::metadata(output).map_or(0, |m| m.len());
+    Ok(SceneFileSummary { points: scene.points(), chunks: None, bytes })
+}
+
+/// The memory budget by default: half the physical memory (unbounded where the system does not
+/// say).
+fn default_budget() -> u64 {
+    let meminfo = std::fs::read_to_string("/proc/meminfo").unwrap_or_default();
+    let total_kb = meminfo
+        .lines()
+        .find_map(|l| l.strip_prefix("MemTotal:")?.trim().strip_suffix("kB")?.trim().parse::<u64>().ok());
+    total_kb.map_or(u64::MAX, |kb| kb * 1024 / 2)
+}
 
 /// One point as the passes keep it in their temporary files.
 #[repr(C)]

@@ -319,11 +319,9 @@ fn prepare(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Bound<'_,
             .map_err(|e| PyValueError::new_err(format!("cloud: {e}")))?;
         (SceneParts::from(cloud), Settings::default())
     } else {
-        let path: PathBuf = source
-            .extract()
-            .map_err(|_| pyo3::exceptions::PyTypeError::new_err("source: expected a path, a Cloud or a Scene"))?;
+        let paths = source_paths(source)?;
         let loaded = py
-            .detach(|| pool.install(|| pointray_io::source::load(&path, &preprocess, &read, &|_| {})))
+            .detach(|| pool.install(|| pointray_io::source::load_tiles(&paths, &preprocess, &read, &|_| {})))
             .map_err(io_error)?;
         (loaded.parts, loaded.settings.unwrap_or_default())
     };
@@ -332,6 +330,49 @@ fn prepare(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Bound<'_,
     let mut inner = py.detach(|| pool.install(|| pointray::Scene::build(parts, &settings))).map_err(value_error)?;
     inner.set_environment_map(env_map);
     Ok(Scene { inner, settings })
+}
+
+/// The files a source names: a path, or a list of them (a survey's tiles, read as one cloud).
+fn source_paths(source: &Bound<'_, PyAny>) -> PyResult<Vec<PathBuf>> {
+    let wrong =
+        || pyo3::exceptions::PyTypeError::new_err("source: expected a path, a list of paths, a Cloud or a Scene");
+    match source.extract::<PathBuf>() {
+        Ok(path) => Ok(vec![path]),
+        Err(_) if source.is_instance_of::<pyo3::types::PyString>() => Err(wrong()),
+        Err(_) => source.extract::<Vec<PathBuf>>().ok().filter(|p| !p.is_empty()).ok_or_else(wrong),
+    }
+}
+
+/// Prepares the cloud at `source` (a path, or a survey's tiles) into the scene file `output`
+/// (`.prs`, written whole or not at all), as `pointray prepare SOURCE -o OUTPUT` does: in memory,
+/// or out of core where that would take more than `memory_budget` bytes (default: half this
+/// machine's memory). Options: the preprocessing's and the build's, as for `prepare`. Returns
+/// what it did: `points`, `chunks` (out of core; else None) and `bytes`.
+#[pyfunction]
+#[pyo3(signature = (source, output, *, memory_budget=None, **options))]
+fn prepare_file<'py>(
+    py: Python<'py>,
+    source: &Bound<'py, PyAny>,
+    output: PathBuf,
+    memory_budget: Option<u64>,
+    options: Option<&Bound<'py, PyDict>>,
+) -> PyResult<Bound<'py, PyDict>> {
+    let (pool, options) = RunOptions::pool_only(options, "prepare_file")?;
+    let (preprocess, read, options) = split_preprocess(options.as_ref())?;
+    let settings = with_options(&Settings::default(), options.as_ref())?;
+    let paths = source_paths(source)?;
+    let file_options = pointray_io::prepare::SceneFileOptions { preprocess, read, settings, memory_budget };
+    let prepared = py
+        .detach(|| pool.install(|| pointray_io::prepare::prepare_scene_file(&paths, &output, &file_options, &|_| {})));
+    let done = prepared.map_err(|e| match e {
+        pointray_io::prepare::SceneFileError::Settings(e) => value_error(format!("{}: {}", e.option, e.problem)),
+        pointray_io::prepare::SceneFileError::Input(e) | pointray_io::prepare::SceneFileError::Output(e) => io_error(e),
+    })?;
+    let summary = PyDict::new(py);
+    summary.set_item("points", done.points)?;
+    summary.set_item("chunks", done.chunks)?;
+    summary.set_item("bytes", done.bytes)?;
+    Ok(summary)
 }
 
 /// Renders `source` (a path, a `Cloud` or a `Scene`) with the command line's render options
@@ -579,6 +620,7 @@ fn _pointray(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Frame>()?;
     m.add_function(wrap_pyfunction!(read_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(prepare, m)?)?;
+    m.add_function(wrap_pyfunction!(prepare_file, m)?)?;
     m.add_function(wrap_pyfunction!(render, m)?)?;
     m.add_function(wrap_pyfunction!(render_region, m)?)?;
     m.add_function(wrap_pyfunction!(render_frame, m)?)?;

@@ -79,6 +79,34 @@ def test_a_scene_file_renders_and_answers_as_its_cloud(tmp_path, sphere_file):
         pointray.render(scene, accel="kdtree", **options)
 
 
+def test_a_scene_file_is_prepared_in_memory_or_out_of_core_alike(tmp_path):
+    """prepare_file writes the file `pointray prepare` writes, the same bytes out of core (a
+    budget of 1 KiB) as in memory; a list of paths is a survey's tiles, read as one cloud."""
+    west, east = tmp_path / "west.xyz", tmp_path / "east.xyz"
+    points = sphere_points(4000)
+    np.savetxt(west, points[:2000], fmt="%.9f")
+    np.savetxt(east, points[2000:], fmt="%.9f")
+    whole = pointray.prepare_file([west, east], tmp_path / "memory.prs")
+    assert whole == {"points": 4000, "chunks": None, "bytes": (tmp_path / "memory.prs").stat().st_size}
+    assert len(pointray.prepare([str(west), str(east)])) == 4000
+    # Out of core takes binary PLY and LAS: the tiles as PLYs, then both ways.
+    plys = []
+    for name, part in (("west", points[:2000]), ("east", points[2000:])):
+        plys.append(tmp_path / f"{name}.ply")
+        header = f"ply\nformat binary_little_endian 1.0\nelement vertex {len(part)}\n"
+        header += "property double x\nproperty double y\nproperty double z\nend_header\n"
+        plys[-1].write_bytes(header.encode() + part.astype("<f8").tobytes())
+    memory = pointray.prepare_file(plys, tmp_path / "a.prs")
+    streamed = pointray.prepare_file(plys, tmp_path / "b.prs", memory_budget=1024)
+    assert memory["chunks"] is None and streamed["chunks"] == 1
+    assert (tmp_path / "a.prs").read_bytes() == (tmp_path / "b.prs").read_bytes()
+    with pytest.raises(ValueError, match="memory_budget"):
+        pointray.prepare_file(plys, tmp_path / "c.prs", memory_budget=1024, surface="rfd")
+    with pytest.raises(TypeError, match="list of paths"):
+        pointray.prepare_file(42, tmp_path / "d.prs")
+    assert not (tmp_path / "c.prs").exists() and not (tmp_path / "d.prs").exists()
+
+
 def test_a_cloud_from_numpy_renders_like_its_file(sphere_file):
     read = pointray.read_cloud(sphere_file)
     assert len(read) == 3000 and read.normals is None

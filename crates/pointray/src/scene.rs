@@ -165,7 +165,8 @@ pub struct Build {
 }
 
 impl Build {
-    fn of(settings: &Settings) -> Self {
+    /// What of `settings` a build takes (the rest is the render's).
+    pub fn of(settings: &Settings) -> Self {
         // Only the BVH has bounding volumes to choose.
         let node_bounds = if settings.accel == AccelKind::Bvh { settings.sphere_from_level } else { NodeBounds::Boxes };
         Self {

@@ -40,104 +40,39 @@ pub fn run(a: &PrepareArgs, quiet: bool) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// Bytes a point takes preparing a cloud with normals and radii in memory (the 30-million-point
-/// torus peaked at 2.35 GB: 78 a point).
-const BYTES_A_POINT: u64 = 90;
-
-/// The memory budget without `--memory-budget`: half the physical memory (unbounded where the
-/// system does not say).
-fn default_budget() -> u64 {
-    let meminfo = std::fs::read_to_string("/proc/meminfo").unwrap_or_default();
-    let total_kb = meminfo
-        .lines()
-        .find_map(|l| l.strip_prefix("MemTotal:")?.trim().strip_suffix("kB")?.trim().parse::<u64>().ok());
-    total_kb.map_or(u64::MAX, |kb| kb * 1024 / 2)
-}
-
-/// `prepare IN -o OUT.prs`: the scene a render of IN with the same build flags builds, stored.
+/// `prepare IN... -o OUT.prs`: the scene a render of IN with the same build flags builds,
+/// stored; in memory or out of core as `--memory-budget` says (`pointray_io::prepare`).
 fn scene_file(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig, quiet: bool) -> anyhow::Result<()> {
-    // The points the headers give, or as many as fit the files at 28 bytes (a binary PLY's least).
-    let size: u64 = a.inputs.iter().map(|i| std::fs::metadata(i).map_or(0, |m| m.len())).sum();
-    let points = pointray_io::prepare::points_in(&a.inputs).map_or(size / 28, |n| n as u64);
-    let name = pointray_io::set_name(&a.inputs);
-    let need = points * BYTES_A_POINT;
-    match a.memory_budget {
-        // Asked for: out of core or refused, naming why.
-        Some(budget) if need > budget => return out_of_core(a, config, quiet),
-        // By default, within half this machine's memory where it can be done.
-        None if need > default_budget() => match out_of_core_refusal(a, config) {
-            None => return out_of_core(a, config, quiet),
-            Some(why) => tracing::warn!(
-                "{}: preparing it takes more than half this machine's memory; it is prepared in memory ({why})",
-                name.display()
-            ),
-        },
-        _ => {}
-    }
-    let spinner = crate::progress::spinner("read", quiet);
-    let stage = |s: &str| spinner.set_message(s.to_string());
-    let source = pointray_io::source::load_tiles(&a.inputs, config, &a.read.options(), &stage)?;
-    stage("build");
-    let settings = a.build.settings();
-    settings.check().map_err(|e| crate::failure::usage(super::render::flag_error(e)))?;
-    let scene = pointray::Scene::build(source.parts, &settings).map_err(|e| match e {
-        pointray::scene::SceneError::Settings(e) => super::render::flag_error(e).context(name.display().to_string()),
-        e => anyhow::anyhow!("{}: {e}", name.display()),
-    })?;
-    spinner.finish_and_clear();
-    crate::progress::spinning("write", quiet, || pointray_io::prs::write_prs(&a.output, &scene))
-        .map_err(crate::failure::output)?;
-    if !quiet {
-        let bytes = std::fs::metadata(&a.output).map(|m| m.len()).unwrap_or(0);
-        let per_point = bytes as f64 / scene.points().max(1) as f64;
-        eprintln!(
-            "{}: {} points in a BVH, wrote {} ({bytes} bytes, {per_point:.1} a point)",
-            name.display(),
-            scene.points(),
-            a.output.display()
-        );
-    }
-    Ok(())
-}
-
-/// Why [`out_of_core`] would refuse `a`, if it would.
-fn out_of_core_refusal(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig) -> Option<String> {
-    if a.build.settings() != pointray::Settings::default() {
-        return Some("out of core, only the default build settings are prepared for now".into());
-    }
-    pointray_io::prepare::out_of_core_refusal(&a.inputs, config)
-}
-
-/// `prepare IN -o OUT.prs --memory-budget SIZE` for a cloud larger than the budget.
-fn out_of_core(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig, quiet: bool) -> anyhow::Result<()> {
-    if a.build.settings() != pointray::Settings::default() {
-        return Err(crate::failure::usage(anyhow::anyhow!(
-            "{}: out of core (--memory-budget), only the default build settings are prepared for now",
-            a.output.display()
-        )));
-    }
-    let bar = crate::progress::bar(0, "", quiet);
-    // A bar a pass, its ETA the pass's.
-    let progress = |p: &pointray_io::prepare::Progress| {
-        if bar.message() != p.stage {
-            bar.reset();
-            bar.set_message(p.stage.to_string());
-        }
-        bar.set_length(p.total as u64);
-        bar.set_position(p.done as u64);
+    use pointray_io::prepare::{SceneFileError, SceneFileOptions, prepare_scene_file};
+    let options = SceneFileOptions {
+        preprocess: *config,
+        read: a.read.options(),
+        settings: a.build.settings(),
+        memory_budget: a.memory_budget,
     };
-    let options = pointray_io::prepare::OutOfCore { preprocess: *config, ..Default::default() };
-    let done = pointray_io::prepare::prepare_out_of_core(&a.inputs, &a.output, &options, &progress)?;
-    bar.finish_and_clear();
+    let progress = crate::progress::stages(quiet);
+    let done = prepare_scene_file(&a.inputs, &a.output, &options, &|p| progress.show(p.stage, p.done, p.total));
+    progress.finish();
+    let name = pointray_io::set_name(&a.inputs);
+    let done = done.map_err(|e| match e {
+        SceneFileError::Settings(e) => {
+            crate::failure::usage(super::render::flag_error(e).context(name.display().to_string()))
+        }
+        SceneFileError::Input(e) => e.into(),
+        SceneFileError::Output(e) => crate::failure::output(e),
+    })?;
     if !quiet {
-        let bytes = std::fs::metadata(&a.output).map(|m| m.len()).unwrap_or(0);
+        let how = match done.chunks {
+            Some(chunks) => format!("in {chunks} chunks, out of core"),
+            None => "in a BVH".to_string(),
+        };
         eprintln!(
-            "{}: {} points in {} chunks, out of core, wrote {} ({bytes} bytes, {:.1} a point)",
-            pointray_io::set_name(&a.inputs).display(),
+            "{}: {} points {how}, wrote {} ({} bytes, {:.1} a point)",
+            name.display(),
             done.points,
-            done.chunks,
             a.output.display(),
-            bytes as f64 / done.points.max(1) as f64
+            done.bytes,
+            done.bytes as f64 / done.points.max(1) as f64
         );
     }
     Ok(())

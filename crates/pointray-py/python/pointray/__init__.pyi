@@ -1,14 +1,15 @@
 """Type stubs of pointray's native module (render options are ``pointray render``'s)."""
 
 import os
-from typing import Any, Optional, Tuple, Union
+from typing import Any, Dict, Optional, Sequence, Tuple, Union
 
 import numpy as np
 import numpy.typing as npt
 
 __version__: str
 
-Source = Union[str, "os.PathLike[str]", "Cloud", "Scene"]
+Path = Union[str, "os.PathLike[str]"]
+Source = Union[Path, Sequence[Path], "Cloud", "Scene"]
 
 class Cloud:
     """A point cloud: positions (N x 3, float64, the file's coordinates) and, where known,
@@ -76,6 +77,13 @@ def prepare(source: Source, **options: Any) -> Scene:
     recompute, strays, outlier_std; a text file's columns), the points drawn (classes,
     exclude_classes, clip_box, clip_planes) and their colours (color_by), then the accelerator
     (accel, sphere_from_level, surface); ``threads`` (default all cores)."""
+
+def prepare_file(
+    source: Union[Path, Sequence[Path]], output: Path, *, memory_budget: Optional[int] = None, **options: Any
+) -> Dict[str, Any]:
+    """The scene file (.prs) ``pointray prepare SOURCE -o OUTPUT`` writes: in memory, or out of
+    core where that would take more than ``memory_budget`` bytes (default: half the machine's
+    memory). Returns ``points``, ``chunks`` (out of core, else None) and ``bytes``."""
 
 def render(source: Source, **options: Any) -> npt.NDArray[np.float32]:
     """The linear RGB image, H x W x 3 float32. Besides the render options: ``threads`` (default
