@@ -128,8 +128,10 @@ pub struct PreprocessArgs {
 pub struct RenderArgs {
     /// Point cloud (PLY, LAS/LAZ, E57, PCD, XYZ/PTS, the vertices of an OFF or OBJ mesh, or a Stanford scan set .conf; recognised by
     /// content), or a scene file (.toml: several clouds, materials, lights; see
-    /// scenes/README.md); none renders the built-in demo scene.
-    pub input: Option<PathBuf>,
+    /// scenes/README.md); several clouds are the tiles of one survey, read as one; none
+    /// renders the built-in demo scene.
+    #[arg(value_name = "INPUT")]
+    pub inputs: Vec<PathBuf>,
     /// Output image, written atomically: NAME.png (sRGB, tone-mapped, 8 or --bit-depth 16 bits)
     /// or NAME.exr (linear 32-bit float, with the --aov layers).
     #[arg(short, long)]

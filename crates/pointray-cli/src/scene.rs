@@ -122,7 +122,7 @@ mod tests {
             "lod",
         ];
         let applied = [
-            "input",
+            "inputs",
             "output",
             "threads",
             "accel",

@@ -839,6 +839,14 @@ fn a_scene_file_prepared_out_of_core_is_the_one_prepared_in_memory() {
     }
     let both = run_in(dir.path(), &["prepare", "inward.ply", "east.ply", "-o", "both.ply"]);
     both.assert_success().assert_stderr_contains("inward.ply and east.ply: 8000 points, normals from file");
+    // Rendered as one cloud, the tiles are their scene file.
+    run_in(dir.path(), &["-q", "prepare", "inward.ply", "east.ply", "-o", "both.prs"]).assert_success();
+    render_in(dir.path(), &["inward.ply", "east.ply", "-o", "tiles.png"]).assert_success();
+    render_in(dir.path(), &["both.prs", "-o", "both.png"]).assert_success();
+    assert!(read_png(&dir.path().join("tiles.png")) == read_png(&dir.path().join("both.png")), "the images differ");
+    render_in(dir.path(), &["inward.ply", "memory.prs", "-o", "x.png"])
+        .assert_failure(1)
+        .assert_stderr_contains("memory.prs: a scene file is read alone");
     render_in(dir.path(), &["streamed.prs", "-o", "s.png"]).assert_success();
     assert!(read_png(&dir.path().join("s.png")).count_not(background_srgb8()) > 100);
     // What it cannot do yet is refused, naming the way: a text PLY, build flags.

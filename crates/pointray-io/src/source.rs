@@ -68,10 +68,13 @@ pub fn load_tiles(
     read: &ReadOptions,
     stage: &dyn Fn(&str),
 ) -> Result<Source, IoError> {
-    match paths {
-        [path] => load(path, preprocess, read, stage),
-        _ => load_cloud(paths, preprocess, read, stage),
+    if let [path] = paths {
+        return load(path, preprocess, read, stage);
     }
+    if let Some(scene) = paths.iter().find(|p| is_scene(p) || crate::prs::is_prs(p)) {
+        return Err(IoError::invalid(scene, "a scene file is read alone, not as one of several inputs"));
+    }
+    load_cloud(paths, preprocess, read, stage)
 }
 
 fn load_cloud(

@@ -94,8 +94,8 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     // Read first: a bad map fails before the cloud's work.
     let env_map = pointray_io::source::environment_map(&a.settings())?;
     let (source, input_name) = load_input(a, quiet)?;
-    let settings = match (&source.settings, &a.input) {
-        (Some(scene), Some(path)) => crate::scene::settings(path, scene, a)?,
+    let settings = match (&source.settings, a.inputs.as_slice()) {
+        (Some(scene), [path]) => crate::scene::settings(path, scene, a)?,
         _ => a.settings(),
     };
     let (points_read, preprocess, load_seconds) = (source.points_read, source.preprocess.clone(), source.load_seconds);
@@ -153,13 +153,14 @@ fn load_input(a: &RenderArgs, quiet: bool) -> anyhow::Result<(Source, String)> {
     let config = a.preprocess.config();
     let spinner = crate::progress::spinner("read", quiet);
     let stage = |s: &str| spinner.set_message(s.to_string());
-    let loaded = match &a.input {
-        Some(path) => {
-            (pointray_io::source::load(path, &config, &a.read.options(), &stage)?, path.display().to_string())
-        }
-        None => (
+    let loaded = match a.inputs.as_slice() {
+        [] => (
             pointray_io::source::demo(a.demo_points, a.seed, &config, &stage).map_err(anyhow::Error::msg)?,
             "demo".into(),
+        ),
+        paths => (
+            pointray_io::source::load_tiles(paths, &config, &a.read.options(), &stage)?,
+            pointray_io::set_name(paths).display().to_string(),
         ),
     };
     spinner.finish_and_clear();
