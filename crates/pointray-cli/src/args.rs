@@ -510,10 +510,10 @@ pub struct PrepareArgs {
     /// To a `.prs` output: prepare within about this much memory (e.g. 1GiB, 512MiB; K, M, G
     /// are powers of 1024; default: half this machine's): a cloud that would need more in
     /// memory (some 90 bytes a point) is read in passes and built a chunk at a time, with
-    /// temporary files beside the output, normals and radii computed a cell at a time. The
-    /// same file either way where the file gives normals and radii. For now out of core takes
-    /// binary PLYs or LAS/LAZ files (or tiles of them), sorted, and the default build (asked for,
-    /// others are refused; by default, they are prepared in memory).
+    /// temporary files beside the output, normals and radii computed a cell at a time: the same
+    /// file either way. For now out of core reads binary PLYs and LAS/LAZ files (or tiles of
+    /// them); other formats are refused when a budget is asked for, and prepared in memory by
+    /// default.
     #[arg(long, value_parser = parse_bytes, value_name = "SIZE")]
     pub memory_budget: Option<u64>,
 }

@@ -817,7 +817,8 @@ fn a_scene_file_prepared_out_of_core_is_the_one_prepared_in_memory() {
     write_inward_sphere_at(dir.path(), 3_000, "east_bare.ply", false, 2.5);
     // And the statistical outlier filter (the points it drops move the bounds the chunks are
     // planned over).
-    let inputs: [&[&str]; 7] = [
+    // And build flags.
+    let inputs: [&[&str]; 10] = [
         &["inward.ply"],
         &["bare.ply"],
         &["plane.laz"],
@@ -825,6 +826,9 @@ fn a_scene_file_prepared_out_of_core_is_the_one_prepared_in_memory() {
         &["inward.ply", "east_bare.ply"],
         &["inward.ply", "east.ply", "--outlier-std", "1"],
         &["bare.ply", "--outlier-std", "1.5"],
+        &["inward.ply", "--surface", "rfd", "--sphere-from-level", "2"],
+        &["bare.ply", "--color-by", "elevation", "--clip-plane", "0,0,1,0.5"],
+        &["inward.ply", "east.ply", "--color-by", "normal", "--clip-box", "-2,-2,-2,2.6,2,2"],
     ];
     for input in inputs {
         run_in(dir.path(), &[&["-q", "prepare"], input, &["-o", "memory.prs"]].concat()).assert_success();
@@ -847,18 +851,17 @@ fn a_scene_file_prepared_out_of_core_is_the_one_prepared_in_memory() {
     render_in(dir.path(), &["inward.ply", "memory.prs", "-o", "x.png"])
         .assert_failure(1)
         .assert_stderr_contains("memory.prs: a scene file is read alone");
-    render_in(dir.path(), &["streamed.prs", "-o", "s.png"]).assert_success();
+    // (A render of a scene file asks for the build flags it was prepared with: the last's.)
+    let built_with = ["--color-by", "normal", "--clip-box", "-2,-2,-2,2.6,2,2"];
+    render_in(dir.path(), &[&["streamed.prs", "-o", "s.png"][..], &built_with].concat()).assert_success();
     assert!(read_png(&dir.path().join("s.png")).count_not(background_srgb8()) > 100);
-    // What it cannot do yet is refused, naming the way: a text PLY, build flags.
+    // What it cannot do yet is refused, naming the way: a text PLY.
     write_sphere(dir.path());
     run_in(dir.path(), &["prepare", "sphere.ply", "-o", "raw.prs", "--memory-budget", "1KiB"])
         .assert_failure(1)
         .assert_stderr_contains("prepare it without --memory-budget");
-    run_in(dir.path(), &["prepare", "inward.ply", "-o", "rfd.prs", "--memory-budget", "1K", "--surface", "rfd"])
-        .assert_failure(2)
-        .assert_stderr_contains("only the default build settings");
     run_in(dir.path(), &["prepare", "inward.ply", "-o", "x.prs", "--memory-budget", "lots"]).assert_failure(2);
-    assert!(!dir.path().join("raw.prs").exists() && !dir.path().join("rfd.prs").exists());
+    assert!(!dir.path().join("raw.prs").exists());
     let leftovers: Vec<_> = std::fs::read_dir(dir.path())
         .unwrap()
         .filter_map(Result::ok)

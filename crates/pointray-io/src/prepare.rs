@@ -9,8 +9,9 @@
 //! preparing the cloud in memory writes (`tests`), so it renders the same images.
 //!
 //! What it takes, for now: binary PLY and LAS/LAZ files (read as streams, [`VertexStream`],
-//! [`LasStream`]; several are the tiles of one survey, `crate::tiles`), sorted, and the default
-//! build settings. Anything else is refused, naming what to do.
+//! [`LasStream`]; several are the tiles of one survey, `crate::tiles`), sorted, and a BVH's
+//! build settings (class and clip filters, colours, bounding volumes). Anything else is refused,
+//! naming what to do.
 
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
@@ -23,6 +24,7 @@ use pointray::Settings;
 use pointray::accel::Bvh;
 use pointray::accel::bvh::{BvhMeta, BvhParams, ChunkPlan, Sink, Spill, Spilled, StreamedBvh};
 use pointray::accel::stored::StableBytes;
+use pointray::color_by::{self, ColorBy, UnitScale};
 use pointray::math::{Aabb, morton};
 use pointray::preprocess::{PreprocessConfig, outliers};
 use pointray::scene::{SceneMeta, SceneParts, StreamedCloud};
@@ -30,7 +32,7 @@ use pointray::splat::footprint::{coverage_counts, density_of};
 use pointray::splat::{DEFAULT_COLOR, Splat, pack_color};
 
 use crate::IoError;
-use crate::builder::PointRecord;
+use crate::builder::{PointRecord, ScanFields};
 use crate::las::LasStream;
 use crate::ply::VertexStream;
 
@@ -90,18 +92,11 @@ pub fn prepare_scene_file(
     // The points the headers give, or as many as fit the files at 28 bytes (a binary PLY's least).
     let size: u64 = inputs.iter().map(|i| std::fs::metadata(i).map_or(0, |m| m.len())).sum();
     let need = points_in(inputs).map_or(size / 28, |n| n as u64) * BYTES_A_POINT;
-    let build = pointray::scene::Build::of;
-    let default_settings = build(&options.settings) == build(&Settings::default());
     let out_of_core = match options.memory_budget {
-        Some(budget) if need > budget && !default_settings => {
-            let why = "out of core, only the default build settings are prepared for now";
-            return Err(SceneFileError::Settings(pointray::settings::SettingsError::new("memory_budget", why)));
-        }
         Some(budget) => need > budget,
-        None if need > default_budget() => match out_of_core_refusal(inputs, &options.preprocess) {
-            None if default_settings => true,
-            why => {
-                let why = why.unwrap_or_else(|| "out of core, only the default build settings are prepared".into());
+        None if need > default_budget() => match out_of_core_refusal(inputs, &options.preprocess, &options.settings) {
+            None => true,
+            Some(why) => {
                 let name = crate::set_name(inputs);
                 tracing::warn!(
                     "{}: preparing it takes more than half this machine's memory; it is prepared in memory ({why})",
@@ -113,8 +108,9 @@ pub fn prepare_scene_file(
         None => false,
     };
     if out_of_core {
-        let config = OutOfCore { preprocess: options.preprocess, ..Default::default() };
-        let done = prepare_out_of_core(inputs, output, &config, progress).map_err(SceneFileError::Input)?;
+        let config =
+            OutOfCore { preprocess: options.preprocess, settings: options.settings.clone(), ..Default::default() };
+        let done = prepare_out_of_core(inputs, output, &config, progress)?;
         let bytes = std::fs::metadata(output).map_or(0, |m| m.len());
         return Ok(SceneFileSummary { points: done.points, chunks: Some(done.chunks), bytes });
     }
@@ -152,14 +148,28 @@ struct Record {
     position: [f32; 3],
     normal: [f32; 3],
     radius: f32,
+    /// Packed, or the intensity's bits where the colours will show it.
     color: u32,
-    /// [`GIVEN_NORMAL`], [`GIVEN_RADIUS`]: which are valid (given by the file, or computed).
+    /// [`GIVEN_NORMAL`], [`GIVEN_RADIUS`]: which are valid (given by the file, or computed);
+    /// the class from [`CLASS_SHIFT`] on.
     flags: u32,
 }
 
 const GIVEN_NORMAL: u32 = 1;
 const GIVEN_RADIUS: u32 = 2;
 const GIVEN: u32 = GIVEN_NORMAL | GIVEN_RADIUS;
+/// Where a record's `flags` keep its point's class (ASPRS code; 0 without).
+const CLASS_SHIFT: u32 = 8;
+
+impl Record {
+    fn given(&self) -> bool {
+        self.flags & GIVEN == GIVEN
+    }
+
+    fn class(&self) -> u8 {
+        (self.flags >> CLASS_SHIFT) as u8
+    }
+}
 
 /// What preparing out of core did.
 #[derive(Clone, Debug)]
@@ -268,6 +278,14 @@ impl Stream {
         }
     }
 
+    /// Which scan attributes the points have.
+    fn scan(&self) -> ScanFields {
+        match self {
+            Stream::Ply(s) => s.attributes().scan,
+            Stream::Las(_) => ScanFields { intensity: true, classification: true, ..ScanFields::default() },
+        }
+    }
+
     fn for_each(&mut self, visit: impl FnMut(&PointRecord)) -> Result<(), IoError> {
         match self {
             Stream::Ply(s) => s.for_each(visit),
@@ -315,6 +333,12 @@ impl Input {
     /// Whether every tile has colours (known after a pass).
     fn has_colors(&self) -> bool {
         self.streams.iter().all(Stream::has_colors)
+    }
+
+    /// Whether some tile has intensities, and classes (the others' points take 0, as in memory).
+    fn scan(&self) -> [bool; 2] {
+        let any = |f: fn(&ScanFields) -> bool| self.streams.iter().any(|s| f(&s.scan()));
+        [any(|s| s.intensity), any(|s| s.classification)]
     }
 
     /// With several tiles, a pass finding each one's origin, as reading it alone would.
@@ -367,14 +391,24 @@ pub fn points_in(inputs: &[PathBuf]) -> Option<usize> {
     Input::open(inputs).ok().map(|s| s.count())
 }
 
-/// Why [`prepare_out_of_core`] would refuse `inputs` with `config` from their headers alone
-/// (none if it would not).
-pub fn out_of_core_refusal(inputs: &[PathBuf], config: &PreprocessConfig) -> Option<String> {
-    let refusal = || -> Result<(), IoError> {
-        check_config(&crate::set_name(inputs), config)?;
-        Input::open(inputs).map(|_| ())
+/// Why [`prepare_out_of_core`] would refuse `inputs` with `config` and `settings` from their
+/// headers alone (none if it would not).
+pub fn out_of_core_refusal(inputs: &[PathBuf], config: &PreprocessConfig, settings: &Settings) -> Option<String> {
+    let refusal = || -> Result<(), SceneFileError> {
+        check_config(&crate::set_name(inputs), config).map_err(SceneFileError::Input)?;
+        check_settings(settings).map_err(SceneFileError::Settings)?;
+        Input::open(inputs).map(|_| ()).map_err(SceneFileError::Input)
     };
     refusal().err().map(|e| e.to_string())
+}
+
+/// Out of core, the BVH alone is built.
+fn check_settings(settings: &Settings) -> Result<(), pointray::settings::SettingsError> {
+    settings.check()?;
+    match settings.accel {
+        pointray::settings::AccelKind::Bvh => Ok(()),
+        _ => Err(pointray::settings::SettingsError::new("accel", "out of core, only the BVH is built")),
+    }
 }
 
 fn check_config(input: &Path, config: &PreprocessConfig) -> Result<(), IoError> {
@@ -386,9 +420,11 @@ fn check_config(input: &Path, config: &PreprocessConfig) -> Result<(), IoError> 
 }
 
 /// What [`prepare_out_of_core`] takes besides the files.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct OutOfCore {
     pub preprocess: PreprocessConfig,
+    /// The build settings (a BVH's): which points are drawn, their colours, the bounding volumes.
+    pub settings: Settings,
     /// `BvhParams::chunk_splats`: the build's chunks, and the cells whose normals and radii
     /// are computed together (with a halo round each). The default's tree is the one a build
     /// in memory makes.
@@ -397,7 +433,11 @@ pub struct OutOfCore {
 
 impl Default for OutOfCore {
     fn default() -> Self {
-        Self { preprocess: PreprocessConfig::standard(), chunk_splats: BvhParams::standard().chunk_splats }
+        Self {
+            preprocess: PreprocessConfig::standard(),
+            settings: Settings::default(),
+            chunk_splats: BvhParams::standard().chunk_splats,
+        }
     }
 }
 
@@ -408,27 +448,96 @@ pub fn prepare_out_of_core(
     output: &Path,
     options: &OutOfCore,
     progress: &dyn Fn(&Progress),
-) -> Result<Prepared, IoError> {
-    let config = &options.preprocess;
+) -> Result<Prepared, SceneFileError> {
+    let (config, settings) = (&options.preprocess, &options.settings);
     let input = &crate::set_name(inputs);
-    check_config(input, config)?;
-    let mut stream = Input::open(inputs)?;
+    check_config(input, config).map_err(SceneFileError::Input)?;
+    check_settings(settings).map_err(SceneFileError::Settings)?;
+    let io = SceneFileError::Input;
+    let mut stream = Input::open(inputs).map_err(io)?;
     let points_read = stream.count();
     let ticker = |stage, total| Ticker::new(progress, stage, total);
-    let origin = world_origin(&mut stream, &mut ticker("read: origin", points_read))?;
-    let (bounds, kept) = local_bounds(&mut stream, origin, &mut ticker("read: bounds", points_read))?;
+    let origin = world_origin(&mut stream, &mut ticker("read: origin", points_read)).map_err(io)?;
+    let (bounds, kept) = local_bounds(&mut stream, origin, &mut ticker("read: bounds", points_read)).map_err(io)?;
     if kept == 0 {
-        return Err(IoError::invalid(input, "no point with finite coordinates"));
+        return Err(io(IoError::invalid(input, "no point with finite coordinates")));
     }
-    let params = BvhParams { chunk_splats: options.chunk_splats, ..BvhParams::standard() };
-    let dir = crate::ScratchDir::beside(output)?;
-    let provisional = plan(&mut stream, origin, bounds, kept, params.chunk_splats, &mut ticker("read: cells", 0))?;
+    let params = BvhParams { chunk_splats: options.chunk_splats, ..pointray::scene::Build::of(settings).bvh_params() };
+    let dir = crate::ScratchDir::beside(output).map_err(io)?;
+    let provisional = plan(&mut stream, origin, bounds, kept, params.chunk_splats, &mut ticker("read: cells", 0));
+    let provisional = provisional.map_err(io)?;
     let route_ticker = &mut ticker("read: route", points_read);
-    let mut buckets = route(&mut stream, origin, &provisional, dir.path(), config.recompute, route_ticker)?;
-    let cleaned = clean(&mut buckets, &mut ticker("sort cells", kept))?;
+    let routing = Routing { origin, recompute: config.recompute, intensity: settings.color_by == ColorBy::Intensity };
+    let mut buckets = route(&mut stream, &routing, &provisional, dir.path(), route_ticker).map_err(io)?;
+    let sensor = stream.viewpoint().map(|v| (DVec3::from(v) - origin).as_vec3());
+    let done = preprocess_cells(&mut buckets, config, sensor, progress, kept).map_err(io)?;
+    if done.dropped() == kept {
+        return Err(io(IoError::invalid(input, "preprocessing: no points left")));
+    }
+    let (up, sun) = stream.up_and_sun();
+    let [intensity, classes] = stream.scan();
+    let scan = ScanFields { intensity, classification: classes, ..ScanFields::default() };
+    let selected = select(&buckets, settings, origin, scan.classification, &mut ticker("select", kept))?;
+    let count = kept - done.dropped() - selected.dropped;
+    let up = up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y);
+    let style = Style::new(&buckets, settings, up, scan, stream.has_colors(), count)?;
+    let plan = match done.dropped() + selected.dropped {
+        0 => provisional,
+        _ => final_plan(&mut buckets, bounds, count, params.chunk_splats, dir.path()).map_err(io)?,
+    };
+    let chunks = plan.chunks().len();
+    let build = StreamedBvh::new(plan, &params);
+    let mut spill = Files::new(dir.path()).map_err(io)?;
+    let names = selected.named;
+    let built = build_chunks(build, &buckets, origin, &style, names, &mut spill, &mut ticker("build", count));
+    let (build, cloud) = built.map_err(io)?;
+    ticker("write", 0);
+    let view = sensor.and_then(|sensor| crate::source::sensor_view_of(sensor, cloud.bounds));
+    let parts = SceneParts { view, ..crate::source::lone_cloud_parts(Some(up), sun) };
+    write(output, build, &mut spill, settings, &parts, &cloud).map_err(io)?;
+    let done = Prepared {
+        points_read,
+        points: cloud.points,
+        chunks,
+        dropped_non_finite: points_read - kept,
+        dropped_duplicates: done.duplicates,
+        dropped_outliers: done.outliers,
+        dropped_strays: done.strays,
+        turned_outward: done.inward,
+    };
+    done.warn_repairs(input);
+    Ok(done)
+}
+
+/// What preprocessing the cells did.
+struct CellsDone {
+    duplicates: usize,
+    outliers: usize,
+    strays: usize,
+    inward: bool,
+}
+
+impl CellsDone {
+    fn dropped(&self) -> usize {
+        self.duplicates + self.outliers + self.strays
+    }
+}
+
+/// Preprocesses the cells as preprocessing does a cloud in memory: sorted and cleaned, the
+/// outliers dropped (on request), the given normals turned outward where they point in, the
+/// missing normals and radii computed.
+fn preprocess_cells(
+    buckets: &mut [Bucket],
+    config: &PreprocessConfig,
+    sensor: Option<Vec3>,
+    progress: &dyn Fn(&Progress),
+    kept: usize,
+) -> Result<CellsDone, IoError> {
+    let ticker = |stage, total| Ticker::new(progress, stage, total);
+    let cleaned = clean(buckets, &mut ticker("sort cells", kept))?;
     let outliers = match config.outlier_std {
         Some(ratio) if kept - cleaned.duplicates > 1 => {
-            drop_outliers(&buckets, config.k_normals, ratio, &mut ticker("outliers", kept))?
+            drop_outliers(buckets, config.k_normals, ratio, &mut ticker("outliers", kept))?
         }
         _ => 0,
     };
@@ -437,39 +546,160 @@ pub fn prepare_out_of_core(
     if inward {
         turn(&all, given, &mut ticker("turn normals", kept))?;
     }
-    let sensor = stream.viewpoint().map(|v| (DVec3::from(v) - origin).as_vec3());
     let strays =
-        if cleaned.missing == 0 { 0 } else { fill(&buckets, config, sensor, &mut ticker("normals, radii", kept))? };
-    let dropped = cleaned.duplicates + outliers + strays;
-    if dropped == kept {
-        return Err(IoError::invalid(input, "preprocessing: no points left"));
+        if cleaned.missing == 0 { 0 } else { fill(buckets, config, sensor, &mut ticker("normals, radii", kept))? };
+    Ok(CellsDone { duplicates: cleaned.duplicates, outliers, strays, inward })
+}
+
+/// The points the build draws (`Scene::build`'s class filter and clips), the others dropped from
+/// the cells; where some are, each point kept is named by its place in the cloud preprocessed
+/// (the ids a build in memory gives them), in its record's `index`.
+struct Selected {
+    dropped: usize,
+    named: bool,
+}
+
+fn select(
+    buckets: &[Bucket],
+    settings: &Settings,
+    origin: DVec3,
+    has_classes: bool,
+    ticker: &mut Ticker,
+) -> Result<Selected, SceneFileError> {
+    let (keep, exclude) = (settings.classes.as_deref(), &settings.exclude_classes[..]);
+    let (by_class, clipped) = (keep.is_some() || !exclude.is_empty(), settings.clip_box.is_some());
+    let clipped = clipped || !settings.clip_planes.is_empty();
+    if !by_class && !clipped {
+        return Ok(Selected { dropped: 0, named: false });
     }
-    let plan = match dropped {
-        0 => provisional,
-        _ => final_plan(&mut buckets, bounds, kept - dropped, params.chunk_splats, dir.path())?,
+    if by_class && !has_classes {
+        let option = if keep.is_some() { "classes" } else { "exclude_classes" };
+        let why = "needs classified points; the cloud has no classification";
+        return Err(SceneFileError::Settings(pointray::settings::SettingsError::new(option, why)));
+    }
+    let (mut rank, mut drawn, mut kept, mut present) = (0u32, 0usize, 0usize, [false; 256]);
+    for b in buckets {
+        let mut records = read_bucket(b).map_err(SceneFileError::Input)?;
+        ticker.tick(records.len());
+        records.retain_mut(|r| {
+            (r.index, rank) = (rank, rank + 1);
+            present[usize::from(r.class())] = true;
+            let in_class = color_by::drawn(r.class(), keep, exclude);
+            let p = origin + Vec3::from(r.position).as_dvec3();
+            let inside = in_class && pointray::clip::keeps(p, settings.clip_box.as_ref(), &settings.clip_planes);
+            (drawn, kept) = (drawn + usize::from(in_class), kept + usize::from(inside));
+            inside
+        });
+        std::fs::write(&b.path, bytemuck::cast_slice(&records))
+            .map_err(|e| SceneFileError::Input(IoError::io(&b.path, e)))?;
+    }
+    if drawn == 0 {
+        let option = if keep.is_some() { "classes" } else { "exclude_classes" };
+        let classes = (0..=255u8).filter(|&c| present[usize::from(c)]);
+        return Err(SceneFileError::Settings(color_by::none_drawn(option, classes)));
+    }
+    if kept == 0 {
+        return Err(SceneFileError::Settings(pointray::clip::none_kept(&settings.clip_planes)));
+    }
+    Ok(Selected { dropped: rank as usize - kept, named: true })
+}
+
+/// The colours the build gives the points (`color_by::apply`'s, a point at a time): the scale of
+/// intensities or heights found in passes over the cells.
+struct Style {
+    by: ColorBy,
+    /// The elevation colours' axis.
+    up: Vec3,
+    scale: UnitScale,
+}
+
+impl Style {
+    fn new(
+        buckets: &[Bucket],
+        settings: &Settings,
+        up: Vec3,
+        scan: ScanFields,
+        has_colors: bool,
+        count: usize,
+    ) -> Result<Self, SceneFileError> {
+        let by = settings.color_by;
+        let missing = |what: &str| {
+            let why = format!("{}: the cloud has no {what}", by.name());
+            SceneFileError::Settings(pointray::settings::SettingsError::new("color_by", why))
+        };
+        let up = settings.up.unwrap_or(up);
+        let value: fn(&Record, Vec3) -> f32 = match by {
+            ColorBy::Rgb if !has_colors => return Err(missing("colours")),
+            ColorBy::Intensity if !scan.intensity => return Err(missing("intensity")),
+            ColorBy::Classification if !scan.classification => return Err(missing("classification")),
+            ColorBy::Intensity => |r, _| f32::from_bits(r.color),
+            ColorBy::Elevation => |r, up| color_by::height(Vec3::from(r.position), up),
+            _ => return Ok(Self { by, up, scale: UnitScale::between(0.0, 0.0) }),
+        };
+        let scale = percentiles(buckets, count, |r| value(r, up)).map_err(SceneFileError::Input)?;
+        Ok(Self { by, up, scale })
+    }
+
+    /// A point's colour, packed.
+    fn color(&self, r: &Record) -> u32 {
+        match self.by {
+            ColorBy::Auto | ColorBy::Rgb => r.color,
+            ColorBy::Intensity => pack_color(color_by::viridis(self.scale.unit(f32::from_bits(r.color)))),
+            ColorBy::Classification => pack_color(color_by::classification_color(r.class())),
+            ColorBy::Elevation => {
+                pack_color(color_by::viridis(self.scale.unit(color_by::height(Vec3::from(r.position), self.up))))
+            }
+            ColorBy::Normal => pack_color(color_by::normal_color(Vec3::from(r.normal))),
+        }
+    }
+}
+
+/// [`UnitScale::of`] the `value` of every record, in passes over the cells: the finite values'
+/// count, the buckets of the two ranks wanted by their upper 16 bits (in `f32::total_cmp`'s
+/// order), then the values in those buckets.
+fn percentiles(buckets: &[Bucket], count: usize, value: impl Fn(&Record) -> f32) -> Result<UnitScale, IoError> {
+    let each = |f: &mut dyn FnMut(f32)| -> Result<(), IoError> {
+        for b in buckets {
+            for_each_record(b, |r| {
+                let v = value(r);
+                if v.is_finite() {
+                    f(v);
+                }
+            })?;
+        }
+        Ok(())
     };
-    let chunks = plan.chunks().len();
-    let build = StreamedBvh::new(plan, &params);
-    let mut spill = Files::new(dir.path())?;
-    let (build, cloud) = build_chunks(build, &buckets, origin, &mut spill, &mut ticker("build", kept - dropped))?;
-    ticker("write", 0);
-    let view = sensor.and_then(|sensor| crate::source::sensor_view_of(sensor, cloud.bounds));
-    let (up, sun) = stream.up_and_sun();
-    let lone = crate::source::lone_cloud_parts(up, sun);
-    let parts = SceneParts { view, ..lone };
-    write(output, build, &mut spill, &parts, &cloud)?;
-    let done = Prepared {
-        points_read,
-        points: cloud.points,
-        chunks,
-        dropped_non_finite: points_read - kept,
-        dropped_duplicates: cleaned.duplicates,
-        dropped_outliers: outliers,
-        dropped_strays: strays,
-        turned_outward: inward,
+    let key = |v: f32| {
+        let bits = v.to_bits();
+        (if bits >> 31 != 0 { !bits } else { bits | 1 << 31 }) >> 16
     };
-    done.warn_repairs(input);
-    Ok(done)
+    let mut counts = vec![0usize; 1 << 16];
+    each(&mut |v| counts[key(v) as usize] += 1)?;
+    let finite: usize = counts.iter().sum();
+    debug_assert!(finite <= count);
+    let Some(ranks) = color_by::percentile_ranks(finite) else { return Ok(UnitScale::between(0.0, 0.0)) };
+    // Each rank's bucket and the values below it.
+    let place = ranks.map(|rank| {
+        let (mut bucket, mut below) = (0, 0);
+        while below + counts[bucket] <= rank {
+            below += counts[bucket];
+            bucket += 1;
+        }
+        (bucket, below)
+    });
+    let mut inside = [Vec::new(), Vec::new()];
+    each(&mut |v| {
+        for (k, (bucket, _)) in place.iter().enumerate() {
+            if key(v) as usize == *bucket {
+                inside[k].push(v);
+            }
+        }
+    })?;
+    let [lo, hi] = std::array::from_fn(|k| {
+        let (rank, (_, below)) = (ranks[k], place[k]);
+        *inside[k].select_nth_unstable_by(rank - below, f32::total_cmp).1
+    });
+    Ok(UnitScale::between(lo, hi))
 }
 
 /// The origin reading the cloud in memory gives it (`PointCloud::from_world_positions`): the
@@ -596,33 +826,47 @@ impl<'a> Cells<'a> {
     }
 }
 
+/// How [`route`] makes records of the points read.
+struct Routing {
+    /// Where the cloud's positions are from.
+    origin: DVec3,
+    /// Normals and radii ignored, to be computed.
+    recompute: bool,
+    /// The intensity kept in place of the colour, which will show it.
+    intensity: bool,
+}
+
 /// Every kept point written to its chunk's file, in file order.
 fn route(
     stream: &mut Input,
-    origin: DVec3,
+    routing: &Routing,
     plan: &ChunkPlan,
     dir: &Path,
-    recompute: bool,
     ticker: &mut Ticker,
 ) -> Result<Vec<Bucket>, IoError> {
     let mut cells = Cells::create(plan, dir, "chunk")?;
     let mut index = 0u32;
     let colors = stream.has_colors();
+    let recompute = routing.recompute;
     stream.for_each(|r| {
         ticker.tick(1);
-        if let Some(p) = local(r.position, origin) {
+        if let Some(p) = local(r.position, routing.origin) {
             // Normalised as preprocessing normalises the given normals; invalid ones, and
             // invalid radii, are missing (a file without them gives zeros).
             let normal = r.normal.try_normalize().filter(|_| !recompute);
             let radius = Some(r.radius).filter(|r| r.is_finite() && *r > 0.0 && !recompute);
+            let given = (u32::from(normal.is_some()) * GIVEN_NORMAL) | (u32::from(radius.is_some()) * GIVEN_RADIUS);
             cells.write(&Record {
                 code: plan.code(p),
                 index,
                 position: p.to_array(),
                 normal: normal.unwrap_or(Vec3::Z).to_array(),
                 radius: radius.unwrap_or(0.0),
-                color: pack_color(if colors { r.color } else { DEFAULT_COLOR }),
-                flags: (u32::from(normal.is_some()) * GIVEN_NORMAL) | (u32::from(radius.is_some()) * GIVEN_RADIUS),
+                color: match routing.intensity {
+                    true => r.intensity.to_bits(),
+                    false => pack_color(if colors { r.color } else { DEFAULT_COLOR }),
+                },
+                flags: given | u32::from(r.classification) << CLASS_SHIFT,
             });
         }
         index += 1;
@@ -711,7 +955,7 @@ fn clean(buckets: &mut [Bucket], ticker: &mut Ticker) -> Result<Cleaned, IoError
         duplicates += before - records.len();
         for r in &records {
             let p = Vec3::from(r.position);
-            missing += usize::from(r.flags != GIVEN);
+            missing += usize::from(!r.given());
             b.bounds = b.bounds.union(Aabb::new(p, p));
         }
         std::fs::write(&b.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&b.path, e))?;
@@ -931,14 +1175,16 @@ fn fill_bucket(
     let mut records = read_bucket(bucket)?;
     ticker.tick(records.len());
     let given = records.iter().any(|r| r.flags & GIVEN_NORMAL != 0);
-    if records.iter().all(|r| r.flags == GIVEN) {
+    if records.iter().all(Record::given) {
         return Ok(Filled { dropped: 0, zone: bucket.bounds, given });
     }
     let positions: Vec<Vec3> = records.iter().map(|r| Vec3::from(r.position)).collect();
     let zone = halo_zone(buckets, b, &positions, config.k_normals.max(config.k_radius))?;
     let mut halo = Vec::new();
     // Those done before this one: final, and fixed.
-    for_each_in_zone(buckets, b, &zone, |o, r| halo.push(if filled[o] { Record { flags: GIVEN, ..*r } } else { *r }))?;
+    for_each_in_zone(buckets, b, &zone, |o, r| {
+        halo.push(if filled[o] { Record { flags: r.flags | GIVEN, ..*r } } else { *r })
+    })?;
     let all = || records.iter().chain(&halo);
     let mut cloud = pointray::PointCloud {
         positions: all().map(|r| Vec3::from(r.position)).collect(),
@@ -952,7 +1198,7 @@ fn fill_bucket(
         .map_err(|e| IoError::invalid(&bucket.path, format!("preprocessing: {e}")))?;
     let (normals, radii) = (cloud.normals.unwrap_or_default(), cloud.radii.unwrap_or_default());
     for (i, r) in records.iter_mut().enumerate() {
-        (r.normal, r.radius, r.flags) = (normals[i].to_array(), radii[i], GIVEN);
+        (r.normal, r.radius, r.flags) = (normals[i].to_array(), radii[i], r.flags | GIVEN);
     }
     let mut dropped = 0;
     if config.strays == pointray::preprocess::Strays::Drop {
@@ -1022,6 +1268,8 @@ fn build_chunks(
     mut build: StreamedBvh,
     buckets: &[Bucket],
     origin: DVec3,
+    style: &Style,
+    named: bool,
     spill: &mut Files,
     ticker: &mut Ticker,
 ) -> Result<(StreamedBvh, StreamedCloud), IoError> {
@@ -1029,24 +1277,26 @@ fn build_chunks(
     let chunks = build.plan().chunks().len();
     let mut next = 0;
     for c in 0..chunks {
-        let mut splats = Vec::new();
+        let (mut splats, mut names) = (Vec::new(), Vec::new());
         while next < buckets.len() && build.plan().chunk_of(buckets[next].first_code) == c {
             for_each_record(&buckets[next], |r| {
                 let s = Splat {
                     center: Vec3::from(r.position),
                     radius: r.radius,
                     normal: Vec3::from(r.normal),
-                    color: r.color,
+                    color: style.color(r),
                 };
                 bounds = bounds.union(Aabb::new(s.center, s.center));
                 radii += f64::from(s.radius);
                 splats.push(s);
+                names.push(r.index);
             })?;
             next += 1;
         }
         points += splats.len();
         ticker.tick(splats.len());
-        build.add_chunk(splats, spill).map_err(|e| IoError::invalid(&spill.dir, e.to_string()))?;
+        let names = named.then_some(&names[..]);
+        build.add_chunk(splats, names, spill).map_err(|e| IoError::invalid(&spill.dir, e.to_string()))?;
     }
     let cloud = StreamedCloud { points, origin, bounds, mean_radius: radii / points as f64 };
     Ok((build, cloud))
@@ -1132,6 +1382,7 @@ fn write(
     output: &Path,
     build: StreamedBvh,
     spill: &mut Files,
+    settings: &Settings,
     parts: &SceneParts,
     cloud: &StreamedCloud,
 ) -> Result<(), IoError> {
@@ -1145,7 +1396,7 @@ fn write(
         let (mut meta, ids_crc) = (finished.meta, finished.ids_crc);
         file.set_len(crate::prs::index_at(&ranges) as u64)?;
         meta.coverage_density = coverage_density(file, &ranges, &meta, &finished.coverage_samples)?;
-        let scene = SceneMeta::streamed(&Settings::default(), parts, cloud, meta, ids_crc);
+        let scene = SceneMeta::streamed(settings, parts, cloud, meta, ids_crc);
         match crate::prs::tail(output, &ranges, &scene) {
             Ok((header, tail)) => {
                 std::os::unix::fs::FileExt::write_all_at(file, &tail, crate::prs::index_at(&ranges) as u64)?;
@@ -1184,7 +1435,7 @@ mod tests {
         let mut normals = std::collections::HashMap::new();
         for b in buckets {
             for_each_record(b, |r| {
-                assert_eq!(r.flags, GIVEN);
+                assert!(r.given());
                 normals.insert(r.position.map(f32::to_bits), Vec3::from(r.normal));
             })
             .unwrap();
@@ -1207,7 +1458,8 @@ mod tests {
         assert_eq!(origin, whole.origin);
         let (bounds, kept) = local_bounds(&mut stream, origin, ticker).unwrap();
         let plan = plan(&mut stream, origin, bounds, kept, cell, ticker).unwrap();
-        let mut buckets = route(&mut stream, origin, &plan, dir.path(), false, ticker).unwrap();
+        let routing = Routing { origin, recompute: false, intensity: false };
+        let mut buckets = route(&mut stream, &routing, &plan, dir.path(), ticker).unwrap();
         assert!(buckets.len() >= 8, "{} cells", buckets.len());
         let cleaned = clean(&mut buckets, ticker).unwrap();
         assert_eq!((cleaned.duplicates, cleaned.missing), (0, kept));
@@ -1261,7 +1513,8 @@ mod tests {
         let origin = world_origin(&mut stream, ticker).unwrap();
         let (bounds, kept) = local_bounds(&mut stream, origin, ticker).unwrap();
         let plan = plan(&mut stream, origin, bounds, kept, 800, ticker).unwrap();
-        let mut buckets = route(&mut stream, origin, &plan, dir.path(), false, ticker).unwrap();
+        let routing = Routing { origin, recompute: false, intensity: false };
+        let mut buckets = route(&mut stream, &routing, &plan, dir.path(), ticker).unwrap();
         assert!(buckets.len() >= 16, "{} cells", buckets.len());
         clean(&mut buckets, ticker).unwrap();
         let dropped = drop_outliers(&buckets, config.k_normals, 1.0, ticker).unwrap();

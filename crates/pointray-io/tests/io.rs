@@ -926,6 +926,16 @@ fn las_bytes(points: &[(DVec3, [u16; 3])], compressed: bool) -> Vec<u8> {
 }
 
 fn las_bytes_of_version(points: &[(DVec3, [u16; 3])], compressed: bool, version: (u8, u8)) -> Vec<u8> {
+    las_bytes_with(points, compressed, version, |_, point| point)
+}
+
+/// [`las_bytes_of_version`], each point `edit`ed (given its index) before it is written.
+fn las_bytes_with(
+    points: &[(DVec3, [u16; 3])],
+    compressed: bool,
+    version: (u8, u8),
+    edit: impl Fn(usize, las::Point) -> las::Point,
+) -> Vec<u8> {
     let mut builder = las::Builder::from(version);
     builder.point_format = las::point::Format::new(3).unwrap();
     builder.point_format.is_compressed = compressed;
@@ -933,7 +943,7 @@ fn las_bytes_of_version(points: &[(DVec3, [u16; 3])], compressed: bool, version:
     builder.transforms = las::Vector { x: t(636_000.0), y: t(849_000.0), z: t(400.0) };
     let header = builder.into_header().unwrap();
     let mut writer = las::Writer::new(std::io::Cursor::new(Vec::new()), header).unwrap();
-    for (p, [red, green, blue]) in points {
+    for (i, (p, [red, green, blue])) in points.iter().enumerate() {
         let point = las::Point {
             x: p.x,
             y: p.y,
@@ -942,7 +952,7 @@ fn las_bytes_of_version(points: &[(DVec3, [u16; 3])], compressed: bool, version:
             gps_time: Some(0.0),
             ..Default::default()
         };
-        writer.write_point(point).unwrap();
+        writer.write_point(edit(i, point)).unwrap();
     }
     writer.into_inner().unwrap().into_inner()
 }
@@ -1028,6 +1038,77 @@ fn a_survey_in_tiles_is_one_cloud_and_one_scene_file_either_way() {
     let missing = [tiles[0].clone(), dir.path().join("north.las")];
     let e = pointray_io::prepare::prepare_out_of_core(&missing, &streamed, &options, &|_| {}).unwrap_err();
     assert!(e.to_string().contains("north.las"), "{e}");
+}
+
+/// Out of core, the build's settings do to a survey what they do in memory: classes drawn or
+/// left out, clips, colours by intensity, class, elevation or normal, bounding spheres: the same
+/// scene file, byte for byte; and the same refusals.
+#[test]
+fn build_settings_out_of_core_make_the_scene_file_made_in_memory() {
+    use pointray::clip::{ClipBox, ClipPlane};
+    use pointray::color_by::ColorBy;
+    let dir = temp_dir();
+    let points = survey_points(3_000, |i| (i % 200) as u16 + 40);
+    let classes = [1u8, 2, 3, 5, 6];
+    let bytes = las_bytes_with(&points, true, (1, 2), |i, point| las::Point {
+        classification: las::point::Classification::new(classes[i % 5]).unwrap(),
+        intensity: (i * 37 % 1000) as u16,
+        ..point
+    });
+    let survey = [write_file(dir.path(), "survey.laz", &bytes)];
+    let config = pointray::preprocess::PreprocessConfig::standard();
+    let both_ways = |settings: &pointray::Settings| {
+        let source = pointray_io::source::load_tiles(&survey, &config, &Default::default(), &|_| {}).unwrap();
+        let (memory, streamed) = (dir.path().join("memory.prs"), dir.path().join("streamed.prs"));
+        let scene = pointray::Scene::build(source.parts, settings).map(|s| pointray_io::prs::write_prs(&memory, &s));
+        let options =
+            pointray_io::prepare::OutOfCore { preprocess: config, settings: settings.clone(), ..Default::default() };
+        let out_of_core = pointray_io::prepare::prepare_out_of_core(&survey, &streamed, &options, &|_| {});
+        match (scene, out_of_core) {
+            (Ok(written), Ok(_)) => {
+                written.unwrap();
+                assert!(
+                    std::fs::read(&memory).unwrap() == std::fs::read(&streamed).unwrap(),
+                    "{settings:?}: the files differ"
+                );
+                None
+            }
+            (Err(pointray::scene::SceneError::Settings(a)), Err(pointray_io::prepare::SceneFileError::Settings(b))) => {
+                assert_eq!((a.option, &a.problem), (b.option, &b.problem));
+                Some(a.problem)
+            }
+            (a, b) => panic!("{settings:?}: in memory {:?}, out of core {:?}", a.err(), b.err()),
+        }
+    };
+    let (lo, hi) = (DVec3::new(635_800.0, 849_100.0, 380.0), DVec3::new(636_300.0, 849_600.0, 470.0));
+    let plane = ClipPlane { normal: DVec3::new(0.0, 1.0, 0.0), offset: 849_500.0 };
+    let cases = [
+        pointray::Settings { color_by: ColorBy::Intensity, ..Default::default() },
+        pointray::Settings { color_by: ColorBy::Classification, classes: Some(vec![2, 3, 6]), ..Default::default() },
+        pointray::Settings {
+            color_by: ColorBy::Elevation,
+            exclude_classes: vec![1],
+            clip_box: Some(ClipBox { min: lo, max: hi }),
+            ..Default::default()
+        },
+        pointray::Settings {
+            color_by: ColorBy::Normal,
+            clip_planes: vec![plane],
+            sphere_from_level: pointray::accel::bvh::NodeBounds::SpheresFrom(1),
+            surface: pointray::splat::scheme::SurfaceKind::Rfd,
+            ..Default::default()
+        },
+    ];
+    for settings in &cases {
+        assert_eq!(both_ways(settings), None);
+    }
+    let none = pointray::Settings { classes: Some(vec![9]), ..Default::default() };
+    assert_eq!(both_ways(&none).unwrap(), "leaves no points (the cloud's classes: 1, 2, 3, 5, 6)");
+    let far = ClipBox { min: DVec3::splat(0.0), max: DVec3::splat(1.0) };
+    assert_eq!(
+        both_ways(&pointray::Settings { clip_box: Some(far), ..Default::default() }).unwrap(),
+        "leaves no points"
+    );
 }
 
 /// A survey loaded to render is lit by its sun, at the settings' intensity, and a sky, unless

@@ -63,15 +63,25 @@ pub fn clip(
         return Ok(None);
     }
     let origin = cloud.origin;
-    let kept_point = |p: DVec3| clip_box.is_none_or(|b| b.contains(p)) && planes.iter().all(|plane| plane.keeps(p));
-    let kept: Vec<u32> =
-        (0..cloud.len() as u32).filter(|&i| kept_point(origin + cloud.positions[i as usize].as_dvec3())).collect();
+    let kept_point = |i: u32| keeps(origin + cloud.positions[i as usize].as_dvec3(), clip_box, planes);
+    let kept: Vec<u32> = (0..cloud.len() as u32).filter(|&i| kept_point(i)).collect();
     if kept.is_empty() {
-        let option = if planes.is_empty() { "clip_box" } else { "clip_planes" };
-        return Err(SettingsError::new(option, "leaves no points"));
+        return Err(none_kept(planes));
     }
     cloud.permute(&kept);
     Ok(Some(kept))
+}
+
+/// Whether the point at world position `p` is inside the box (if any) and on every plane's kept
+/// side.
+pub fn keeps(p: DVec3, clip_box: Option<&ClipBox>, planes: &[ClipPlane]) -> bool {
+    clip_box.is_none_or(|b| b.contains(p)) && planes.iter().all(|plane| plane.keeps(p))
+}
+
+/// The refusal of clips that keep no point.
+pub fn none_kept(planes: &[ClipPlane]) -> SettingsError {
+    let option = if planes.is_empty() { "clip_box" } else { "clip_planes" };
+    SettingsError::new(option, "leaves no points")
 }
 
 #[cfg(test)]

@@ -31,7 +31,8 @@ pub enum ColorBy {
 }
 
 impl ColorBy {
-    fn name(self) -> &'static str {
+    /// Its name as the settings write it.
+    pub fn name(self) -> &'static str {
         match self {
             ColorBy::Auto => "auto",
             ColorBy::Rgb => "rgb",
@@ -53,20 +54,21 @@ pub fn apply(cloud: &mut PointCloud, by: ColorBy, up: Vec3) -> Result<(), Settin
         ColorBy::Rgb => return if cloud.colors.is_some() { Ok(()) } else { Err(missing("colours")) },
         ColorBy::Intensity => {
             let intensity = cloud.scan.intensity.as_ref().ok_or_else(|| missing("intensity"))?;
-            Some(unit_scale(intensity).map(viridis).collect())
+            let scale = UnitScale::of(intensity);
+            Some(intensity.iter().map(|&v| viridis(scale.unit(v))).collect())
         }
         ColorBy::Classification => {
             let classes = cloud.scan.classification.as_ref().ok_or_else(|| missing("classification"))?;
             Some(classes.iter().map(|&c| classification_color(c)).collect())
         }
         ColorBy::Elevation => {
-            let up = up.normalize_or(Vec3::Y);
-            let heights: Vec<f32> = cloud.positions.iter().map(|p| p.dot(up)).collect();
-            Some(unit_scale(&heights).map(viridis).collect())
+            let heights: Vec<f32> = cloud.positions.iter().map(|&p| height(p, up)).collect();
+            let scale = UnitScale::of(&heights);
+            Some(heights.iter().map(|&h| viridis(scale.unit(h))).collect())
         }
         ColorBy::Normal => {
             let normals = cloud.normals.as_ref().ok_or_else(|| missing("normals"))?;
-            Some(normals.iter().map(|n| (*n * 0.5 + 0.5).clamp(Vec3::ZERO, Vec3::ONE).to_array()).collect())
+            Some(normals.iter().map(|&n| normal_color(n)).collect())
         }
     };
     cloud.colors = colors;
@@ -88,48 +90,80 @@ pub fn filter_classes(
     let Some(classes) = &cloud.scan.classification else {
         return Err(SettingsError::new(option, "needs classified points; the cloud has no classification"));
     };
-    let drawn = |c: &u8| keep.is_none_or(|k| k.contains(c)) && !exclude.contains(c);
-    let kept: Vec<u32> = (0..classes.len() as u32).filter(|&i| drawn(&classes[i as usize])).collect();
+    let kept: Vec<u32> = (0..classes.len() as u32).filter(|&i| drawn(classes[i as usize], keep, exclude)).collect();
     if kept.is_empty() {
-        let mut present: Vec<u8> = classes.clone();
-        present.sort_unstable();
-        present.dedup();
-        let present: Vec<String> = present.iter().map(u8::to_string).collect();
-        return Err(SettingsError::new(
-            option,
-            format!("leaves no points (the cloud's classes: {})", present.join(", ")),
-        ));
+        return Err(none_drawn(option, classes.iter().copied()));
     }
     cloud.permute(&kept);
     Ok(Some(kept))
 }
 
-/// `values` mapped to `[0, 1]` between their 1st and 99th percentiles (clamped), so that a few
-/// outliers (a bird, a retro-reflector's intensity) do not squash the rest; non-finite values
-/// to 0, and all to 0.5 where the finite ones span nothing.
-fn unit_scale(values: &[f32]) -> impl Iterator<Item = f32> + '_ {
-    let (lo, hi) = percentiles(values);
-    let span = hi - lo;
-    values.iter().map(move |&v| match v.is_finite() {
-        false => 0.0,
-        true if span > 0.0 => ((v - lo) / span).clamp(0.0, 1.0),
-        true => 0.5,
-    })
+/// Whether a point of class `c` is drawn: in `keep` (if given) and not in `exclude`.
+pub fn drawn(c: u8, keep: Option<&[u8]>, exclude: &[u8]) -> bool {
+    keep.is_none_or(|k| k.contains(&c)) && !exclude.contains(&c)
 }
 
-/// The 1st and 99th percentiles of the finite values ((0, 0) without any).
-fn percentiles(values: &[f32]) -> (f32, f32) {
-    let mut finite: Vec<f32> = values.iter().copied().filter(|v| v.is_finite()).collect();
-    if finite.is_empty() {
-        return (0.0, 0.0);
+/// The refusal of a class filter (`option`) that drew none of the cloud's `classes`.
+pub fn none_drawn(option: &'static str, classes: impl Iterator<Item = u8>) -> SettingsError {
+    let mut present: Vec<u8> = classes.collect();
+    present.sort_unstable();
+    present.dedup();
+    let present: Vec<String> = present.iter().map(u8::to_string).collect();
+    SettingsError::new(option, format!("leaves no points (the cloud's classes: {})", present.join(", ")))
+}
+
+/// A point's height along `up` (normalised; +y if it is zero), which elevation colours show.
+pub fn height(p: Vec3, up: Vec3) -> f32 {
+    p.dot(up.normalize_or(Vec3::Y))
+}
+
+/// A normal's colour: its components as red, green and blue.
+pub fn normal_color(n: Vec3) -> [f32; 3] {
+    (n * 0.5 + 0.5).clamp(Vec3::ZERO, Vec3::ONE).to_array()
+}
+
+/// Values mapped to `[0, 1]` between the 1st and 99th percentiles of a cloud's (clamped), so
+/// that a few outliers (a bird, a retro-reflector's intensity) do not squash the rest;
+/// non-finite values to 0, and all to 0.5 where the finite ones span nothing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct UnitScale {
+    lo: f32,
+    hi: f32,
+}
+
+impl UnitScale {
+    /// The scale of `values`.
+    pub fn of(values: &[f32]) -> Self {
+        let mut finite: Vec<f32> = values.iter().copied().filter(|v| v.is_finite()).collect();
+        let ranks = percentile_ranks(finite.len());
+        let mut at = |k: usize| *finite.select_nth_unstable_by(k, f32::total_cmp).1;
+        ranks.map_or(Self { lo: 0.0, hi: 0.0 }, |[lo, hi]| Self { lo: at(lo), hi: at(hi) })
     }
-    let last = finite.len() - 1;
-    let mut at = |q: usize| *finite.select_nth_unstable_by(last * q / 100, f32::total_cmp).1;
-    (at(1), at(99))
+
+    /// The scale whose percentiles are `lo` and `hi`: for values read in passes, whose finite
+    /// values of [`percentile_ranks`] in `f32::total_cmp`'s order they are ((0, 0) without any).
+    pub fn between(lo: f32, hi: f32) -> Self {
+        Self { lo, hi }
+    }
+
+    pub fn unit(&self, v: f32) -> f32 {
+        let span = self.hi - self.lo;
+        match v.is_finite() {
+            false => 0.0,
+            true if span > 0.0 => ((v - self.lo) / span).clamp(0.0, 1.0),
+            true => 0.5,
+        }
+    }
+}
+
+/// Where the 1st and 99th percentiles of `n` finite values lie in their order (none without).
+pub fn percentile_ranks(n: usize) -> Option<[usize; 2]> {
+    let last = n.checked_sub(1)?;
+    Some([last / 100, last * 99 / 100])
 }
 
 /// The viridis ramp at `t` in `[0, 1]`, as sRGB-encoded channels in `[0, 1]`.
-fn viridis(t: f32) -> [f32; 3] {
+pub fn viridis(t: f32) -> [f32; 3] {
     srgb8(colorous::VIRIDIS.eval_continuous(f64::from(t)))
 }
 

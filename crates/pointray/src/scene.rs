@@ -181,6 +181,18 @@ impl Build {
             elevation_up: None,
         }
     }
+
+    /// The BVH's parameters this build asks for.
+    pub fn bvh_params(&self) -> BvhParams {
+        BvhParams { node_bounds: self.node_bounds, shape: self.shape, ..BvhParams::standard() }
+    }
+
+    /// What a build of a cloud whose up axis is `up` records of `settings`: [`Build::of`], and the
+    /// axis elevation colours follow (the settings' up, else the cloud's).
+    pub fn of_cloud(settings: &Settings, up: Vec3) -> Self {
+        let elevation_up = (settings.color_by == ColorBy::Elevation).then_some(settings.up.unwrap_or(up));
+        Self { elevation_up, ..Self::of(settings) }
+    }
 }
 
 /// Splats in an accelerator, with their lights, materials and surroundings: ready to render.
@@ -266,15 +278,13 @@ impl Scene {
         let mean_radius = splats.iter().map(|s| f64::from(s.radius)).sum::<f64>() / splats.len() as f64;
         let (origin, points, bounds) = (cloud.origin, cloud.len(), cloud.bounds());
         drop(cloud);
-        let mut build = Build::of(settings);
-        build.elevation_up = (settings.color_by == ColorBy::Elevation).then_some(elevation_axis);
+        let build = Build::of_cloud(settings, up);
         let start = std::time::Instant::now();
         // The kd-tree and brute force keep the splats' order; the BVH says where each went.
         let mut ids = None;
         let accel = match build.accel {
             AccelKind::Bvh => {
-                let params = BvhParams { node_bounds: build.node_bounds, shape: build.shape, ..BvhParams::standard() };
-                let (bvh, slot_ids) = Bvh::try_build_with_ids(splats, &params)?;
+                let (bvh, slot_ids) = Bvh::try_build_with_ids(splats, &build.bvh_params())?;
                 ids = Some(slot_ids);
                 Accelerator::Bvh(bvh)
             }

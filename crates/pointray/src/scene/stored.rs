@@ -84,7 +84,7 @@ impl SceneMeta {
             view: parts.view.map(|(dir, distance)| (dir.to_array(), distance)),
             light: parts.light,
             environment: parts.environment.clone(),
-            build: Build::of(settings),
+            build: Build::of_cloud(settings, up),
             bvh,
             ids_crc,
         }

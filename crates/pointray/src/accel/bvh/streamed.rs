@@ -131,14 +131,21 @@ impl StreamedBvh {
         &self.plan
     }
 
-    /// Builds the next chunk from its splats (in the input's order; ids counted on from the
-    /// chunks before), keeps its top and spills the rest.
+    /// Builds the next chunk from its splats (in the input's order), keeps its top and spills
+    /// the rest. Their ids are `names` (one a splat), or without, counted on from the chunks
+    /// before.
     ///
     /// # Panics
-    /// With more or fewer splats than the plan gives the chunk, or past the last chunk.
-    pub fn add_chunk(&mut self, mut splats: Vec<Splat>, spill: &mut dyn Spill) -> Result<(), StreamedError> {
+    /// With more or fewer splats (or names) than the plan gives the chunk, or past the last chunk.
+    pub fn add_chunk(
+        &mut self,
+        mut splats: Vec<Splat>,
+        names: Option<&[u32]>,
+        spill: &mut dyn Spill,
+    ) -> Result<(), StreamedError> {
         let c = self.next;
         assert_eq!(splats.len(), self.plan.chunks()[c].count, "chunk {c}'s splats");
+        assert!(names.is_none_or(|n| n.len() == splats.len()), "a name a splat");
         snap(&mut splats);
         let radii: Vec<f32> = splats.iter().map(|s| s.radius).collect();
         spill.append(Spilled::Radii, bytemuck::cast_slice(&radii))?;
@@ -151,7 +158,7 @@ impl StreamedBvh {
             return Err(TooLarge::Blocks(blocks + tree.blocks.len()).into());
         }
         for id in tree.ids.iter_mut().filter(|id| **id != u32::MAX) {
-            *id += self.first_id as u32;
+            *id = names.map_or(*id + self.first_id as u32, |n| n[*id as usize]);
         }
         let lod = lod::build(&mut tree.nodes, &Disks { blocks: &tree.blocks, counts: &tree.counts }, self.params.shape);
         lod::choose_node_bounds_below(&mut tree.nodes, &lod.lod, self.params.node_bounds, depth as u32);
@@ -550,7 +557,8 @@ mod tests {
         splats
     }
 
-    fn streamed(splats: &[Splat], params: &BvhParams) -> (Vecs, Finished) {
+    /// The build of `splats` out of core, each named `name` of its index.
+    fn streamed(splats: &[Splat], params: &BvhParams, name: Option<fn(u32) -> u32>) -> (Vecs, Finished) {
         let bounds = Aabb::from_points(splats.iter().map(|s| s.center));
         let codes = |f: &mut dyn FnMut(u64)| splats.iter().for_each(|s| f(morton::encode(s.center, &bounds)));
         let plan = ChunkPlan::new(bounds, splats.len(), params.chunk_splats, codes);
@@ -558,7 +566,8 @@ mod tests {
         let mut spill = Vecs::default();
         let mut first = 0;
         for cell in plan.chunks() {
-            build.add_chunk(splats[first..first + cell.count].to_vec(), &mut spill).unwrap();
+            let names: Option<Vec<u32>> = name.map(|f| (first as u32..(first + cell.count) as u32).map(f).collect());
+            build.add_chunk(splats[first..first + cell.count].to_vec(), names.as_deref(), &mut spill).unwrap();
             first += cell.count;
         }
         let mut sink = Vecs::default();
@@ -577,7 +586,7 @@ mod tests {
             let params = BvhParams { chunk_splats, node_bounds, ..BvhParams::standard() };
             let (bvh, ids) = Bvh::build_with_ids(splats.clone(), &params);
             let (arrays, meta) = bvh.arrays();
-            let (sink, Finished { meta: streamed_meta, ids_crc, coverage_samples }) = streamed(&splats, &params);
+            let (sink, Finished { meta: streamed_meta, ids_crc, coverage_samples }) = streamed(&splats, &params, None);
             let samples: Vec<Splat> = bvh.coverage_samples().collect();
             assert!(samples.len() > 3_000 && samples.iter().zip(&coverage_samples).all(|(a, b)| a.bits() == b.bits()));
             assert_eq!(samples.len(), coverage_samples.len());
@@ -588,6 +597,10 @@ mod tests {
             assert!(bytemuck::cast_slice::<u32, u8>(&ids) == &sink.0[6][..], "ids differ");
             assert_eq!(ids_crc, crc32fast::hash(bytemuck::cast_slice(&ids)));
             assert_eq!(BvhMeta { coverage_density: meta.coverage_density, ..streamed_meta }, meta);
+            // Named (as a cloud whose points were filtered names them: by their former index).
+            let (sink, _) = streamed(&splats, &params, Some(|i| 3 * i + 1));
+            let named: Vec<u32> = ids.iter().map(|&i| if i == u32::MAX { i } else { 3 * i + 1 }).collect();
+            assert!(bytemuck::cast_slice::<u32, u8>(&named) == &sink.0[6][..], "named ids differ");
         }
     }
 }
