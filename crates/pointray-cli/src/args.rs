@@ -511,8 +511,8 @@ pub struct PrepareArgs {
     /// are powers of 1024; default: half this machine's): a cloud that would need more in
     /// memory (some 90 bytes a point) is read in passes and built a chunk at a time, with
     /// temporary files beside the output, normals and radii computed a cell at a time: the same
-    /// file either way. For now out of core reads binary PLYs and LAS/LAZ files (or tiles of
-    /// them); other formats are refused when a budget is asked for, and prepared in memory by
+    /// file either way. For now out of core reads binary PLY, LAS/LAZ and E57 files (or
+    /// tiles of them); other formats are refused when a budget is asked for, and prepared in memory by
     /// default.
     #[arg(long, value_parser = parse_bytes, value_name = "SIZE")]
     pub memory_budget: Option<u64>,

@@ -91,6 +91,8 @@ pub(crate) struct PointRecord {
     pub classification: u8,
     pub return_number: u8,
     pub gps_time: f64,
+    /// Which of the file's viewpoints saw it (an E57 file's scan).
+    pub viewpoint: u16,
 }
 
 impl CloudBuilder {

@@ -8,8 +8,8 @@
 //! a chunk at a time ([`StreamedBvh`]) straight into the file. The file holds the same bytes as
 //! preparing the cloud in memory writes (`tests`), so it renders the same images.
 //!
-//! What it takes, for now: binary PLY and LAS/LAZ files (read as streams, [`VertexStream`],
-//! [`LasStream`]; several are the tiles of one survey, `crate::tiles`), sorted, and a BVH's
+//! What it takes, for now: binary PLY, LAS/LAZ and E57 files (read as streams, [`VertexStream`],
+//! [`LasStream`], [`E57Stream`]; several are the tiles of one survey, `crate::tiles`), sorted, and a BVH's
 //! build settings (class and clip filters, colours, bounding volumes). Anything else is refused,
 //! naming what to do.
 
@@ -33,6 +33,7 @@ use pointray::splat::{DEFAULT_COLOR, Splat, pack_color};
 
 use crate::IoError;
 use crate::builder::{PointRecord, ScanFields};
+use crate::e57::E57Stream;
 use crate::las::LasStream;
 use crate::ply::VertexStream;
 
@@ -151,7 +152,7 @@ struct Record {
     /// Packed, or the intensity's bits where the colours will show it.
     color: u32,
     /// [`GIVEN_NORMAL`], [`GIVEN_RADIUS`]: which are valid (given by the file, or computed);
-    /// the class from [`CLASS_SHIFT`] on.
+    /// the class from [`CLASS_SHIFT`] on, the viewpoint from [`VIEWPOINT_SHIFT`].
     flags: u32,
 }
 
@@ -160,6 +161,8 @@ const GIVEN_RADIUS: u32 = 2;
 const GIVEN: u32 = GIVEN_NORMAL | GIVEN_RADIUS;
 /// Where a record's `flags` keep its point's class (ASPRS code; 0 without).
 const CLASS_SHIFT: u32 = 8;
+/// Where a record's `flags` keep which of the file's viewpoints saw its point.
+const VIEWPOINT_SHIFT: u32 = 16;
 
 impl Record {
     fn given(&self) -> bool {
@@ -168,6 +171,10 @@ impl Record {
 
     fn class(&self) -> u8 {
         (self.flags >> CLASS_SHIFT) as u8
+    }
+
+    fn viewpoint(&self) -> u16 {
+        (self.flags >> VIEWPOINT_SHIFT) as u16
     }
 }
 
@@ -232,18 +239,23 @@ impl<'a> Ticker<'a> {
     }
 }
 
-/// A cloud file read in passes: a binary PLY's vertices or a LAS/LAZ file's points.
+/// A cloud file read in passes: a binary PLY's vertices, a LAS/LAZ file's points, an E57 file's
+/// scans.
 enum Stream {
     Ply(Box<VertexStream>),
     Las(LasStream),
+    E57(E57Stream),
 }
 
 impl Stream {
     fn open(path: &Path) -> Result<Self, IoError> {
-        let mut start = [0; 4];
+        let mut start = [0; 8];
         let read = File::open(path).and_then(|mut f| f.read_exact(&mut start));
         if read.is_ok() && crate::las::looks_like_las(&start) {
             return LasStream::open(path).map(Stream::Las);
+        }
+        if read.is_ok() && crate::e57::looks_like_e57(&start) {
+            return E57Stream::open(path).map(Stream::E57);
         }
         VertexStream::open(path).map(|s| Stream::Ply(Box::new(s)))
     }
@@ -252,6 +264,7 @@ impl Stream {
         match self {
             Stream::Ply(s) => s.count,
             Stream::Las(s) => s.count,
+            Stream::E57(s) => s.count,
         }
     }
 
@@ -259,6 +272,7 @@ impl Stream {
         match self {
             Stream::Ply(s) => &s.info,
             Stream::Las(s) => &s.info,
+            Stream::E57(s) => &s.info,
         }
     }
 
@@ -266,7 +280,7 @@ impl Stream {
     fn given(&self) -> [bool; 2] {
         match self {
             Stream::Ply(s) => [s.attributes().normals, s.attributes().radii],
-            Stream::Las(_) => [false; 2],
+            Stream::Las(_) | Stream::E57(_) => [false; 2],
         }
     }
 
@@ -275,6 +289,7 @@ impl Stream {
         match self {
             Stream::Ply(s) => s.attributes().colors,
             Stream::Las(s) => s.has_colors(),
+            Stream::E57(s) => s.colors,
         }
     }
 
@@ -283,6 +298,17 @@ impl Stream {
         match self {
             Stream::Ply(s) => s.attributes().scan,
             Stream::Las(_) => ScanFields { intensity: true, classification: true, ..ScanFields::default() },
+            Stream::E57(s) => s.fields,
+        }
+    }
+
+    /// The sensors that saw the points, in the file's coordinates (a point's `viewpoint` names
+    /// its own where there are several).
+    fn viewpoints(&self) -> Vec<DVec3> {
+        match self {
+            Stream::Ply(s) => s.viewpoint.map(DVec3::from).into_iter().collect(),
+            Stream::Las(_) => Vec::new(),
+            Stream::E57(s) => s.scanners.clone(),
         }
     }
 
@@ -290,6 +316,7 @@ impl Stream {
         match self {
             Stream::Ply(s) => s.for_each(visit),
             Stream::Las(s) => s.for_each(visit),
+            Stream::E57(s) => s.for_each(visit),
         }
     }
 }
@@ -322,11 +349,11 @@ impl Input {
         (up.map(Vec3::from), sun.map(Vec3::from))
     }
 
-    /// A sensor's position in the file's coordinates, if a lone file says.
-    fn viewpoint(&self) -> Option<[f64; 3]> {
+    /// The sensors a lone file names (see [`Stream::viewpoints`]; a survey's tiles have none).
+    fn viewpoints(&self) -> Vec<DVec3> {
         match self.streams.as_slice() {
-            [Stream::Ply(s)] => s.viewpoint,
-            _ => None,
+            [stream] => stream.viewpoints(),
+            _ => Vec::new(),
         }
     }
 
@@ -469,8 +496,8 @@ pub fn prepare_out_of_core(
     let route_ticker = &mut ticker("read: route", points_read);
     let routing = Routing { origin, recompute: config.recompute, intensity: settings.color_by == ColorBy::Intensity };
     let mut buckets = route(&mut stream, &routing, &provisional, dir.path(), route_ticker).map_err(io)?;
-    let sensor = stream.viewpoint().map(|v| (DVec3::from(v) - origin).as_vec3());
-    let done = preprocess_cells(&mut buckets, config, sensor, progress, kept).map_err(io)?;
+    let sensors: Vec<Vec3> = stream.viewpoints().iter().map(|v| (*v - origin).as_vec3()).collect();
+    let done = preprocess_cells(&mut buckets, config, &sensors, progress, kept).map_err(io)?;
     if done.dropped() == kept {
         return Err(io(IoError::invalid(input, "preprocessing: no points left")));
     }
@@ -489,10 +516,16 @@ pub fn prepare_out_of_core(
     let build = StreamedBvh::new(plan, &params);
     let mut spill = Files::new(dir.path()).map_err(io)?;
     let names = selected.named;
+    let preprocessed = selected.preprocessed;
     let built = build_chunks(build, &buckets, origin, &style, names, &mut spill, &mut ticker("build", count));
     let (build, cloud) = built.map_err(io)?;
     ticker("write", 0);
-    let view = sensor.and_then(|sensor| crate::source::sensor_view_of(sensor, cloud.bounds));
+    // The view from a lone sensor framing the points preprocessing left (as in memory, before
+    // the build's filters).
+    let view = match sensors[..] {
+        [sensor] => crate::source::sensor_view_of(sensor, preprocessed.unwrap_or(cloud.bounds)),
+        _ => None,
+    };
     let parts = SceneParts { view, ..crate::source::lone_cloud_parts(Some(up), sun) };
     write(output, build, &mut spill, settings, &parts, &cloud).map_err(io)?;
     let done = Prepared {
@@ -529,7 +562,7 @@ impl CellsDone {
 fn preprocess_cells(
     buckets: &mut [Bucket],
     config: &PreprocessConfig,
-    sensor: Option<Vec3>,
+    sensors: &[Vec3],
     progress: &dyn Fn(&Progress),
     kept: usize,
 ) -> Result<CellsDone, IoError> {
@@ -547,7 +580,7 @@ fn preprocess_cells(
         turn(&all, given, &mut ticker("turn normals", kept))?;
     }
     let strays =
-        if cleaned.missing == 0 { 0 } else { fill(buckets, config, sensor, &mut ticker("normals, radii", kept))? };
+        if cleaned.missing == 0 { 0 } else { fill(buckets, config, sensors, &mut ticker("normals, radii", kept))? };
     Ok(CellsDone { duplicates: cleaned.duplicates, outliers, strays, inward })
 }
 
@@ -557,6 +590,8 @@ fn preprocess_cells(
 struct Selected {
     dropped: usize,
     named: bool,
+    /// Where points were dropped, the bounds of all preprocessing left.
+    preprocessed: Option<Aabb>,
 }
 
 fn select(
@@ -570,7 +605,7 @@ fn select(
     let (by_class, clipped) = (keep.is_some() || !exclude.is_empty(), settings.clip_box.is_some());
     let clipped = clipped || !settings.clip_planes.is_empty();
     if !by_class && !clipped {
-        return Ok(Selected { dropped: 0, named: false });
+        return Ok(Selected { dropped: 0, named: false, preprocessed: None });
     }
     if by_class && !has_classes {
         let option = if keep.is_some() { "classes" } else { "exclude_classes" };
@@ -578,12 +613,14 @@ fn select(
         return Err(SceneFileError::Settings(pointray::settings::SettingsError::new(option, why)));
     }
     let (mut rank, mut drawn, mut kept, mut present) = (0u32, 0usize, 0usize, [false; 256]);
+    let mut preprocessed = Aabb::EMPTY;
     for b in buckets {
         let mut records = read_bucket(b).map_err(SceneFileError::Input)?;
         ticker.tick(records.len());
         records.retain_mut(|r| {
             (r.index, rank) = (rank, rank + 1);
             present[usize::from(r.class())] = true;
+            preprocessed = preprocessed.union(Aabb::new(r.position.into(), r.position.into()));
             let in_class = color_by::drawn(r.class(), keep, exclude);
             let p = origin + Vec3::from(r.position).as_dvec3();
             let inside = in_class && pointray::clip::keeps(p, settings.clip_box.as_ref(), &settings.clip_planes);
@@ -601,7 +638,7 @@ fn select(
     if kept == 0 {
         return Err(SceneFileError::Settings(pointray::clip::none_kept(&settings.clip_planes)));
     }
-    Ok(Selected { dropped: rank as usize - kept, named: true })
+    Ok(Selected { dropped: rank as usize - kept, named: true, preprocessed: Some(preprocessed) })
 }
 
 /// The colours the build gives the points (`color_by::apply`'s, a point at a time): the scale of
@@ -866,7 +903,7 @@ fn route(
                     true => r.intensity.to_bits(),
                     false => pack_color(if colors { r.color } else { DEFAULT_COLOR }),
                 },
-                flags: given | u32::from(r.classification) << CLASS_SHIFT,
+                flags: given | u32::from(r.classification) << CLASS_SHIFT | u32::from(r.viewpoint) << VIEWPOINT_SHIFT,
             });
         }
         index += 1;
@@ -1110,7 +1147,7 @@ fn turn(set: &[&Bucket], turned: impl Fn(&Record) -> bool, ticker: &mut Ticker) 
 fn fill(
     buckets: &[Bucket],
     config: &PreprocessConfig,
-    sensor: Option<Vec3>,
+    sensors: &[Vec3],
     ticker: &mut Ticker,
 ) -> Result<usize, IoError> {
     let n = buckets.len();
@@ -1125,7 +1162,7 @@ fn fill(
         let (mut queue, mut set, mut given) = (std::collections::VecDeque::from([seed]), Vec::new(), false);
         queued[seed] = true;
         while let Some(b) = queue.pop_front() {
-            let done = fill_bucket(buckets, b, &filled, config, sensor, ticker)?;
+            let done = fill_bucket(buckets, b, &filled, config, sensors, ticker)?;
             filled[b] = true;
             (dropped, given) = (dropped + done.dropped, given || done.given);
             set.push(b);
@@ -1142,7 +1179,7 @@ fn fill(
     // an open one (terrain, a wall) tests near 0 and stays. (Facing a sensor needs no turn;
     // given normals orient their sets; a set of one bucket was oriented as the cloud in memory
     // is, by the same code, and is left as it is.)
-    for (set, _) in sets.iter().filter(|(set, given)| sensor.is_none() && !given && set.len() > 1) {
+    for (set, _) in sets.iter().filter(|(set, given)| sensors.is_empty() && !given && set.len() > 1) {
         let set: Vec<&Bucket> = set.iter().map(|&b| &buckets[b]).collect();
         if pointing_in(&set, |_| true, ticker)? {
             tracing::info!("turned the normals of {} cells outward", set.len());
@@ -1168,7 +1205,7 @@ fn fill_bucket(
     b: usize,
     filled: &[bool],
     config: &PreprocessConfig,
-    sensor: Option<Vec3>,
+    sensors: &[Vec3],
     ticker: &mut Ticker,
 ) -> Result<Filled, IoError> {
     let bucket = &buckets[b];
@@ -1190,7 +1227,8 @@ fn fill_bucket(
         positions: all().map(|r| Vec3::from(r.position)).collect(),
         normals: Some(all().map(|r| Vec3::from(r.normal)).collect()),
         radii: Some(all().map(|r| r.radius).collect()),
-        viewpoints: sensor.into_iter().collect(),
+        viewpoints: sensors.to_vec(),
+        viewpoint_of: (sensors.len() > 1).then(|| all().map(Record::viewpoint).collect()),
         ..Default::default()
     };
     let missing = |flag: u32| all().map(|r| r.flags & flag == 0).collect::<Vec<bool>>();
@@ -1463,7 +1501,7 @@ mod tests {
         assert!(buckets.len() >= 8, "{} cells", buckets.len());
         let cleaned = clean(&mut buckets, ticker).unwrap();
         assert_eq!((cleaned.duplicates, cleaned.missing), (0, kept));
-        assert_eq!(fill(&buckets, &config, None, ticker).unwrap(), whole.len().abs_diff(kept));
+        assert_eq!(fill(&buckets, &config, &[], ticker).unwrap(), whole.len().abs_diff(kept));
         (normals_in(&buckets), whole)
     }
 

@@ -1577,6 +1577,35 @@ fn a_corrupt_e57_page_is_refused_by_its_checksum() {
     assert!(message.starts_with(&format!("{}", dir.path().join("bad.e57").display())), "{message}");
 }
 
+/// E57 files read as streams out of core give the scene files read whole give: scans with their
+/// poses, invalid points left out, each scan's points facing its own scanner (the wall), colours
+/// and intensities, real files.
+#[test]
+fn e57_files_prepare_out_of_core_as_in_memory() {
+    let dir = temp_dir();
+    let files = [
+        write_file(dir.path(), "wall.e57", &e57_wall_from_both_sides()),
+        write_file(dir.path(), "two.e57", &e57_two_scans()),
+        real_file("tinyCartesianFloatRgb.e57"),
+        real_file("tiny_spherical.e57"),
+    ];
+    let config = pointray::preprocess::PreprocessConfig::standard();
+    for file in files {
+        let input = std::slice::from_ref(&file);
+        let (memory, streamed) = (dir.path().join("memory.prs"), dir.path().join("streamed.prs"));
+        let source = pointray_io::source::load_tiles(input, &config, &Default::default(), &|_| {}).unwrap();
+        let scene = pointray::Scene::build(source.parts, &pointray::Settings::default()).unwrap();
+        pointray_io::prs::write_prs(&memory, &scene).unwrap();
+        let options = pointray_io::prepare::OutOfCore { preprocess: config, ..Default::default() };
+        pointray_io::prepare::prepare_out_of_core(input, &streamed, &options, &|_| {}).unwrap();
+        assert!(
+            std::fs::read(&memory).unwrap() == std::fs::read(&streamed).unwrap(),
+            "{}: the files differ",
+            file.display()
+        );
+    }
+}
+
 /// A file the crate's tests keep (`tests/data/README.md` gives each one's origin and licence).
 fn real_file(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data").join(name)

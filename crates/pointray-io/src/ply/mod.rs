@@ -71,8 +71,7 @@ impl VertexStream {
         let mut head = Vec::new();
         file.by_ref().take(1 << 20).read_to_end(&mut head).map_err(|e| IoError::io(path, e))?;
         let unsupported = |what: &str| {
-            let hint =
-                "out of core, only a binary PLY or a LAS/LAZ file is read for now: prepare it without --memory-budget";
+            let hint = "out of core, only binary PLY, LAS/LAZ and E57 files are read for now: prepare it without --memory-budget";
             IoError::invalid(path, format!("{what}: {hint}"))
         };
         if !(head.starts_with(b"ply\n") || head.starts_with(b"ply\r\n")) {
