@@ -817,8 +817,11 @@ fn a_scene_file_prepared_out_of_core_is_the_one_prepared_in_memory() {
     write_inward_sphere_at(dir.path(), 3_000, "east_bare.ply", false, 2.5);
     // And the statistical outlier filter (the points it drops move the bounds the chunks are
     // planned over).
-    // And build flags.
-    let inputs: [&[&str]; 10] = [
+    // And build flags; a sensor's view framing the points before the filters, as in memory.
+    let inward = std::fs::read(dir.path().join("inward.ply")).unwrap();
+    let at = inward.windows(8).position(|w| w == b"element ").unwrap();
+    write_file(dir.path(), "seen.ply", [&inward[..at], b"comment viewpoint 0 0 5\n", &inward[at..]].concat());
+    let inputs: [&[&str]; 11] = [
         &["inward.ply"],
         &["bare.ply"],
         &["plane.laz"],
@@ -828,6 +831,7 @@ fn a_scene_file_prepared_out_of_core_is_the_one_prepared_in_memory() {
         &["bare.ply", "--outlier-std", "1.5"],
         &["inward.ply", "--surface", "rfd", "--sphere-from-level", "2"],
         &["bare.ply", "--color-by", "elevation", "--clip-plane", "0,0,1,0.5"],
+        &["seen.ply", "--clip-box", "-2,-2,-2,2,2,0"],
         &["inward.ply", "east.ply", "--color-by", "normal", "--clip-box", "-2,-2,-2,2.6,2,2"],
     ];
     for input in inputs {
