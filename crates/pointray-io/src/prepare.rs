@@ -109,8 +109,9 @@ pub fn prepare_scene_file(
         None => false,
     };
     if out_of_core {
-        let config =
-            OutOfCore { preprocess: options.preprocess, settings: options.settings.clone(), ..Default::default() };
+        let cell_points = OutOfCore::cells_within(options.memory_budget.unwrap_or_else(default_budget));
+        let settings = options.settings.clone();
+        let config = OutOfCore { preprocess: options.preprocess, settings, cell_points, ..Default::default() };
         let done = prepare_out_of_core(inputs, output, &config, progress)?;
         let bytes = std::fs::metadata(output).map_or(0, |m| m.len());
         return Ok(SceneFileSummary { points: done.points, chunks: Some(done.chunks), bytes });
@@ -452,10 +453,25 @@ pub struct OutOfCore {
     pub preprocess: PreprocessConfig,
     /// The build settings (a BVH's): which points are drawn, their colours, the bounding volumes.
     pub settings: Settings,
-    /// `BvhParams::chunk_splats`: the build's chunks, and the cells whose normals and radii
-    /// are computed together (with a halo round each). The default's tree is the one a build
-    /// in memory makes.
+    /// `BvhParams::chunk_splats`: the build's chunks. The default's tree is the one a build in
+    /// memory makes.
     pub chunk_splats: usize,
+    /// The most points in a cell whose outliers, normals and radii are found together (with a
+    /// halo round each): at most `chunk_splats`, whose cells they divide.
+    pub cell_points: usize,
+}
+
+/// Bytes a point of a cell takes while its normals and radii are computed (with its halo and
+/// 16 neighbours each): the 30-million-point torus's cells of 2²² points peaked at 1.11 GB.
+const CELL_BYTES_A_POINT: u64 = 270;
+
+impl OutOfCore {
+    /// The cells' size for a memory budget: what a cell's normals take within it, at most a
+    /// chunk, at least 2¹⁶ points. (The build's chunk of 2²² splats takes some 400 MB itself.)
+    pub fn cells_within(budget: u64) -> usize {
+        let chunk = BvhParams::standard().chunk_splats;
+        usize::try_from(budget / CELL_BYTES_A_POINT).unwrap_or(chunk).clamp(1 << 16, chunk)
+    }
 }
 
 impl Default for OutOfCore {
@@ -464,6 +480,7 @@ impl Default for OutOfCore {
             preprocess: PreprocessConfig::standard(),
             settings: Settings::default(),
             chunk_splats: BvhParams::standard().chunk_splats,
+            cell_points: BvhParams::standard().chunk_splats,
         }
     }
 }
@@ -491,7 +508,8 @@ pub fn prepare_out_of_core(
     }
     let params = BvhParams { chunk_splats: options.chunk_splats, ..pointray::scene::Build::of(settings).bvh_params() };
     let dir = crate::ScratchDir::beside(output).map_err(io)?;
-    let provisional = plan(&mut stream, origin, bounds, kept, params.chunk_splats, &mut ticker("read: cells", 0));
+    let cell_points = options.cell_points.min(params.chunk_splats);
+    let provisional = plan(&mut stream, origin, bounds, kept, cell_points, &mut ticker("read: cells", 0));
     let provisional = provisional.map_err(io)?;
     let route_ticker = &mut ticker("read: route", points_read);
     let routing = Routing { origin, recompute: config.recompute, intensity: settings.color_by == ColorBy::Intensity };
@@ -508,8 +526,9 @@ pub fn prepare_out_of_core(
     let count = kept - done.dropped() - selected.dropped;
     let up = up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y);
     let style = Style::new(&buckets, settings, up, scan, stream.has_colors(), count)?;
+    // The build's chunks: the cells, or the chunks they divide (each cell inside one).
     let plan = match done.dropped() + selected.dropped {
-        0 => provisional,
+        0 if cell_points == params.chunk_splats => provisional,
         _ => final_plan(&mut buckets, bounds, count, params.chunk_splats, dir.path()).map_err(io)?,
     };
     let chunks = plan.chunks().len();
@@ -1312,12 +1331,18 @@ fn build_chunks(
     ticker: &mut Ticker,
 ) -> Result<(StreamedBvh, StreamedCloud), IoError> {
     let (mut bounds, mut radii, mut points) = (Aabb::EMPTY, 0.0f64, 0usize);
-    let chunks = build.plan().chunks().len();
-    let mut next = 0;
-    for c in 0..chunks {
+    // Cells every point was dropped from may lie outside every chunk: passed over.
+    let mut left = Vec::with_capacity(buckets.len());
+    for b in buckets {
+        if std::fs::metadata(&b.path).map_err(|e| IoError::io(&b.path, e))?.len() > 0 {
+            left.push(b);
+        }
+    }
+    let mut left = left.into_iter().peekable();
+    for c in 0..build.plan().chunks().len() {
         let (mut splats, mut names) = (Vec::new(), Vec::new());
-        while next < buckets.len() && build.plan().chunk_of(buckets[next].first_code) == c {
-            for_each_record(&buckets[next], |r| {
+        while let Some(bucket) = left.next_if(|b| build.plan().chunk_of(b.first_code) == c) {
+            for_each_record(bucket, |r| {
                 let s = Splat {
                     center: Vec3::from(r.position),
                     radius: r.radius,
@@ -1329,7 +1354,6 @@ fn build_chunks(
                 splats.push(s);
                 names.push(r.index);
             })?;
-            next += 1;
         }
         points += splats.len();
         ticker.tick(splats.len());

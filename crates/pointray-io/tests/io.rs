@@ -1111,6 +1111,57 @@ fn build_settings_out_of_core_make_the_scene_file_made_in_memory() {
     );
 }
 
+/// Cells smaller than the build's chunks (a small memory budget's) change nothing where the
+/// normals and radii are given: each cell lies inside one chunk, and the chunks are the ones a
+/// build in memory makes. A sphere with classes and intensities in cells of at most 700 points,
+/// filtered, clipped, coloured, its outliers dropped.
+#[test]
+fn cells_smaller_than_the_chunks_make_the_same_scene_file() {
+    use pointray::color_by::ColorBy;
+    let dir = temp_dir();
+    let n = 12_000;
+    let positions: Vec<Vec3> = (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+            let (r, phi) = ((1.0 - z * z).sqrt(), i as f32 * 2.399_963);
+            Vec3::new(r * phi.cos(), r * phi.sin(), z) * 3.0
+        })
+        .collect();
+    let cloud = PointCloud {
+        normals: Some(positions.iter().map(|p| p.normalize()).collect()),
+        radii: Some(vec![0.06; n]),
+        scan: ScanAttributes {
+            classification: Some((0..n).map(|i| [2, 5, 6][i % 3]).collect()),
+            intensity: Some((0..n).map(|i| (i * 37 % 1000) as f32).collect()),
+            ..ScanAttributes::default()
+        },
+        positions,
+        ..PointCloud::default()
+    };
+    let input = [dir.path().join("sphere.ply")];
+    pointray_io::write_ply(&input[0], &cloud).unwrap();
+    let cases = [
+        (pointray::Settings::default(), None),
+        (pointray::Settings { color_by: ColorBy::Intensity, exclude_classes: vec![5], ..Default::default() }, None),
+        (pointray::Settings { color_by: ColorBy::Classification, ..Default::default() }, Some(1.0)),
+    ];
+    for (settings, outlier_std) in cases {
+        let config = pointray::preprocess::PreprocessConfig { outlier_std, ..Default::default() };
+        let source = pointray_io::source::load_tiles(&input, &config, &Default::default(), &|_| {}).unwrap();
+        let scene = pointray::Scene::build(source.parts, &settings).unwrap();
+        let (memory, streamed) = (dir.path().join("memory.prs"), dir.path().join("streamed.prs"));
+        pointray_io::prs::write_prs(&memory, &scene).unwrap();
+        let options =
+            pointray_io::prepare::OutOfCore { preprocess: config, settings, cell_points: 700, ..Default::default() };
+        let done = pointray_io::prepare::prepare_out_of_core(&input, &streamed, &options, &|_| {}).unwrap();
+        assert_eq!(done.chunks, 1);
+        assert!(
+            std::fs::read(&memory).unwrap() == std::fs::read(&streamed).unwrap(),
+            "{outlier_std:?}: the files differ"
+        );
+    }
+}
+
 /// A survey loaded to render is lit by its sun, at the settings' intensity, and a sky, unless
 /// a light is named or an environment map lights it alone.
 #[test]
