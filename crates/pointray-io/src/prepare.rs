@@ -519,12 +519,12 @@ pub fn prepare_out_of_core(
     if done.dropped() == kept {
         return Err(io(IoError::invalid(input, "preprocessing: no points left")));
     }
-    let (up, sun) = stream.up_and_sun();
+    let (file_up, sun) = stream.up_and_sun();
     let [intensity, classes] = stream.scan();
     let scan = ScanFields { intensity, classification: classes, ..ScanFields::default() };
     let selected = select(&buckets, settings, origin, scan.classification, &mut ticker("select", kept))?;
     let count = kept - done.dropped() - selected.dropped;
-    let up = up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y);
+    let up = file_up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y);
     let style = Style::new(&buckets, settings, up, scan, stream.has_colors(), count)?;
     // The build's chunks: the cells, or the chunks they divide (each cell inside one).
     let plan = match done.dropped() + selected.dropped {
@@ -545,7 +545,7 @@ pub fn prepare_out_of_core(
         [sensor] => crate::source::sensor_view_of(sensor, preprocessed.unwrap_or(cloud.bounds)),
         _ => None,
     };
-    let parts = SceneParts { view, ..crate::source::lone_cloud_parts(Some(up), sun) };
+    let parts = SceneParts { view, ..crate::source::lone_cloud_parts(file_up, sun) };
     write(output, build, &mut spill, settings, &parts, &cloud).map_err(io)?;
     let done = Prepared {
         points_read,
