@@ -96,12 +96,13 @@ def test_a_scene_file_is_prepared_in_memory_or_out_of_core_alike(tmp_path):
         header = f"ply\nformat binary_little_endian 1.0\nelement vertex {len(part)}\n"
         header += "property double x\nproperty double y\nproperty double z\nend_header\n"
         plys[-1].write_bytes(header.encode() + part.astype("<f8").tobytes())
-    memory = pointray.prepare_file(plys, tmp_path / "a.prs")
-    streamed = pointray.prepare_file(plys, tmp_path / "b.prs", memory_budget=1024)
-    assert memory["chunks"] is None and streamed["chunks"] == 1
-    assert (tmp_path / "a.prs").read_bytes() == (tmp_path / "b.prs").read_bytes()
-    with pytest.raises(ValueError, match="memory_budget"):
-        pointray.prepare_file(plys, tmp_path / "c.prs", memory_budget=1024, surface="rfd")
+    for options in ({}, {"surface": "rfd", "color_by": "elevation"}):
+        memory = pointray.prepare_file(plys, tmp_path / "a.prs", **options)
+        streamed = pointray.prepare_file(plys, tmp_path / "b.prs", memory_budget=1024, **options)
+        assert memory["chunks"] is None and streamed["chunks"] == 1
+        assert (tmp_path / "a.prs").read_bytes() == (tmp_path / "b.prs").read_bytes()
+    with pytest.raises(ValueError, match="accel"):
+        pointray.prepare_file(plys, tmp_path / "c.prs", memory_budget=1024, accel="kdtree")
     with pytest.raises(TypeError, match="list of paths"):
         pointray.prepare_file(42, tmp_path / "d.prs")
     assert not (tmp_path / "c.prs").exists() and not (tmp_path / "d.prs").exists()
