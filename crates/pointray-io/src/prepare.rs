@@ -462,8 +462,9 @@ pub struct OutOfCore {
 }
 
 /// Bytes a point of a cell takes while its normals and radii are computed (with its halo and
-/// 16 neighbours each): the 30-million-point torus's cells of 2²² points peaked at 1.11 GB.
-const CELL_BYTES_A_POINT: u64 = 270;
+/// 16 neighbours each): the 30-million-point torus's cells of 3.75 million points peaked at
+/// 1.11 GB (297 a point), with a margin.
+const CELL_BYTES_A_POINT: u64 = 320;
 
 impl OutOfCore {
     /// The cells' size for a memory budget: what a cell's normals take within it, at most a
