@@ -859,6 +859,12 @@ fn a_scene_file_prepared_out_of_core_is_the_one_prepared_in_memory() {
     let built_with = ["--color-by", "normal", "--clip-box", "-2,-2,-2,2.6,2,2"];
     render_in(dir.path(), &[&["streamed.prs", "-o", "s.png"][..], &built_with].concat()).assert_success();
     assert!(read_png(&dir.path().join("s.png")).count_not(background_srgb8()) > 100);
+    // A flag the cloud cannot meet fails alike both ways, named as the flag (exit 1, as a render).
+    for budget in [&[][..], &["--memory-budget", "1KiB"]] {
+        run_in(dir.path(), &[&["prepare", "plane.laz", "-o", "rgb.prs", "--color-by", "rgb"][..], budget].concat())
+            .assert_failure(1)
+            .assert_stderr_contains("--color-by rgb: the cloud has no colours");
+    }
     // What it cannot do yet is refused, naming the way: a text PLY.
     write_sphere(dir.path());
     run_in(dir.path(), &["prepare", "sphere.ply", "-o", "raw.prs", "--memory-budget", "1KiB"])

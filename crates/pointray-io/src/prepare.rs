@@ -68,9 +68,12 @@ pub struct SceneFileSummary {
 /// Why [`prepare_scene_file`] failed.
 #[derive(Debug, thiserror::Error)]
 pub enum SceneFileError {
-    /// A setting is out of range, needs what the cloud lacks, or cannot be had out of core.
+    /// A setting is out of range, or cannot be had out of core.
     #[error("{}: {}", .0.option, .0.problem)]
     Settings(pointray::settings::SettingsError),
+    /// A setting the cloud cannot meet: an attribute it lacks, a filter that leaves no point.
+    #[error("{}: {}", .0.option, .0.problem)]
+    Unmet(pointray::settings::SettingsError),
     /// An input could not be read or prepared.
     #[error(transparent)]
     Input(IoError),
@@ -121,7 +124,7 @@ pub fn prepare_scene_file(
         crate::source::load_tiles(inputs, &options.preprocess, &options.read, &stage).map_err(SceneFileError::Input)?;
     stage("build");
     let scene = pointray::Scene::build(source.parts, &options.settings).map_err(|e| match e {
-        pointray::scene::SceneError::Settings(e) => SceneFileError::Settings(e),
+        pointray::scene::SceneError::Settings(e) => SceneFileError::Unmet(e),
         e => SceneFileError::Input(IoError::invalid(&crate::set_name(inputs), e.to_string())),
     })?;
     stage("write");
@@ -630,7 +633,7 @@ fn select(
     if by_class && !has_classes {
         let option = if keep.is_some() { "classes" } else { "exclude_classes" };
         let why = "needs classified points; the cloud has no classification";
-        return Err(SceneFileError::Settings(pointray::settings::SettingsError::new(option, why)));
+        return Err(SceneFileError::Unmet(pointray::settings::SettingsError::new(option, why)));
     }
     let (mut rank, mut drawn, mut kept, mut present) = (0u32, 0usize, 0usize, [false; 256]);
     let mut preprocessed = Aabb::EMPTY;
@@ -653,10 +656,10 @@ fn select(
     if drawn == 0 {
         let option = if keep.is_some() { "classes" } else { "exclude_classes" };
         let classes = (0..=255u8).filter(|&c| present[usize::from(c)]);
-        return Err(SceneFileError::Settings(color_by::none_drawn(option, classes)));
+        return Err(SceneFileError::Unmet(color_by::none_drawn(option, classes)));
     }
     if kept == 0 {
-        return Err(SceneFileError::Settings(pointray::clip::none_kept(&settings.clip_planes)));
+        return Err(SceneFileError::Unmet(pointray::clip::none_kept(&settings.clip_planes)));
     }
     Ok(Selected { dropped: rank as usize - kept, named: true, preprocessed: Some(preprocessed) })
 }
@@ -682,7 +685,7 @@ impl Style {
         let by = settings.color_by;
         let missing = |what: &str| {
             let why = format!("{}: the cloud has no {what}", by.name());
-            SceneFileError::Settings(pointray::settings::SettingsError::new("color_by", why))
+            SceneFileError::Unmet(pointray::settings::SettingsError::new("color_by", why))
         };
         let up = settings.up.unwrap_or(up);
         let value: fn(&Record, Vec3) -> f32 = match by {

@@ -1073,7 +1073,7 @@ fn build_settings_out_of_core_make_the_scene_file_made_in_memory() {
                 );
                 None
             }
-            (Err(pointray::scene::SceneError::Settings(a)), Err(pointray_io::prepare::SceneFileError::Settings(b))) => {
+            (Err(pointray::scene::SceneError::Settings(a)), Err(pointray_io::prepare::SceneFileError::Unmet(b))) => {
                 assert_eq!((a.option, &a.problem), (b.option, &b.problem));
                 Some(a.problem)
             }

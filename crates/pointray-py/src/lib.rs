@@ -365,7 +365,9 @@ fn prepare_file<'py>(
     let prepared = py
         .detach(|| pool.install(|| pointray_io::prepare::prepare_scene_file(&paths, &output, &file_options, &|_| {})));
     let done = prepared.map_err(|e| match e {
-        pointray_io::prepare::SceneFileError::Settings(e) => value_error(format!("{}: {}", e.option, e.problem)),
+        pointray_io::prepare::SceneFileError::Settings(e) | pointray_io::prepare::SceneFileError::Unmet(e) => {
+            value_error(format!("{}: {}", e.option, e.problem))
+        }
         pointray_io::prepare::SceneFileError::Input(e) | pointray_io::prepare::SceneFileError::Output(e) => io_error(e),
     })?;
     let summary = PyDict::new(py);

@@ -58,6 +58,8 @@ fn scene_file(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig, 
         SceneFileError::Settings(e) => {
             crate::failure::usage(super::render::flag_error(e).context(name.display().to_string()))
         }
+        // A colour or class flag the cloud cannot give: named as the flag, as a render does.
+        SceneFileError::Unmet(e) => super::render::flag_error(e).context(name.display().to_string()),
         SceneFileError::Input(e) => e.into(),
         SceneFileError::Output(e) => crate::failure::output(e),
     })?;
