@@ -98,7 +98,12 @@ impl<D: DiskTest> Window<D> {
 
     /// Inserts `c` after the crossings of no greater `t`; when the window is full, the
     /// farthest crossing makes room (or `c` is dropped, if it is the farthest).
-    #[inline(always)]
+    ///
+    /// Out of line: inlined, it made the traversal's SJ instance a sixth larger and its cost
+    /// moved with unrelated code (the dragon's SJ took 1,003 or 1,049 instructions a pixel as
+    /// other crates changed). Out of line, 1,024 where inlined took 1,049, and the bunny 1,033
+    /// where it took 1,060 (callgrind, `scripts/instructions_per_ray.py --size 256`).
+    #[inline(never)]
     fn insert(&mut self, c: Crossing) {
         // Crossings in order are a push. Only about a quarter arrive so on the dragon (leaves
         // overlap), but shifting the others in costs less than sorting at the end did: SJ took
