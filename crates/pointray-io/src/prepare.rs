@@ -529,7 +529,7 @@ pub fn prepare_out_of_core(
     let selected = select(&buckets, settings, origin, scan.classification, &mut ticker("select", kept))?;
     let count = kept - done.dropped() - selected.dropped;
     let up = file_up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y);
-    let style = Style::new(&buckets, settings, up, scan, stream.has_colors(), count)?;
+    let style = Style::new(&buckets, settings, up, scan, stream.has_colors())?;
     // The build's chunks: the cells, or the chunks they divide (each cell inside one).
     let plan = match done.dropped() + selected.dropped {
         0 if cell_points == params.chunk_splats => provisional,
@@ -650,8 +650,7 @@ fn select(
             (drawn, kept) = (drawn + usize::from(in_class), kept + usize::from(inside));
             inside
         });
-        std::fs::write(&b.path, bytemuck::cast_slice(&records))
-            .map_err(|e| SceneFileError::Input(IoError::io(&b.path, e)))?;
+        write_bucket(b, &records).map_err(SceneFileError::Input)?;
     }
     if drawn == 0 {
         let option = if keep.is_some() { "classes" } else { "exclude_classes" };
@@ -680,7 +679,6 @@ impl Style {
         up: Vec3,
         scan: ScanFields,
         has_colors: bool,
-        count: usize,
     ) -> Result<Self, SceneFileError> {
         let by = settings.color_by;
         let missing = |what: &str| {
@@ -696,7 +694,7 @@ impl Style {
             ColorBy::Elevation => |r, up| color_by::height(Vec3::from(r.position), up),
             _ => return Ok(Self { by, up, scale: UnitScale::between(0.0, 0.0) }),
         };
-        let scale = percentiles(buckets, count, |r| value(r, up)).map_err(SceneFileError::Input)?;
+        let scale = percentiles(buckets, |r| value(r, up)).map_err(SceneFileError::Input)?;
         Ok(Self { by, up, scale })
     }
 
@@ -714,52 +712,17 @@ impl Style {
     }
 }
 
-/// [`UnitScale::of`] the `value` of every record, in passes over the cells: the finite values'
-/// count, the buckets of the two ranks wanted by their upper 16 bits (in `f32::total_cmp`'s
-/// order), then the values in those buckets.
-fn percentiles(buckets: &[Bucket], count: usize, value: impl Fn(&Record) -> f32) -> Result<UnitScale, IoError> {
+/// [`UnitScale::of`] the `value` of every record: its finite values' percentiles, selected in
+/// passes over the cells (`math::select::select_in_passes`).
+fn percentiles(buckets: &[Bucket], value: impl Fn(&Record) -> f32) -> Result<UnitScale, IoError> {
     let each = |f: &mut dyn FnMut(f32)| -> Result<(), IoError> {
         for b in buckets {
-            for_each_record(b, |r| {
-                let v = value(r);
-                if v.is_finite() {
-                    f(v);
-                }
-            })?;
+            for_each_record(b, |r| Some(value(r)).filter(|v| v.is_finite()).into_iter().for_each(&mut *f))?;
         }
         Ok(())
     };
-    let key = |v: f32| {
-        let bits = v.to_bits();
-        (if bits >> 31 != 0 { !bits } else { bits | 1 << 31 }) >> 16
-    };
-    let mut counts = vec![0usize; 1 << 16];
-    each(&mut |v| counts[key(v) as usize] += 1)?;
-    let finite: usize = counts.iter().sum();
-    debug_assert!(finite <= count);
-    let Some(ranks) = color_by::percentile_ranks(finite) else { return Ok(UnitScale::between(0.0, 0.0)) };
-    // Each rank's bucket and the values below it.
-    let place = ranks.map(|rank| {
-        let (mut bucket, mut below) = (0, 0);
-        while below + counts[bucket] <= rank {
-            below += counts[bucket];
-            bucket += 1;
-        }
-        (bucket, below)
-    });
-    let mut inside = [Vec::new(), Vec::new()];
-    each(&mut |v| {
-        for (k, (bucket, _)) in place.iter().enumerate() {
-            if key(v) as usize == *bucket {
-                inside[k].push(v);
-            }
-        }
-    })?;
-    let [lo, hi] = std::array::from_fn(|k| {
-        let (rank, (_, below)) = (ranks[k], place[k]);
-        *inside[k].select_nth_unstable_by(rank - below, f32::total_cmp).1
-    });
-    Ok(UnitScale::between(lo, hi))
+    let selected = pointray::math::select::select_in_passes(color_by::percentile_ranks, each)?;
+    Ok(selected.map_or(UnitScale::between(0.0, 0.0), |[lo, hi]| UnitScale::between(lo, hi)))
 }
 
 /// The origin reading the cloud in memory gives it (`PointCloud::from_world_positions`): the
@@ -987,6 +950,11 @@ fn for_each_record(bucket: &Bucket, mut visit: impl FnMut(&Record)) -> Result<()
     }
 }
 
+/// Rewrites `bucket` to hold `records`.
+fn write_bucket(bucket: &Bucket, records: &[Record]) -> Result<(), IoError> {
+    std::fs::write(&bucket.path, bytemuck::cast_slice(records)).map_err(|e| IoError::io(&bucket.path, e))
+}
+
 fn read_bucket(bucket: &Bucket) -> Result<Vec<Record>, IoError> {
     let mut records = Vec::new();
     for_each_record(bucket, |r| records.push(*r))?;
@@ -1018,7 +986,7 @@ fn clean(buckets: &mut [Bucket], ticker: &mut Ticker) -> Result<Cleaned, IoError
             missing += usize::from(!r.given());
             b.bounds = b.bounds.union(Aabb::new(p, p));
         }
-        std::fs::write(&b.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&b.path, e))?;
+        write_bucket(b, &records)?;
     }
     Ok(Cleaned { duplicates, missing })
 }
@@ -1114,7 +1082,7 @@ fn drop_outliers(buckets: &[Bucket], k: usize, std_ratio: f32, ticker: &mut Tick
         let (records, mean) = (read_bucket(b)?, read_distances(b)?);
         let kept: Vec<Record> = records.iter().zip(&mean).filter(|(_, d)| **d <= limit).map(|(r, _)| *r).collect();
         dropped += records.len() - kept.len();
-        std::fs::write(&b.path, bytemuck::cast_slice(&kept)).map_err(|e| IoError::io(&b.path, e))?;
+        write_bucket(b, &kept)?;
         std::fs::remove_file(distances(b)).map_err(|e| IoError::io(&distances(b), e))?;
     }
     Ok(dropped)
@@ -1154,7 +1122,7 @@ fn turn(set: &[&Bucket], turned: impl Fn(&Record) -> bool, ticker: &mut Ticker) 
         for r in records.iter_mut().filter(|r| turned(r)) {
             r.normal = r.normal.map(|v| -v);
         }
-        std::fs::write(&b.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&b.path, e))?;
+        write_bucket(b, &records)?;
     }
     Ok(())
 }
@@ -1269,7 +1237,7 @@ fn fill_bucket(
         own.iter().for_each(|&i| keep[i] = false);
         records = records.into_iter().zip(keep).filter(|(_, k)| *k).map(|(r, _)| r).collect();
     }
-    std::fs::write(&bucket.path, bytemuck::cast_slice(&records)).map_err(|e| IoError::io(&bucket.path, e))?;
+    write_bucket(bucket, &records)?;
     Ok(Filled { dropped, zone, given })
 }
 

@@ -5,6 +5,7 @@ mod bounds;
 pub mod eigen;
 pub mod morton;
 mod ray;
+pub mod select;
 
 pub use bounds::Aabb;
 pub use glam::{DVec3, Vec3};

@@ -21,6 +21,7 @@ use super::{Bvh, BvhMeta, LEAF, Node, SPHERE_NODE, WIDTH};
 use crate::accel::block::{BLOCK, SplatBlock, snap};
 use crate::accel::representative::{LOD_FLOOR_QUANTILE, Moments, WIDE_QUANTILE, radius_quantile};
 use crate::math::Aabb;
+use crate::math::select::select_in_passes;
 use crate::splat::Splat;
 use crate::splat::footprint::density_stride;
 
@@ -383,38 +384,17 @@ impl StreamedBvh {
     }
 }
 
-/// [`radius_quantile`] of the `n` spilled radii, in two passes over them: the bucket of the rank
-/// wanted by the radii's upper 16 bits (floats in total order as [`order_key`]s), then the
-/// values in that bucket. (Held in memory, the radii of 200 million points took 800 MB.)
+/// [`radius_quantile`] of the `n` spilled radii, in two passes over them
+/// (`math::select::select_in_passes`). (Held in memory, the radii of 200 million points took
+/// 800 MB.)
 fn spilled_quantile(spill: &mut dyn Spill, n: usize, quantile: f64) -> io::Result<f32> {
-    if n == 0 {
-        return Ok(f32::INFINITY);
-    }
-    let at = ((n - 1) as f64 * quantile) as usize;
-    let mut counts = vec![0usize; 1 << 16];
-    each_radius(spill, n, |r| counts[(order_key(r) >> 16) as usize] += 1)?;
-    let (mut bucket, mut below) = (0, 0);
-    while below + counts[bucket] <= at {
-        below += counts[bucket];
-        bucket += 1;
-    }
-    let mut inside = Vec::with_capacity(counts[bucket]);
-    each_radius(spill, n, |r| {
-        if (order_key(r) >> 16) as usize == bucket {
-            inside.push(r);
-        }
-    })?;
-    Ok(*inside.select_nth_unstable_by(at - below, f32::total_cmp).1)
-}
-
-/// `x`'s bits as an integer in the order of `f32::total_cmp`.
-fn order_key(x: f32) -> u32 {
-    let bits = x.to_bits();
-    if bits >> 31 != 0 { !bits } else { bits | 1 << 31 }
+    let at = |n: usize| Some([((n.checked_sub(1)?) as f64 * quantile) as usize]);
+    let selected = select_in_passes(at, |f| each_radius(spill, n, f))?;
+    Ok(selected.map_or(f32::INFINITY, |[r]| r))
 }
 
 /// Calls `f` with each of the `n` spilled radii.
-fn each_radius(spill: &mut dyn Spill, n: usize, mut f: impl FnMut(f32)) -> io::Result<()> {
+fn each_radius(spill: &mut dyn Spill, n: usize, f: &mut dyn FnMut(f32)) -> io::Result<()> {
     let mut window = vec![0f32; WINDOW * BLOCK];
     for start in (0..n).step_by(window.len()) {
         let radii = &mut window[..(n - start).min(WINDOW * BLOCK)];
@@ -507,8 +487,6 @@ mod tests {
             let want = radius_quantile(radii.clone(), q);
             assert_eq!(spilled_quantile(&mut spill, radii.len(), q).unwrap(), want, "{q}");
         }
-        let signed = [-2.0f32, -0.0, 0.0, 1e-30, 3.0];
-        assert!(signed.windows(2).all(|w| order_key(w[0]) < order_key(w[1])));
     }
 
     impl Spill for Vecs {
