@@ -471,10 +471,12 @@ const CELL_BYTES_A_POINT: u64 = 320;
 
 impl OutOfCore {
     /// The cells' size for a memory budget: what a cell's normals take within it, at most a
-    /// chunk, at least 2¹⁶ points. (The build's chunk of 2²² splats takes some 400 MB itself.)
+    /// chunk, at least 2¹⁸ points (84 MB: a smaller budget is no real one, and would cut a
+    /// small cloud's normals into cells apart). (The build's chunk of 2²² splats takes some
+    /// 400 MB itself.)
     pub fn cells_within(budget: u64) -> usize {
         let chunk = BvhParams::standard().chunk_splats;
-        usize::try_from(budget / CELL_BYTES_A_POINT).unwrap_or(chunk).clamp(1 << 16, chunk)
+        usize::try_from(budget / CELL_BYTES_A_POINT).unwrap_or(chunk).clamp(1 << 18, chunk)
     }
 }
 
