@@ -27,7 +27,7 @@ use pointray::accel::stored::StableBytes;
 use pointray::color_by::{self, ColorBy, UnitScale};
 use pointray::math::{Aabb, morton};
 use pointray::preprocess::{PreprocessConfig, outliers};
-use pointray::scene::{SceneMeta, SceneParts, StreamedCloud};
+use pointray::scene::{BuildLimits, PartMeta, PartRanges, SceneMeta, SceneParts, StreamedCloud};
 use pointray::splat::footprint::{coverage_counts, density_of};
 use pointray::splat::{DEFAULT_COLOR, Splat, pack_color};
 
@@ -61,6 +61,8 @@ pub struct SceneFileSummary {
     pub points: usize,
     /// Out of core: the build's chunks (`None`: prepared in memory).
     pub chunks: Option<usize>,
+    /// The parts of a two-level scene (`pointray::accel::bvh::TwoLevel`), or 1.
+    pub parts: usize,
     /// The file's size.
     pub bytes: u64,
 }
@@ -117,7 +119,7 @@ pub fn prepare_scene_file(
         let config = OutOfCore { preprocess: options.preprocess, settings, cell_points, ..Default::default() };
         let done = prepare_out_of_core(inputs, output, &config, progress)?;
         let bytes = std::fs::metadata(output).map_or(0, |m| m.len());
-        return Ok(SceneFileSummary { points: done.points, chunks: Some(done.chunks), bytes });
+        return Ok(SceneFileSummary { points: done.points, chunks: Some(done.chunks), parts: done.parts, bytes });
     }
     let stage = |stage: &str| progress(&Progress { stage, done: 0, total: 0 });
     let source =
@@ -130,7 +132,7 @@ pub fn prepare_scene_file(
     stage("write");
     crate::prs::write_prs(output, &scene).map_err(SceneFileError::Output)?;
     let bytes = std::fs::metadata(output).map_or(0, |m| m.len());
-    Ok(SceneFileSummary { points: scene.points(), chunks: None, bytes })
+    Ok(SceneFileSummary { points: scene.points(), chunks: None, parts: scene.parts(), bytes })
 }
 
 /// The memory budget by default: half the physical memory (unbounded where the system does not
@@ -188,6 +190,8 @@ pub struct Prepared {
     pub points_read: usize,
     pub points: usize,
     pub chunks: usize,
+    /// The parts of a two-level scene (`pointray::accel::bvh::TwoLevel`), or 1.
+    pub parts: usize,
     pub dropped_non_finite: usize,
     pub dropped_duplicates: usize,
     /// Statistical outliers dropped (`PreprocessConfig::outlier_std`).
@@ -456,9 +460,9 @@ pub struct OutOfCore {
     pub preprocess: PreprocessConfig,
     /// The build settings (a BVH's): which points are drawn, their colours, the bounding volumes.
     pub settings: Settings,
-    /// `BvhParams::chunk_splats`: the build's chunks. The default's tree is the one a build in
-    /// memory makes.
-    pub chunk_splats: usize,
+    /// The build's chunks and parts (`BvhParams::chunk_splats`, `part_splats`). The default's
+    /// tree is the one a build in memory makes (`Scene::build_with_limits` for others).
+    pub limits: BuildLimits,
     /// The most points in a cell whose outliers, normals and radii are found together (with a
     /// halo round each): at most `chunk_splats`, whose cells they divide.
     pub cell_points: usize,
@@ -485,7 +489,7 @@ impl Default for OutOfCore {
         Self {
             preprocess: PreprocessConfig::standard(),
             settings: Settings::default(),
-            chunk_splats: BvhParams::standard().chunk_splats,
+            limits: BuildLimits::default(),
             cell_points: BvhParams::standard().chunk_splats,
         }
     }
@@ -512,7 +516,8 @@ pub fn prepare_out_of_core(
     if kept == 0 {
         return Err(io(IoError::invalid(input, "no point with finite coordinates")));
     }
-    let params = BvhParams { chunk_splats: options.chunk_splats, ..pointray::scene::Build::of(settings).bvh_params() };
+    let BuildLimits { chunk_splats, part_splats } = options.limits;
+    let params = BvhParams { chunk_splats, part_splats, ..pointray::scene::Build::of(settings).bvh_params() };
     let dir = crate::ScratchDir::beside(output).map_err(io)?;
     let cell_points = options.cell_points.min(params.chunk_splats);
     let provisional = plan(&mut stream, origin, bounds, kept, cell_points, &mut ticker("read: cells", 0));
@@ -538,25 +543,24 @@ pub fn prepare_out_of_core(
         _ => final_plan(&mut buckets, bounds, count, params.chunk_splats, dir.path()).map_err(io)?,
     };
     let chunks = plan.chunks().len();
-    let build = StreamedBvh::new(plan, &params);
-    let mut spill = Files::new(dir.path()).map_err(io)?;
-    let names = selected.named;
     let preprocessed = selected.preprocessed;
-    let built = build_chunks(build, &buckets, origin, &style, names, &mut spill, &mut ticker("build", count));
-    let (build, cloud) = built.map_err(io)?;
-    ticker("write", 0);
     // The view from a lone sensor framing the points preprocessing left (as in memory, before
     // the build's filters).
-    let view = match sensors[..] {
-        [sensor] => crate::source::sensor_view_of(sensor, preprocessed.unwrap_or(cloud.bounds)),
-        _ => None,
+    let scene = |cloud: &StreamedCloud| {
+        let view = match sensors[..] {
+            [sensor] => crate::source::sensor_view_of(sensor, preprocessed.unwrap_or(cloud.bounds)),
+            _ => None,
+        };
+        SceneParts { view, ..crate::source::lone_cloud_parts(file_up, sun) }
     };
-    let parts = SceneParts { view, ..crate::source::lone_cloud_parts(file_up, sun) };
-    write(output, build, &mut spill, settings, &parts, &cloud).map_err(io)?;
+    let build =
+        Build { plan, params, buckets: &buckets, origin, style: &style, named: selected.named, dir: dir.path() };
+    let (cloud, parts) = write(output, &build, settings, scene, &mut ticker("build", count)).map_err(io)?;
     let done = Prepared {
         points_read,
         points: cloud.points,
         chunks,
+        parts,
         dropped_non_finite: points_read - kept,
         dropped_duplicates: done.duplicates,
         dropped_outliers: done.outliers,
@@ -1294,60 +1298,108 @@ fn overlap(a: &Aabb, b: &Aabb) -> bool {
     a.min.cmple(b.max).all() && b.min.cmple(a.max).all()
 }
 
-/// Every chunk built in turn from its buckets' points, as splats; the cloud's scalars.
-fn build_chunks(
-    mut build: StreamedBvh,
-    buckets: &[Bucket],
+/// What the build of the scene's BVH, or of its parts, takes: the chunks of the whole cloud
+/// and the cells' points.
+struct Build<'a> {
+    plan: ChunkPlan,
+    params: BvhParams,
+    buckets: &'a [Bucket],
     origin: DVec3,
-    style: &Style,
+    style: &'a Style,
+    /// Whether the kept points are named (else counted on).
     named: bool,
+    dir: &'a Path,
+}
+
+/// The cloud's scalars, summed over the parts' points as they are built.
+#[derive(Default)]
+struct Sums {
+    points: usize,
+    bounds: Aabb,
+    radii: f64,
+}
+
+/// Every chunk of `build` (the part `first_chunk` on of `whole`'s) built in turn from its
+/// buckets' points (taken from `left`), as splats in the part's frame `offset` away.
+#[allow(clippy::too_many_arguments)]
+fn build_chunks<'b>(
+    mut build: StreamedBvh,
+    whole: &Build<'b>,
+    first_chunk: usize,
+    left: &mut std::iter::Peekable<impl Iterator<Item = &'b Bucket>>,
+    offset: Vec3,
+    sums: &mut Sums,
     spill: &mut Files,
     ticker: &mut Ticker,
-) -> Result<(StreamedBvh, StreamedCloud), IoError> {
-    let (mut bounds, mut radii, mut points) = (Aabb::EMPTY, 0.0f64, 0usize);
+) -> Result<StreamedBvh, IoError> {
+    for c in 0..build.plan().chunks().len() {
+        let (mut splats, mut names) = (Vec::new(), Vec::new());
+        while let Some(bucket) = left.next_if(|b| whole.plan.chunk_of(b.first_code) == first_chunk + c) {
+            for_each_record(bucket, |r| {
+                let center = Vec3::from(r.position);
+                sums.bounds = sums.bounds.union(Aabb::new(center, center));
+                sums.radii += f64::from(r.radius);
+                let normal = Vec3::from(r.normal);
+                splats.push(Splat { center: center - offset, radius: r.radius, normal, color: whole.style.color(r) });
+                names.push(r.index);
+            })?;
+        }
+        sums.points += splats.len();
+        ticker.tick(splats.len());
+        let names = whole.named.then_some(&names[..]);
+        build.add_chunk(splats, names, spill).map_err(|e| IoError::invalid(&spill.dir, e.to_string()))?;
+    }
+    Ok(build)
+}
+
+/// Builds each part of `build` (one, or a two-level scene's) in turn into `file`, the
+/// part's arrays after the parts' before; their places, what the metadata says of them and
+/// the cloud's scalars.
+fn build_parts(
+    file: &File,
+    build: &Build<'_>,
+    ticker: &mut Ticker,
+) -> Result<(Vec<PartRanges>, Vec<PartMeta>, StreamedCloud), IoError> {
+    let parts = build.plan.parts(build.params.part_splats);
     // Cells every point was dropped from may lie outside every chunk: passed over.
-    let mut left = Vec::with_capacity(buckets.len());
-    for b in buckets {
+    let mut left = Vec::with_capacity(build.buckets.len());
+    for b in build.buckets {
         if std::fs::metadata(&b.path).map_err(|e| IoError::io(&b.path, e))?.len() > 0 {
             left.push(b);
         }
     }
     let mut left = left.into_iter().peekable();
-    for c in 0..build.plan().chunks().len() {
-        let (mut splats, mut names) = (Vec::new(), Vec::new());
-        while let Some(bucket) = left.next_if(|b| build.plan().chunk_of(b.first_code) == c) {
-            for_each_record(bucket, |r| {
-                let s = Splat {
-                    center: Vec3::from(r.position),
-                    radius: r.radius,
-                    normal: Vec3::from(r.normal),
-                    color: style.color(r),
-                };
-                bounds = bounds.union(Aabb::new(s.center, s.center));
-                radii += f64::from(s.radius);
-                splats.push(s);
-                names.push(r.index);
-            })?;
-        }
-        points += splats.len();
-        ticker.tick(splats.len());
-        let names = named.then_some(&names[..]);
-        build.add_chunk(splats, names, spill).map_err(|e| IoError::invalid(&spill.dir, e.to_string()))?;
+    let (mut ranges, mut metas, mut sums) = (Vec::new(), Vec::new(), Sums::default());
+    let (lone, mut first_chunk, mut first_id) = (parts.len() == 1, 0, 0);
+    for (cell, chunks) in parts {
+        // A lone part stays in the scene's frame, as a lone BVH in memory.
+        let offset = if lone { Vec3::ZERO } else { cell.center(&build.plan.bounds()) };
+        let mut spill = Files::new(build.dir)?;
+        let count = chunks.chunks().len();
+        let part = StreamedBvh::new(chunks, &build.params).starting_at(first_id);
+        let part = build_chunks(part, build, first_chunk, &mut left, offset, &mut sums, &mut spill, ticker)?;
+        let at = crate::prs::layout(part.lengths(), crate::prs::arrays_end(&ranges));
+        let finished = part.finish(&mut spill, &mut FileSink { file, ranges: &at }).map_err(|e| match e {
+            pointray::accel::bvh::StreamedError::Io(e) => IoError::io(&spill.dir, e),
+            e => IoError::invalid(&spill.dir, e.to_string()),
+        })?;
+        let mut bvh = finished.meta;
+        let density = coverage_density(file, &at, &bvh, &finished.coverage_samples);
+        bvh.coverage_density = density.map_err(|e| IoError::io(&spill.dir, e))?;
+        metas.push(PartMeta { offset: offset.to_array(), bvh, ids_crc: finished.ids_crc });
+        ranges.push(at);
+        (first_chunk, first_id) = (first_chunk + count, first_id + cell.count);
     }
-    let cloud = StreamedCloud { points, origin, bounds, mean_radius: radii / points as f64 };
-    Ok((build, cloud))
+    let Sums { points, bounds, radii } = sums;
+    let cloud = StreamedCloud { points, origin: build.origin, bounds, mean_radius: radii / points as f64 };
+    Ok((ranges, metas, cloud))
 }
 
 /// [`Bvh::measure_coverage_density`] of the tree written to `file` (its `samples` read while it
 /// was written), mapped afresh for every batch of samples: a sample's neighbours lie in a few
 /// treelets, each read whole for its check, and mapped once for all, the pages read stay
 /// resident.
-fn coverage_density(
-    file: &File,
-    ranges: &[std::ops::Range<usize>; 7],
-    meta: &BvhMeta,
-    samples: &[Splat],
-) -> std::io::Result<f32> {
+fn coverage_density(file: &File, ranges: &PartRanges, meta: &BvhMeta, samples: &[Splat]) -> std::io::Result<f32> {
     let tree = || -> std::io::Result<Bvh> {
         let bytes: Arc<dyn StableBytes> = Arc::new(crate::file::map_for_reading(file)?);
         let [nodes, lod, blocks, reps, aggregates, treelets, _] = ranges.clone();
@@ -1402,7 +1454,7 @@ impl Spill for Files {
 /// The scene file being written, its arrays where `ranges` put them.
 struct FileSink<'a> {
     file: &'a File,
-    ranges: &'a [std::ops::Range<usize>; 7],
+    ranges: &'a PartRanges,
 }
 
 impl Sink for FileSink<'_> {
@@ -1412,39 +1464,34 @@ impl Sink for FileSink<'_> {
     }
 }
 
-/// Writes the scene file: the arrays, then (with the coverage density found from them, mapped)
-/// the index, metadata and header.
+/// Writes the scene file: each part's arrays, then (with each part's coverage density found
+/// from them, mapped) the index, metadata and header; the cloud's scalars and the parts.
 fn write(
     output: &Path,
-    build: StreamedBvh,
-    spill: &mut Files,
+    build: &Build<'_>,
     settings: &Settings,
-    parts: &SceneParts,
-    cloud: &StreamedCloud,
-) -> Result<(), IoError> {
-    let ranges = crate::prs::layout(build.lengths());
-    let mut failed = None;
+    scene: impl Fn(&StreamedCloud) -> SceneParts,
+    ticker: &mut Ticker,
+) -> Result<(StreamedCloud, usize), IoError> {
+    let (mut failed, mut done) = (None, None);
     crate::atomic_file(output, |file| {
-        let finished = build.finish(spill, &mut FileSink { file, ranges: &ranges }).map_err(|e| match e {
-            pointray::accel::bvh::StreamedError::Io(e) => e,
-            e => std::io::Error::other(e.to_string()),
-        })?;
-        let (mut meta, ids_crc) = (finished.meta, finished.ids_crc);
+        let mut fail = |e: IoError| {
+            let message = e.to_string();
+            failed = Some(e);
+            std::io::Error::other(message)
+        };
+        let (ranges, parts, cloud) = build_parts(file, build, ticker).map_err(&mut fail)?;
         file.set_len(crate::prs::index_at(&ranges) as u64)?;
-        meta.coverage_density = coverage_density(file, &ranges, &meta, &finished.coverage_samples)?;
-        let scene = SceneMeta::streamed(settings, parts, cloud, meta, ids_crc);
-        match crate::prs::tail(output, &ranges, &scene) {
-            Ok((header, tail)) => {
-                std::os::unix::fs::FileExt::write_all_at(file, &tail, crate::prs::index_at(&ranges) as u64)?;
-                std::os::unix::fs::FileExt::write_all_at(file, &header, 0)
-            }
-            Err(e) => {
-                failed = Some(e);
-                Err(std::io::Error::other("cannot store the scene"))
-            }
-        }
+        let count = parts.len();
+        let meta = SceneMeta::streamed(settings, &scene(&cloud), &cloud, parts);
+        let (header, tail) = crate::prs::tail(output, &ranges, &meta).map_err(&mut fail)?;
+        std::os::unix::fs::FileExt::write_all_at(file, &tail, crate::prs::index_at(&ranges) as u64)?;
+        std::os::unix::fs::FileExt::write_all_at(file, &header, 0)?;
+        done = Some((cloud, count));
+        Ok(())
     })
-    .map_err(|e| failed.take().unwrap_or(e))
+    .map_err(|e| failed.take().unwrap_or(e))?;
+    Ok(done.expect("written"))
 }
 
 #[cfg(test)]

@@ -2,20 +2,19 @@
 //! data included, in one file laid out to be memory-mapped, so that a render opens it without
 //! a build and reads only what its view needs.
 //!
-//! Layout (little-endian): a 64-byte header; each array of [`SCENE_ARRAYS`] on a page boundary
-//! ([`PAGE`]); then the index (a 32-byte entry an array: name, offset, length) and the scene's
-//! metadata as JSON. The header's CRC covers the header, the index and the metadata, which are
+//! Layout (little-endian): a 64-byte header; each part's arrays ([`SCENE_ARRAYS`]; one part,
+//! or a two-level scene's several) on page boundaries ([`PAGE`]); then the index (a 32-byte
+//! entry an array: name, offset, length) and the scene's metadata as JSON. The header's CRC covers the header, the index and the metadata, which are
 //! checked at open; the arrays carry their own CRCs, a treelet's checked as a walk first enters
 //! it (`pointray::accel::Bvh::from_stored`), the ids' as a query first names a point.
 
 use std::io::Read;
-use std::ops::Range;
 use std::path::Path;
 use std::sync::Arc;
 
 use pointray::Scene;
 use pointray::accel::stored::{AlignedBytes, StableBytes};
-use pointray::scene::{SCENE_ARRAYS, SceneMeta, StoredScene};
+use pointray::scene::{PartRanges, SCENE_ARRAYS, SceneMeta, StoredScene};
 
 use crate::IoError;
 
@@ -23,8 +22,8 @@ use crate::IoError;
 /// that a text-mode transfer would change).
 pub const MAGIC: [u8; 8] = *b"\x89PRS\r\n\x1a\n";
 
-/// The format this build writes and reads.
-pub const VERSION: u32 = 1;
+/// The format this build writes and reads (2: a scene in parts).
+pub const VERSION: u32 = 2;
 
 /// Arrays start on multiples of this (a memory page; also every element's alignment).
 pub const PAGE: usize = 4096;
@@ -34,14 +33,17 @@ const ENTRY: usize = 32;
 
 /// Writes `scene` to `path` (all or nothing).
 pub fn write_prs(path: &Path, scene: &Scene) -> Result<(), IoError> {
-    let (arrays, meta) = scene.stored().map_err(|e| IoError::invalid(path, format!("cannot store the scene: {e}")))?;
-    let ranges = layout(arrays.each_ref().map(|a| a.len()));
+    let (parts, meta) = scene.stored().map_err(|e| IoError::invalid(path, format!("cannot store the scene: {e}")))?;
+    let mut ranges: Vec<PartRanges> = Vec::new();
+    for arrays in &parts {
+        ranges.push(layout(arrays.each_ref().map(|a| a.len()), arrays_end(&ranges)));
+    }
     let (header, index) = tail(path, &ranges, &meta)?;
     crate::atomic_write(path, |w| {
         let zeros = vec![0; PAGE];
         w.write_all(&header[..HEADER])?;
         let mut written = HEADER;
-        for (array, range) in arrays.iter().zip(&ranges) {
+        for (array, range) in parts.iter().flatten().zip(ranges.iter().flatten()) {
             w.write_all(&zeros[..range.start - written])?;
             w.write_all(array)?;
             written = range.end;
@@ -51,10 +53,9 @@ pub fn write_prs(path: &Path, scene: &Scene) -> Result<(), IoError> {
     })
 }
 
-/// Where arrays of these byte lengths lie in a scene file: each on a page boundary, after the
-/// header's page.
-pub(crate) fn layout(lengths: [usize; 7]) -> [Range<usize>; 7] {
-    let mut at = PAGE;
+/// Where a part's arrays of these byte lengths lie in a scene file: each on a page boundary,
+/// from `at` (a page boundary).
+pub(crate) fn layout(lengths: [usize; 7], mut at: usize) -> PartRanges {
     lengths.map(|len| {
         let start = at;
         at = (start + len).next_multiple_of(PAGE);
@@ -62,17 +63,23 @@ pub(crate) fn layout(lengths: [usize; 7]) -> [Range<usize>; 7] {
     })
 }
 
+/// Where the arrays after these parts' start: the page after the last array, or after the
+/// header's page.
+pub(crate) fn arrays_end(ranges: &[PartRanges]) -> usize {
+    ranges.last().map_or(PAGE, |r| r[6].end.next_multiple_of(PAGE))
+}
+
 /// Where the index starts: the page after the last array.
-pub(crate) fn index_at(ranges: &[Range<usize>; 7]) -> usize {
-    ranges[6].end.next_multiple_of(PAGE)
+pub(crate) fn index_at(ranges: &[PartRanges]) -> usize {
+    arrays_end(ranges)
 }
 
 /// The header (its 64 bytes) and what follows the arrays (the index, then the metadata) of a
 /// scene file whose arrays lie in `ranges`.
-pub(crate) fn tail(path: &Path, ranges: &[Range<usize>; 7], meta: &SceneMeta) -> Result<(Vec<u8>, Vec<u8>), IoError> {
+pub(crate) fn tail(path: &Path, ranges: &[PartRanges], meta: &SceneMeta) -> Result<(Vec<u8>, Vec<u8>), IoError> {
     let meta = serde_json::to_vec(meta).map_err(|e| IoError::invalid(path, format!("cannot store the scene: {e}")))?;
     let mut index = Vec::new();
-    for (name, range) in SCENE_ARRAYS.iter().zip(ranges) {
+    for (name, range) in ranges.iter().flat_map(|r| SCENE_ARRAYS.iter().zip(r)) {
         index.extend_from_slice(&name_field(name));
         index.extend_from_slice(&(range.start as u64).to_le_bytes());
         index.extend_from_slice(&(range.len() as u64).to_le_bytes());
@@ -124,7 +131,7 @@ pub fn open_prs(path: &Path) -> Result<StoredScene, IoError> {
 
 /// The metadata and the arrays' ranges of a scene file's `bytes`, everything checked but the
 /// scene's own structure; the problem otherwise.
-fn check(bytes: &[u8]) -> Result<(SceneMeta, [Range<usize>; 7]), String> {
+fn check(bytes: &[u8]) -> Result<(SceneMeta, Vec<PartRanges>), String> {
     if bytes.len() < HEADER || bytes[..8] != MAGIC {
         return Err("not a pointray scene file (.prs)".into());
     }
@@ -158,14 +165,20 @@ fn check(bytes: &[u8]) -> Result<(SceneMeta, [Range<usize>; 7]), String> {
     Ok((meta, ranges))
 }
 
-/// The arrays the index names, where it says.
-fn arrays(bytes: &[u8], index: &[u8]) -> Result<[Range<usize>; 7], String> {
-    if index.len() != SCENE_ARRAYS.len() * ENTRY {
-        return Err(format!("its index holds {} bytes, not {}", index.len(), SCENE_ARRAYS.len() * ENTRY));
+/// The arrays the index names (each part's in turn), where it says.
+fn arrays(bytes: &[u8], index: &[u8]) -> Result<Vec<PartRanges>, String> {
+    let part = SCENE_ARRAYS.len() * ENTRY;
+    if index.is_empty() || !index.len().is_multiple_of(part) {
+        return Err(format!("its index holds {} bytes, not a multiple of {part}", index.len()));
     }
-    let mut ranges: [Range<usize>; 7] = Default::default();
+    index.chunks(part).map(|entries| part_arrays(bytes, entries)).collect()
+}
+
+/// A part's arrays, where its index `entries` say.
+fn part_arrays(bytes: &[u8], entries: &[u8]) -> Result<PartRanges, String> {
+    let mut ranges: PartRanges = Default::default();
     for (i, name) in SCENE_ARRAYS.iter().enumerate() {
-        let entry = &index[i * ENTRY..(i + 1) * ENTRY];
+        let entry = &entries[i * ENTRY..(i + 1) * ENTRY];
         if entry[..16] != name_field(name) {
             return Err(format!(
                 "its index names {:?} where the {name} array belongs",
@@ -233,6 +246,34 @@ mod tests {
         assert_eq!(image(&opened(&path).unwrap()), image(&scene));
     }
 
+    /// A two-level scene (here parts of at most 1,000 splats) is stored part by part, each
+    /// in its frame, and renders and answers queries as it did.
+    #[test]
+    fn a_scene_in_parts_is_stored_part_by_part() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("parts.prs");
+        let mut cloud = pointray::demo::demo_cloud(6_000, 9);
+        preprocess(&mut cloud, &PreprocessConfig::standard()).unwrap();
+        let limits = pointray::scene::BuildLimits { chunk_splats: 500, part_splats: 1_000 };
+        let parts = pointray::demo::demo_scene_parts(cloud);
+        let scene = Scene::build_with_limits(parts, &Settings::default(), limits).unwrap();
+        write_prs(&path, &scene).unwrap();
+        let meta = open_prs(&path).unwrap().meta().clone();
+        assert!(meta.parts.len() >= 4, "{} parts", meta.parts.len());
+        assert!(meta.parts.iter().all(|p| p.offset != [0.0; 3]));
+        let back = opened(&path).unwrap();
+        assert_eq!(image(&back), image(&scene));
+        let center = scene.origin() + scene.bounds().center().as_dvec3();
+        let rays: Vec<_> = (0..64)
+            .map(|i| {
+                (center + glam::DVec3::new((i % 8) as f64 - 3.5, 10.0, (i / 8) as f64 - 3.5) * 0.2, -glam::Vec3::Y)
+            })
+            .collect();
+        let hits = back.intersect(&rays, &Settings::default()).unwrap();
+        assert!(hits.iter().flatten().count() > 10);
+        assert_eq!(hits, scene.intersect(&rays, &Settings::default()).unwrap());
+    }
+
     /// Damage to the header, index, metadata or top is refused at open, with the file's name
     /// and what is wrong; damage below the top when a render or a query first reads it.
     #[test]
@@ -263,8 +304,8 @@ mod tests {
         assert!(refused("root.prs", &|b| b[PAGE + 3] ^= 1).contains("top is damaged"));
         assert!(refused("meta.prs", &|b| b[meta_at + 5] ^= 1).contains("CRC"));
         assert!(refused("index.prs", &|b| b[index_at + 20] ^= 1).contains("CRC"));
-        let newer = refused("newer.prs", &|b| b[8] = 2);
-        assert!(newer.contains("format 2") && newer.contains("prepare it again"), "{newer}");
+        let newer = refused("newer.prs", &|b| b[8] = 3);
+        assert!(newer.contains("format 3") && newer.contains("prepare it again"), "{newer}");
         assert!(!is_prs(&dir.path().join("missing.prs")));
         std::fs::write(dir.path().join("cloud.prs"), "ply\nformat ascii 1.0\n").unwrap();
         assert!(!is_prs(&dir.path().join("cloud.prs")));

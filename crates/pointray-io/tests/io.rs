@@ -1111,6 +1111,60 @@ fn build_settings_out_of_core_make_the_scene_file_made_in_memory() {
     );
 }
 
+/// A cloud of more parts than one (parts of at most 3,000 splats here, of 2²⁶ by default)
+/// prepared out of core is the two-level scene built in memory, byte for byte, each part in its
+/// frame: plain, and filtered and coloured with outliers dropped.
+#[test]
+fn a_scene_in_parts_prepared_out_of_core_is_the_one_built_in_memory() {
+    use pointray::color_by::ColorBy;
+    let dir = temp_dir();
+    let n = 12_000;
+    let positions: Vec<Vec3> = (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+            let (r, phi) = ((1.0 - z * z).sqrt(), i as f32 * 2.399_963);
+            Vec3::new(r * phi.cos(), r * phi.sin(), z) * 3.0
+        })
+        .collect();
+    let cloud = PointCloud {
+        normals: Some(positions.iter().map(|p| p.normalize()).collect()),
+        radii: Some(vec![0.06; n]),
+        scan: ScanAttributes {
+            classification: Some((0..n).map(|i| [2, 5, 6][i % 3]).collect()),
+            intensity: Some((0..n).map(|i| (i * 37 % 1000) as f32).collect()),
+            ..ScanAttributes::default()
+        },
+        positions,
+        origin: glam::DVec3::new(500_000.0, 4_000_000.0, 100.0),
+        ..PointCloud::default()
+    };
+    let input = [dir.path().join("sphere.ply")];
+    pointray_io::write_ply(&input[0], &cloud).unwrap();
+    let limits = pointray::scene::BuildLimits { chunk_splats: 700, part_splats: 3_000 };
+    let cases = [
+        (pointray::Settings::default(), None),
+        (
+            pointray::Settings { color_by: ColorBy::Intensity, exclude_classes: vec![5], ..Default::default() },
+            Some(1.0),
+        ),
+    ];
+    for (settings, outlier_std) in cases {
+        let config = pointray::preprocess::PreprocessConfig { outlier_std, ..Default::default() };
+        let source = pointray_io::source::load_tiles(&input, &config, &Default::default(), &|_| {}).unwrap();
+        let scene = pointray::Scene::build_with_limits(source.parts, &settings, limits).unwrap();
+        assert!(scene.parts() >= 4, "{} parts", scene.parts());
+        let (memory, streamed) = (dir.path().join("memory.prs"), dir.path().join("streamed.prs"));
+        pointray_io::prs::write_prs(&memory, &scene).unwrap();
+        let options = pointray_io::prepare::OutOfCore { preprocess: config, settings, limits, ..Default::default() };
+        let done = pointray_io::prepare::prepare_out_of_core(&input, &streamed, &options, &|_| {}).unwrap();
+        assert_eq!(done.parts, scene.parts());
+        assert!(
+            std::fs::read(&memory).unwrap() == std::fs::read(&streamed).unwrap(),
+            "{outlier_std:?}: the files differ"
+        );
+    }
+}
+
 /// Cells smaller than the build's chunks (a small memory budget's) change nothing where the
 /// normals and radii are given: each cell lies inside one chunk, and the chunks are the ones a
 /// build in memory makes. A sphere with classes and intensities in cells of at most 700 points,

@@ -373,6 +373,7 @@ fn prepare_file<'py>(
     let summary = PyDict::new(py);
     summary.set_item("points", done.points)?;
     summary.set_item("chunks", done.chunks)?;
+    summary.set_item("parts", done.parts)?;
     summary.set_item("bytes", done.bytes)?;
     Ok(summary)
 }

@@ -25,6 +25,7 @@ use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
 use crate::PointCloud;
+use crate::accel::bvh::TwoLevel;
 use crate::accel::stored::Stored;
 use crate::accel::{Accel, BruteForce, Bvh, BvhParams, KdTree, KdTreeParams, NodeBounds};
 use crate::camera::{Camera, Region};
@@ -63,7 +64,7 @@ const PREFILTER_CHECK_RAYS: usize = 1024;
 const CULL_CHECK_RAYS: usize = 4096;
 
 mod stored;
-pub use stored::{SCENE_ARRAYS, SceneMeta, StoredScene, StoredSceneError, StreamedCloud};
+pub use stored::{PartMeta, PartRanges, SCENE_ARRAYS, SceneMeta, StoredScene, StoredSceneError, StreamedCloud};
 
 /// What a scene file brings beside its points: then the settings' light, material, sky and
 /// ground options, which dress a lone cloud, do not apply.
@@ -113,8 +114,8 @@ impl From<PointCloud> for SceneParts {
 /// Why a scene cannot be built.
 #[derive(Debug, thiserror::Error)]
 pub enum SceneError {
-    #[error("{0} points is more than pointray can index ({max})", max = crate::accel::bvh::MAX_SPLATS)]
-    TooManyPoints(usize),
+    #[error("{0} points is more than pointray can index ({1})")]
+    TooManyPoints(usize, usize),
     #[error("the cloud is not prepared: every point needs a normal and a radius")]
     NotPrepared,
     #[error("the cloud has no points")]
@@ -133,6 +134,8 @@ pub enum SceneError {
 /// The accelerators a scene can be built on; the render loop is monomorphised for each.
 enum Accelerator {
     Bvh(Bvh),
+    /// A BVH of more than `BvhParams::part_splats` splats, in parts.
+    TwoLevel(TwoLevel),
     KdTree(KdTree),
     Brute(BruteForce),
 }
@@ -142,6 +145,7 @@ macro_rules! on_accel {
     ($accel:expr, $a:ident => $body:expr) => {
         match $accel {
             Accelerator::Bvh($a) => $body,
+            Accelerator::TwoLevel($a) => $body,
             Accelerator::KdTree($a) => $body,
             Accelerator::Brute($a) => $body,
         }
@@ -195,6 +199,21 @@ impl Build {
     }
 }
 
+/// The most splats a BVH's build takes at a time (a chunk) and holds in one tree (a part):
+/// `BvhParams::chunk_splats` and `part_splats`, whose defaults every front end takes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BuildLimits {
+    pub chunk_splats: usize,
+    pub part_splats: usize,
+}
+
+impl Default for BuildLimits {
+    fn default() -> Self {
+        let p = BvhParams::standard();
+        Self { chunk_splats: p.chunk_splats, part_splats: p.part_splats }
+    }
+}
+
 /// Splats in an accelerator, with their lights, materials and surroundings: ready to render.
 pub struct Scene {
     accel: Accelerator,
@@ -214,8 +233,9 @@ pub struct Scene {
     mean_radius: f64,
     /// The accelerator's build alone (the splats made before it, the bounds after).
     build_seconds: f64,
-    /// The input splat of each accelerator index where they differ (the BVH's blocks).
-    ids: Option<Stored<u32>>,
+    /// The input splat of each accelerator index where they differ (the BVH's blocks): a part's
+    /// block lanes each (one for a lone BVH, or the points a filter kept).
+    ids: Vec<Stored<u32>>,
     /// Read from a scene file (`.prs`): its build is the file's, and its ids' CRC is checked
     /// when a query first needs them.
     stored: Option<Arc<stored::IdsCheck>>,
@@ -243,6 +263,13 @@ impl Scene {
     /// those of the settings' `classes` (less `exclude_classes`) inside their clip, coloured by
     /// `color_by`.
     pub fn build(parts: SceneParts, settings: &Settings) -> Result<Scene, SceneError> {
+        Self::build_with_limits(parts, settings, BuildLimits::default())
+    }
+
+    /// [`Scene::build`] with a BVH's chunks and parts of at most `limits`' splats: for tests of
+    /// builds made elsewhere (out of core) with small ones.
+    #[doc(hidden)]
+    pub fn build_with_limits(parts: SceneParts, settings: &Settings, limits: BuildLimits) -> Result<Scene, SceneError> {
         let SceneParts { mut cloud, mut point_materials, content, view, light, up, environment, stored } = parts;
         if let Some(stored) = stored {
             let scene = stored.scene();
@@ -264,8 +291,10 @@ impl Scene {
         if cloud.is_empty() {
             return Err(SceneError::Empty);
         }
-        if cloud.len() > crate::accel::bvh::MAX_SPLATS {
-            return Err(SceneError::TooManyPoints(cloud.len()));
+        // A BVH in parts names its points in 32 bits; the others index 2²⁸ splats.
+        let most = if settings.accel == AccelKind::Bvh { u32::MAX as usize } else { crate::accel::bvh::MAX_SPLATS };
+        if cloud.len() > most {
+            return Err(SceneError::TooManyPoints(cloud.len(), most));
         }
         let prepared = |v: Option<usize>| v == Some(cloud.len());
         if !prepared(cloud.normals.as_ref().map(Vec::len)) || !prepared(cloud.radii.as_ref().map(Vec::len)) {
@@ -282,10 +311,17 @@ impl Scene {
         let start = std::time::Instant::now();
         // The kd-tree and brute force keep the splats' order; the BVH says where each went.
         let mut ids = None;
+        let params =
+            BvhParams { chunk_splats: limits.chunk_splats, part_splats: limits.part_splats, ..build.bvh_params() };
         let accel = match build.accel {
+            AccelKind::Bvh if splats.len() > params.part_splats => {
+                let (scene, part_ids) = TwoLevel::try_build_with_ids(splats, &params)?;
+                ids = Some(part_ids);
+                scene.into_lone().map_or_else(Accelerator::TwoLevel, Accelerator::Bvh)
+            }
             AccelKind::Bvh => {
-                let (bvh, slot_ids) = Bvh::try_build_with_ids(splats, &build.bvh_params())?;
-                ids = Some(slot_ids);
+                let (bvh, slot_ids) = Bvh::try_build_with_ids(splats, &params)?;
+                ids = Some(vec![slot_ids]);
                 Accelerator::Bvh(bvh)
             }
             AccelKind::Kdtree => Accelerator::KdTree(KdTree::build(
@@ -298,12 +334,13 @@ impl Scene {
         // Ids name the points as they came, before the class filter.
         let ids = match (ids, kept) {
             // (u32::MAX marks a block's empty slot.)
-            (Some(slots), Some(kept)) => {
-                Some(slots.iter().map(|&s| if s == u32::MAX { s } else { kept[s as usize] }).collect())
-            }
-            (ids, kept) => ids.or(kept),
-        }
-        .map(Stored::from);
+            (Some(parts), Some(kept)) => parts
+                .iter()
+                .map(|slots| slots.iter().map(|&s| if s == u32::MAX { s } else { kept[s as usize] }).collect())
+                .collect(),
+            (ids, kept) => ids.or(kept.map(|kept| vec![kept])).unwrap_or_default(),
+        };
+        let ids = ids.into_iter().map(Stored::from).collect();
         // The camera frames the points' bounds (the Embree bench's convention); a cloud of one
         // point, or of coincident points, has none, and then the disks' bounds serve.
         let bounds = if bounds.diagonal() > 0.0 { bounds } else { on_accel!(&accel, a => a.bounds()) };
@@ -336,6 +373,14 @@ impl Scene {
     /// The splats indexed.
     pub fn points(&self) -> usize {
         self.points
+    }
+
+    /// The parts of a two-level scene (`accel::bvh::TwoLevel`), or 1.
+    pub fn parts(&self) -> usize {
+        match &self.accel {
+            Accelerator::TwoLevel(scene) => scene.parts().len(),
+            _ => 1,
+        }
     }
 
     /// The accelerator's name ("bvh", "kdtree", "brute").
@@ -371,8 +416,8 @@ impl Scene {
     pub fn intersect(&self, rays: &[(DVec3, Vec3)], settings: &Settings) -> Result<Vec<Option<RayHit>>, RenderError> {
         settings.check()?;
         self.check_build(settings)?;
-        if let Some(ids) = &self.stored {
-            ids.check(self.ids.as_ref().map_or(&[][..], |ids| ids.as_bytes()))?;
+        if let Some(check) = &self.stored {
+            check.check(&self.ids)?;
         }
         let scheme = settings.scheme();
         let cone = crate::math::RayCone { width0: 0.0, spread: 0.0 };
@@ -381,7 +426,7 @@ impl Scene {
             let mut stats = crate::accel::TraversalStats::uncounted();
             let hit = on_accel!(&self.accel, a => crate::splat::scheme::intersect(a, &ray, &scheme, &mut stats))?;
             // Full detail: every hit is an input splat's, which the BVH's ids name.
-            let splat = self.ids.as_ref().map_or(hit.splat, |ids| ids[hit.splat as usize]);
+            let splat = self.input_id(hit.splat);
             Some(RayHit { t: hit.t, position: self.origin + hit.position.as_dvec3(), normal: hit.normal, splat })
         };
         let hits = rays.par_iter().map(query).collect();
@@ -389,13 +434,27 @@ impl Scene {
         Ok(hits)
     }
 
+    /// The input point of the accelerator's index `splat` (an input splat's).
+    fn input_id(&self, splat: u32) -> u32 {
+        match (&self.accel, &self.ids[..]) {
+            (Accelerator::TwoLevel(scene), ids) => {
+                let (part, local) = scene.locate(splat);
+                ids[part][local as usize]
+            }
+            (_, [ids]) => ids[splat as usize],
+            _ => splat,
+        }
+    }
+
     /// An error if a walk found part of a stored scene damaged (see [`Bvh::damage`]): what it
     /// drew or met is then incomplete.
     fn check_whole(&self) -> Result<(), RenderError> {
-        match &self.accel {
-            Accelerator::Bvh(bvh) => bvh.damage().map_or(Ok(()), |d| Err(RenderError::Damaged(d.to_string()))),
-            _ => Ok(()),
-        }
+        let damage = match &self.accel {
+            Accelerator::Bvh(bvh) => bvh.damage(),
+            Accelerator::TwoLevel(scene) => scene.damage(),
+            _ => None,
+        };
+        damage.map_or(Ok(()), |d| Err(RenderError::Damaged(d.to_string())))
     }
 
     /// The settings resolved against this scene: the camera, the pixels and the render
@@ -642,6 +701,7 @@ impl Scene {
     fn node_summary(&self) -> (usize, usize, usize) {
         match &self.accel {
             Accelerator::Bvh(a) => (a.node_count(), a.sphere_node_count(), Bvh::NODE_BYTES),
+            Accelerator::TwoLevel(a) => (a.node_count(), a.sphere_node_count(), Bvh::NODE_BYTES),
             Accelerator::KdTree(a) => (a.node_count(), 0, KdTree::NODE_BYTES),
             Accelerator::Brute(_) => (0, 0, 0),
         }
@@ -891,6 +951,46 @@ mod tests {
         assert_eq!(refused_option(render(&scene, &rfd)), "surface");
         let kd = Settings { accel: AccelKind::Kdtree, ..small };
         assert_eq!(refused_option(render(&scene, &kd)), "accel");
+    }
+
+    /// A scene in parts (of at most 1,000 splats here) renders the lone tree's image up to the
+    /// rounding of its parts' frames, at full detail, with level of detail and prefiltered, and
+    /// its queries name the same points.
+    #[test]
+    fn a_scene_in_parts_renders_the_lone_scenes_image() {
+        let mut cloud = crate::demo::demo_cloud(8_000, 2);
+        crate::preprocess::preprocess(&mut cloud, &crate::preprocess::PreprocessConfig::standard()).unwrap();
+        let parts = || SceneParts::from(cloud.clone());
+        let lone = Scene::build(parts(), &Settings::default()).unwrap();
+        let limits = BuildLimits { chunk_splats: 500, part_splats: 1_000 };
+        let split = Scene::build_with_limits(parts(), &Settings::default(), limits).unwrap();
+        assert!(split.parts() >= 6, "{} parts", split.parts());
+        let small =
+            Settings { width: 96, height: 72, spp: 2, count_work: true, lod_threshold: 0.0, ..Settings::default() };
+        // From afar, where level of detail stops in the parts' tops.
+        let lod = Settings { lod_threshold: 1.0, distance: Some(6.0), ..small.clone() };
+        let prefilter = Settings { prefilter: true, spp: 1, ..lod.clone() };
+        for settings in [small, lod, prefilter] {
+            let render = |s: &Scene| render(s, &settings).unwrap();
+            let (a, b) = (render(&lone), render(&split));
+            let stops = |f: &crate::Frame| f.stats.traversal.lod_stops;
+            assert_eq!(stops(&a) > 0, settings.lod_threshold > 0.0, "{:?}", stops(&a));
+            let diff = crate::metrics::compare_rgb8(&a.srgb8(settings.tone_map()), &b.srgb8(settings.tone_map()));
+            if settings.lod_threshold == 0.0 {
+                assert!(diff.psnr_db.is_none_or(|db| db > 60.0), "{diff:?} at full detail");
+            } else {
+                // No stop above a part (here 1,000 splats, a few pixels across): where the lone
+                // tree stops over several parts, the parts stop at their own roots' children.
+                assert!(diff.differing_pixels * 100 <= diff.pixels, "{diff:?} at τ = 1");
+            }
+        }
+        let rays = rays_at(&lone, 500);
+        let (a, b) = (
+            lone.intersect(&rays, &Settings::default()).unwrap(),
+            split.intersect(&rays, &Settings::default()).unwrap(),
+        );
+        let same = a.iter().zip(&b).filter(|(a, b)| a.map(|h| h.splat) == b.map(|h| h.splat)).count();
+        assert!(a.iter().flatten().count() > 100 && same >= 495, "{same} of 500 rays name the same point");
     }
 
     #[test]

@@ -65,6 +65,10 @@ fn scene_file(a: &InfoArgs) -> anyhow::Result<()> {
         bytes as f64 / meta.points.max(1) as f64
     )?;
     writeln!(out, "points:      {}", meta.points)?;
+    if meta.parts.len() > 1 {
+        let most = meta.parts.iter().map(|p| p.bvh.splat_count).max().unwrap_or(0);
+        writeln!(out, "parts:       {} (each a BVH in its own frame; the largest {most} splats)", meta.parts.len())?;
+    }
     let b = &meta.build;
     writeln!(out, "build:       {}", serde_json::to_string(b)?)?;
     let [x, y, z] = meta.up;

@@ -64,9 +64,11 @@ fn scene_file(a: &PrepareArgs, config: &pointray::preprocess::PreprocessConfig, 
         SceneFileError::Output(e) => crate::failure::output(e),
     })?;
     if !quiet {
-        let how = match done.chunks {
-            Some(chunks) => format!("in {chunks} chunks, out of core"),
-            None => "in a BVH".to_string(),
+        let how = match (done.chunks, done.parts) {
+            (Some(chunks), 1) => format!("in {chunks} chunks, out of core"),
+            (Some(chunks), parts) => format!("in {parts} parts of {chunks} chunks, out of core"),
+            (None, 1) => "in a BVH".to_string(),
+            (None, parts) => format!("in {parts} parts"),
         };
         eprintln!(
             "{}: {} points {how}, wrote {} ({} bytes, {:.1} a point)",

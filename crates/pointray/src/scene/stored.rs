@@ -3,8 +3,9 @@
 //! bytes that stay mapped, rendering the same image as the scene it was.
 //!
 //! Only what a lone cloud makes is stored: a BVH (the accelerator whose level of detail the
-//! file serves), with the cloud's up axis, view, sun and sky. A scene file's lights and
-//! materials, and an environment map, are refused when storing.
+//! file serves), or the parts of a two-level scene, each its arrays, with the cloud's up axis,
+//! view, sun and sky. A scene file's lights and materials, and an environment map, are refused
+//! when storing.
 
 use std::borrow::Cow;
 use std::ops::Range;
@@ -13,19 +14,33 @@ use std::sync::{Arc, OnceLock};
 use glam::{DVec3, Vec3};
 
 use super::{Accelerator, Build, Scene};
-use crate::accel::bvh::{ARRAYS, BvhMeta, BvhStoredError};
+use crate::accel::bvh::{ARRAYS, BvhMeta, BvhStoredError, TwoLevel};
 use crate::accel::stored::{StableBytes, Stored, StoredError};
 use crate::accel::{Bvh, block};
 use crate::math::Aabb;
 use crate::settings::AccelKind;
 use crate::shading::{Environment, Light};
 
-/// The arrays of a stored scene, in the order [`Scene::stored`] gives them and
+/// The arrays of a stored scene's part, in the order [`Scene::stored`] gives them and
 /// [`Scene::from_stored`] takes them: the BVH's, then the input's id of each splat slot.
 pub const SCENE_ARRAYS: [&str; 7] = [ARRAYS[0], ARRAYS[1], ARRAYS[2], ARRAYS[3], ARRAYS[4], ARRAYS[5], "ids"];
 
-/// A stored scene's arrays' bytes, named as [`SCENE_ARRAYS`].
+/// A stored scene's part's arrays' bytes, named as [`SCENE_ARRAYS`].
 pub type SceneArrays<'a> = [Cow<'a, [u8]>; 7];
+
+/// Where a part's arrays lie in the stored bytes.
+pub type PartRanges = [Range<usize>; 7];
+
+/// A part of a stored scene: a BVH, one alone or one of a two-level scene's
+/// (`accel::bvh::TwoLevel`).
+#[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct PartMeta {
+    /// Where its positions' origin lies from the scene's (zero for a lone part).
+    pub offset: [f32; 3],
+    pub bvh: BvhMeta,
+    /// CRC-32 of its ids, checked when a query first needs them.
+    pub ids_crc: u32,
+}
 
 /// Everything of a stored scene but its arrays.
 #[derive(Clone, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -42,9 +57,8 @@ pub struct SceneMeta {
     pub environment: Option<Environment>,
     /// The settings the accelerator was built with, which a render must ask for too.
     pub build: Build,
-    pub bvh: BvhMeta,
-    /// CRC-32 of the ids, checked when a query first needs them.
-    pub ids_crc: u32,
+    /// One BVH, or a two-level scene's parts in the order of their index spaces.
+    pub parts: Vec<PartMeta>,
 }
 
 /// What [`SceneMeta::streamed`] needs of a cloud whose BVH was built out of core
@@ -61,18 +75,20 @@ pub struct StreamedCloud {
 
 impl SceneMeta {
     /// What [`Scene::stored`] gives of the scene [`Scene::build`] makes with `settings` of a
-    /// lone cloud with `parts`' view, light, up axis and environment, whose BVH (`bvh`, its
-    /// ids' CRC `ids_crc`) was built out of core.
+    /// lone cloud with `scene`'s view, light, up axis and environment, whose BVH (or parts,
+    /// `parts`) was built out of core.
     pub fn streamed(
         settings: &crate::Settings,
-        parts: &super::SceneParts,
+        scene: &super::SceneParts,
         cloud: &StreamedCloud,
-        bvh: BvhMeta,
-        ids_crc: u32,
+        parts: Vec<PartMeta>,
     ) -> SceneMeta {
-        let up = parts.up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y);
-        let [lo, hi] = bvh.bounds;
-        let bounds = if cloud.bounds.diagonal() > 0.0 { cloud.bounds } else { Aabb::new(lo.into(), hi.into()) };
+        let up = scene.up.and_then(Vec3::try_normalize).unwrap_or(Vec3::Y);
+        let disks = parts.iter().fold(Aabb::EMPTY, |b, p| {
+            let ([lo, hi], offset) = (p.bvh.bounds, Vec3::from(p.offset));
+            b.union(Aabb::new(Vec3::from(lo) + offset, Vec3::from(hi) + offset))
+        });
+        let bounds = if cloud.bounds.diagonal() > 0.0 { cloud.bounds } else { disks };
         let bounds =
             if bounds.diagonal() > 0.0 { bounds } else { Aabb::new(bounds.center() - 0.5, bounds.center() + 0.5) };
         SceneMeta {
@@ -81,12 +97,11 @@ impl SceneMeta {
             bounds: [bounds.min.to_array(), bounds.max.to_array()],
             mean_radius: cloud.mean_radius,
             up: up.to_array(),
-            view: parts.view.map(|(dir, distance)| (dir.to_array(), distance)),
-            light: parts.light,
-            environment: parts.environment.clone(),
+            view: scene.view.map(|(dir, distance)| (dir.to_array(), distance)),
+            light: scene.light,
+            environment: scene.environment.clone(),
             build: Build::of_cloud(settings, up),
-            bvh,
-            ids_crc,
+            parts,
         }
     }
 }
@@ -106,19 +121,26 @@ pub enum StoredSceneError {
     Ids(StoredError),
     #[error("{0} ids for {1} splat slots")]
     IdCount(usize, usize),
+    #[error("{0} parts' arrays for {1} parts")]
+    PartCount(usize, usize),
+    #[error(transparent)]
+    TooLarge(#[from] crate::accel::bvh::TooLarge),
     #[error("{0}")]
     Meta(String),
 }
 
-/// The ids' CRC, checked once, when a query first names a point.
+/// The ids' CRCs (a part's each), checked once, when a query first names a point.
 pub(super) struct IdsCheck {
-    crc: u32,
+    crcs: Vec<u32>,
     whole: OnceLock<bool>,
 }
 
 impl IdsCheck {
-    pub(super) fn check(&self, ids: &[u8]) -> Result<(), super::RenderError> {
-        let whole = *self.whole.get_or_init(|| crc32fast::hash(ids) == self.crc);
+    pub(super) fn check(&self, ids: &[Stored<u32>]) -> Result<(), super::RenderError> {
+        let whole = *self.whole.get_or_init(|| {
+            ids.len() == self.crcs.len()
+                && ids.iter().zip(&self.crcs).all(|(ids, &crc)| crc32fast::hash(ids.as_bytes()) == crc)
+        });
         if whole { Ok(()) } else { Err(super::RenderError::Damaged("the ids array (CRC mismatch)".into())) }
     }
 }
@@ -128,9 +150,31 @@ impl IdsCheck {
 /// as asked, sharing its arrays and the checks made so far.
 pub struct StoredScene {
     meta: SceneMeta,
-    bvh: Bvh,
-    ids: Stored<u32>,
+    /// A lone part's BVH, or the parts.
+    accel: StoredAccel,
+    ids: Vec<Stored<u32>>,
     ids_check: Arc<IdsCheck>,
+}
+
+enum StoredAccel {
+    Bvh(Box<Bvh>),
+    TwoLevel(TwoLevel),
+}
+
+impl StoredAccel {
+    fn share(&self) -> StoredAccel {
+        match self {
+            StoredAccel::Bvh(bvh) => StoredAccel::Bvh(Box::new(bvh.share())),
+            StoredAccel::TwoLevel(scene) => StoredAccel::TwoLevel(scene.share()),
+        }
+    }
+
+    fn accelerator(&self) -> Accelerator {
+        match self.share() {
+            StoredAccel::Bvh(bvh) => Accelerator::Bvh(*bvh),
+            StoredAccel::TwoLevel(scene) => Accelerator::TwoLevel(scene),
+        }
+    }
 }
 
 impl StoredScene {
@@ -139,19 +183,32 @@ impl StoredScene {
     pub fn new(
         meta: SceneMeta,
         bytes: Arc<dyn StableBytes>,
-        ranges: [Range<usize>; 7],
+        ranges: Vec<PartRanges>,
     ) -> Result<Self, StoredSceneError> {
         check_meta(&meta).map_err(StoredSceneError::Meta)?;
-        let [nodes, lod, blocks, representatives, aggregates, treelets, ids] = ranges;
-        let ids = Stored::<u32>::from_bytes(Arc::clone(&bytes), ids).map_err(StoredSceneError::Ids)?;
-        let bvh =
-            Bvh::from_stored(meta.bvh.clone(), bytes, [nodes, lod, blocks, representatives, aggregates, treelets])?;
-        let slots = bvh.blocks.len() * block::BLOCK;
-        if ids.len() != slots {
-            return Err(StoredSceneError::IdCount(ids.len(), slots));
+        if ranges.len() != meta.parts.len() {
+            return Err(StoredSceneError::PartCount(ranges.len(), meta.parts.len()));
         }
-        let ids_check = Arc::new(IdsCheck { crc: meta.ids_crc, whole: OnceLock::new() });
-        Ok(Self { meta, bvh, ids, ids_check })
+        let (mut parts, mut all_ids) = (Vec::new(), Vec::new());
+        for (part, ranges) in meta.parts.iter().zip(ranges) {
+            let [nodes, lod, blocks, representatives, aggregates, treelets, ids] = ranges;
+            let ids = Stored::<u32>::from_bytes(Arc::clone(&bytes), ids).map_err(StoredSceneError::Ids)?;
+            let arrays = [nodes, lod, blocks, representatives, aggregates, treelets];
+            let bvh = Bvh::from_stored(part.bvh.clone(), Arc::clone(&bytes), arrays)?;
+            let slots = bvh.blocks.len() * block::BLOCK;
+            if ids.len() != slots {
+                return Err(StoredSceneError::IdCount(ids.len(), slots));
+            }
+            parts.push((bvh, Vec3::from(part.offset)));
+            all_ids.push(ids);
+        }
+        let accel = match parts.len() {
+            1 => StoredAccel::Bvh(Box::new(parts.pop().expect("one part").0)),
+            _ => StoredAccel::TwoLevel(TwoLevel::new(parts)?),
+        };
+        let ids_check =
+            Arc::new(IdsCheck { crcs: meta.parts.iter().map(|p| p.ids_crc).collect(), whole: OnceLock::new() });
+        Ok(Self { meta, accel, ids: all_ids, ids_check })
     }
 
     pub fn meta(&self) -> &SceneMeta {
@@ -163,7 +220,7 @@ impl StoredScene {
         let meta = self.meta.clone();
         let [lo, hi] = meta.bounds;
         Scene {
-            accel: Accelerator::Bvh(self.bvh.share()),
+            accel: self.accel.accelerator(),
             build: meta.build,
             content: None,
             view: meta.view.map(|(dir, distance)| (Vec3::from(dir), distance)),
@@ -175,7 +232,7 @@ impl StoredScene {
             points: meta.points,
             mean_radius: meta.mean_radius,
             build_seconds: 0.0,
-            ids: Some(self.ids.clone()),
+            ids: self.ids.clone(),
             stored: Some(Arc::clone(&self.ids_check)),
             backfacing: OnceLock::new(),
             environment_map: None,
@@ -185,9 +242,9 @@ impl StoredScene {
 
 impl Clone for StoredScene {
     fn clone(&self) -> Self {
-        let (meta, bvh, ids, ids_check) =
-            (self.meta.clone(), self.bvh.share(), self.ids.clone(), Arc::clone(&self.ids_check));
-        Self { meta, bvh, ids, ids_check }
+        let (meta, accel, ids, ids_check) =
+            (self.meta.clone(), self.accel.share(), self.ids.clone(), Arc::clone(&self.ids_check));
+        Self { meta, accel, ids, ids_check }
     }
 }
 
@@ -198,11 +255,13 @@ impl std::fmt::Debug for StoredScene {
 }
 
 impl Scene {
-    /// What a scene file stores of this scene: its arrays' bytes (named as [`SCENE_ARRAYS`])
-    /// and the rest.
-    pub fn stored(&self) -> Result<(SceneArrays<'_>, SceneMeta), StoredSceneError> {
-        let Accelerator::Bvh(bvh) = &self.accel else {
-            return Err(StoredSceneError::NotBvh(self.accel_name()));
+    /// What a scene file stores of this scene: each part's arrays' bytes (named as
+    /// [`SCENE_ARRAYS`]) and the rest.
+    pub fn stored(&self) -> Result<(Vec<SceneArrays<'_>>, SceneMeta), StoredSceneError> {
+        let bvhs: Vec<(&Bvh, Vec3)> = match &self.accel {
+            Accelerator::Bvh(bvh) => vec![(bvh, Vec3::ZERO)],
+            Accelerator::TwoLevel(scene) => scene.parts().iter().map(|p| (&p.bvh, p.offset)).collect(),
+            _ => return Err(StoredSceneError::NotBvh(self.accel_name())),
         };
         if self.content.is_some() {
             return Err(StoredSceneError::Content);
@@ -210,9 +269,13 @@ impl Scene {
         if matches!(self.environment, Some(Environment::Map { .. })) {
             return Err(StoredSceneError::EnvironmentMap);
         }
-        let (arrays, bvh_meta) = bvh.arrays();
-        let ids = self.ids.as_ref().map_or(&[][..], |ids| ids.as_bytes());
-        let [nodes, lod, blocks, representatives, aggregates, treelets] = arrays;
+        let (mut arrays, mut parts) = (Vec::new(), Vec::new());
+        for ((bvh, offset), ids) in bvhs.into_iter().zip(&self.ids) {
+            let ([nodes, lod, blocks, representatives, aggregates, treelets], bvh_meta) = bvh.arrays();
+            let ids = ids.as_bytes();
+            parts.push(PartMeta { offset: offset.to_array(), bvh: bvh_meta, ids_crc: crc32fast::hash(ids) });
+            arrays.push([nodes, lod, blocks, representatives, aggregates, treelets, Cow::Borrowed(ids)]);
+        }
         let b = self.bounds;
         let meta = SceneMeta {
             points: self.points,
@@ -224,18 +287,18 @@ impl Scene {
             light: self.light,
             environment: self.environment.clone(),
             build: self.build.clone(),
-            bvh: bvh_meta,
-            ids_crc: crc32fast::hash(ids),
+            parts,
         };
-        Ok(([nodes, lod, blocks, representatives, aggregates, treelets, Cow::Borrowed(ids)], meta))
+        Ok((arrays, meta))
     }
 
-    /// The scene whose arrays lie in `ranges` (in [`SCENE_ARRAYS`]' order) of `bytes`, as
-    /// [`Self::stored`] gave them, with the rest in `meta`: read where they lie, never copied.
+    /// The scene whose parts' arrays lie in `ranges` (each in [`SCENE_ARRAYS`]' order) of
+    /// `bytes`, as [`Self::stored`] gave them, with the rest in `meta`: read where they lie,
+    /// never copied.
     pub fn from_stored(
         meta: SceneMeta,
         bytes: Arc<dyn StableBytes>,
-        ranges: [Range<usize>; 7],
+        ranges: Vec<PartRanges>,
     ) -> Result<Scene, StoredSceneError> {
         Ok(StoredScene::new(meta, bytes, ranges)?.scene())
     }
@@ -255,6 +318,14 @@ fn check_meta(meta: &SceneMeta) -> Result<(), String> {
     if meta.build.accel != AccelKind::Bvh {
         return Err(format!("the build names the {:?} accelerator, but a BVH is stored", meta.build.accel));
     }
+    match &meta.parts[..] {
+        [] => return Err("it holds no part".into()),
+        [lone] if lone.offset != [0.0; 3] => return Err(format!("its lone part lies at {:?}", lone.offset)),
+        parts if parts.iter().any(|p| !p.offset.iter().all(|v| v.is_finite())) => {
+            return Err("a part's offset is not finite".into());
+        }
+        _ => {}
+    }
     Ok(())
 }
 
@@ -265,14 +336,17 @@ mod tests {
     use crate::preprocess::{PreprocessConfig, preprocess};
     use crate::{Settings, render};
 
-    fn laid_out(arrays: &[Cow<'_, [u8]>; 7]) -> (Arc<dyn StableBytes>, [Range<usize>; 7]) {
+    fn laid_out(parts: &[SceneArrays<'_>]) -> (Arc<dyn StableBytes>, Vec<PartRanges>) {
         let mut bytes = Vec::new();
-        let ranges = arrays.each_ref().map(|a| {
-            bytes.resize(bytes.len().next_multiple_of(crate::accel::bvh::ARRAY_ALIGN), 0);
-            let start = bytes.len();
-            bytes.extend_from_slice(a);
-            start..bytes.len()
-        });
+        let mut part = |arrays: &SceneArrays<'_>| {
+            arrays.each_ref().map(|a| {
+                bytes.resize(bytes.len().next_multiple_of(crate::accel::bvh::ARRAY_ALIGN), 0);
+                let start = bytes.len();
+                bytes.extend_from_slice(a);
+                start..bytes.len()
+            })
+        };
+        let ranges = parts.iter().map(&mut part).collect();
         (Arc::new(AlignedBytes::copy_of(&bytes)), ranges)
     }
 
@@ -324,7 +398,7 @@ mod tests {
         let bad = SceneMeta { up: [0.0; 3], ..meta.clone() };
         assert!(Scene::from_stored(bad, Arc::clone(&bytes), ranges.clone()).is_err());
         let mut short = ranges.clone();
-        short[6].end -= 4;
+        short[0][6].end -= 4;
         assert!(Scene::from_stored(meta, bytes, short).is_err_and(|e| e.to_string().contains("ids")));
     }
 

@@ -32,6 +32,9 @@ pub struct BvhParams {
     /// Above this many splats the tree is built a chunk of at most this many at a time (see
     /// [`super::ChunkPlan`]; [`super::CHUNK_SPLATS`]).
     pub chunk_splats: usize,
+    /// Above this many splats a scene is two-level: parts of at most this many, each a BVH
+    /// in a frame of its own (see [`super::TwoLevel`]; [`super::PART_SPLATS`]).
+    pub part_splats: usize,
 }
 
 impl BvhParams {
@@ -47,6 +50,7 @@ impl BvhParams {
             node_bounds: NodeBounds::Boxes,
             shape: DiskShape::Oriented,
             chunk_splats: super::CHUNK_SPLATS,
+            part_splats: super::PART_SPLATS,
         }
     }
 
@@ -228,7 +232,7 @@ impl Bvh {
     ///
     /// # Panics
     /// With parameters out of range.
-    pub fn try_build_with_ids(mut input: Vec<Splat>, params: &BvhParams) -> Result<(Bvh, Vec<u32>), TooLarge> {
+    pub fn try_build_with_ids(input: Vec<Splat>, params: &BvhParams) -> Result<(Bvh, Vec<u32>), TooLarge> {
         assert!((2..=MAX_BINS).contains(&params.bins) && (1..=MAX_LEAF_SIZE).contains(&params.max_leaf_size));
         assert!(params.chunk_splats > 0);
         if input.len() > MAX_SPLATS {
@@ -237,6 +241,28 @@ impl Bvh {
         if input.len() > params.chunk_splats {
             return Ok(super::chunk::build(input, params)?.finish(params));
         }
+        Self::build_whole(input, params)
+    }
+
+    /// [`Self::try_build_with_ids`] of `input` in the order of `plan`'s chunks (a run of each
+    /// chunk's splats after another; its chunk limit `params`'): a part of a two-level scene,
+    /// whose chunks are those of the scene's plan. A plan of one chunk builds the tree whole.
+    pub(super) fn try_build_planned(
+        input: Vec<Splat>,
+        plan: &super::ChunkPlan,
+        params: &BvhParams,
+    ) -> Result<(Bvh, Vec<u32>), TooLarge> {
+        if input.len() > MAX_SPLATS {
+            return Err(TooLarge::Splats(input.len()));
+        }
+        match plan.chunks() {
+            [_] => Self::build_whole(input, params),
+            _ => Ok(super::chunk::build_planned(input, plan, params)?.finish(params)),
+        }
+    }
+
+    /// The tree over `input` built at once (no chunks).
+    fn build_whole(mut input: Vec<Splat>, params: &BvhParams) -> Result<(Bvh, Vec<u32>), TooLarge> {
         snap(&mut input);
         // The serial flattening (in `Tree::build`) beside the serial quantile.
         let (tree, wide_radius) = join(|| Tree::build(&input, params, 0), || wide_radius(&input));
@@ -353,6 +379,8 @@ pub enum TooLarge {
     Splats(usize),
     #[error("the leaves take {0} blocks of eight splats, more than a BVH names (2^27): the splats are too scattered")]
     Blocks(usize),
+    #[error("the splats and their representatives take {0} indices, more than a scene names (2^32)")]
+    Indices(u64),
 }
 
 /// The costs by which the binary build tree is collapsed into an 8-wide one: entry j − 1 is the

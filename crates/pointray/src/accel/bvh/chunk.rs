@@ -50,6 +50,21 @@ impl Cell {
     fn child_of(&self, code: u64) -> usize {
         (code >> Self::shift(self.level + 1) & 7) as usize
     }
+
+    /// The centre of the cell's box, in the frame of the `bounds` whose codes made it (as
+    /// `math::morton::encode` divides them: each axis in 2²¹ steps).
+    pub fn center(&self, bounds: &Aabb) -> Vec3 {
+        let mut at = [0u64; 3];
+        for l in (0..self.level).rev() {
+            let step = self.prefix >> (3 * l) & 7;
+            for (k, a) in at.iter_mut().enumerate() {
+                *a = *a << 1 | (step >> k & 1);
+            }
+        }
+        let cells = (1u64 << self.level) as f32;
+        let unit = Vec3::new(at[0] as f32 + 0.5, at[1] as f32 + 0.5, at[2] as f32 + 0.5) / cells;
+        bounds.min + unit * bounds.extent()
+    }
 }
 
 /// The chunks of a cloud: the cells of its Morton octree that hold at most [`CHUNK_SPLATS`]
@@ -107,6 +122,42 @@ impl ChunkPlan {
 
     pub fn chunks(&self) -> &[Cell] {
         &self.chunks
+    }
+
+    /// The bounds whose Morton codes the plan splits.
+    pub fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    /// The chunks grouped into the parts of a two-level scene (`super::two_level`): the
+    /// octree's cells that hold at most `most` splats (`BvhParams::part_splats`, at least the
+    /// chunks' limit) and whose parents hold more, each with the plan of its chunks (over the
+    /// same bounds), in Morton order. Found from the chunks' counts alone (a cell's count is its
+    /// chunks'), it is the plan [`Self::new`] makes with `most`, so no pass over the splats.
+    pub fn parts(&self, most: usize) -> Vec<(Cell, ChunkPlan)> {
+        let mut parts = Vec::new();
+        self.group(&self.chunks, 0, most, &mut parts);
+        parts
+    }
+
+    /// [`Self::parts`] of `chunks`, every one below one cell of `level`.
+    fn group(&self, chunks: &[Cell], level: u32, most: usize, parts: &mut Vec<(Cell, ChunkPlan)>) {
+        let prefix = chunks[0].first_code().checked_shr(Cell::shift(level)).unwrap_or(0);
+        let cell = Cell { level, prefix, count: chunks.iter().map(|c| c.count).sum() };
+        if cell.count <= most || chunks.len() == 1 {
+            parts.push((cell, ChunkPlan { bounds: self.bounds, chunks: chunks.to_vec() }));
+            return;
+        }
+        // Several chunks: each lies in a child of this cell.
+        let mut start = 0;
+        for end in 1..=chunks.len() {
+            if end == chunks.len()
+                || cell.child_of(chunks[end].first_code()) != cell.child_of(chunks[start].first_code())
+            {
+                self.group(&chunks[start..end], level + 1, most, parts);
+                start = end;
+            }
+        }
     }
 
     /// The octree's nodes above the chunks (see [`Top`]).
@@ -171,11 +222,24 @@ impl Top {
 /// The chunked build of `input` (more than `params.chunk_splats` splats) in memory: each chunk's
 /// tree made and appended in turn, the top's nodes first.
 pub(super) fn build(input: Vec<Splat>, params: &BvhParams) -> Result<Tree, TooLarge> {
+    let plan = plan_of(&input, params.chunk_splats);
+    let (input, order) = in_chunk_order(input, &plan);
+    let mut tree = build_planned(input, &plan, params)?;
+    if let Some(order) = order {
+        tree.ids.iter_mut().filter(|id| **id != u32::MAX).for_each(|id| *id = order[*id as usize]);
+    }
+    Ok(tree)
+}
+
+/// The chunk plan of `input` (over its centres' bounds), chunks of at most `most` splats.
+pub(super) fn plan_of(input: &[Splat], most: usize) -> ChunkPlan {
     let bounds = Aabb::from_points(input.iter().map(|s| s.center));
-    let plan = ChunkPlan::new(bounds, input.len(), params.chunk_splats, |f| {
-        input.iter().for_each(|s| f(morton::encode(s.center, &bounds)))
-    });
-    let (mut input, order) = in_chunk_order(input, &plan);
+    ChunkPlan::new(bounds, input.len(), most, |f| input.iter().for_each(|s| f(morton::encode(s.center, &bounds))))
+}
+
+/// The chunked build of `input`, in the order of `plan`'s chunks (a run of each chunk's
+/// splats after another), its ids their places in `input`.
+pub(super) fn build_planned(mut input: Vec<Splat>, plan: &ChunkPlan, params: &BvhParams) -> Result<Tree, TooLarge> {
     snap(&mut input);
     let wide_radius = wide_radius(&input);
     let top = plan.top();
@@ -183,10 +247,7 @@ pub(super) fn build(input: Vec<Splat>, params: &BvhParams) -> Result<Tree, TooLa
     let mut first = 0;
     for (c, cell) in plan.chunks().iter().enumerate() {
         let mut tree = Tree::build(&input[first..first + cell.count], params, top.depths[c])?;
-        for id in tree.ids.iter_mut().filter(|id| **id != u32::MAX) {
-            let at = first + *id as usize;
-            *id = order.as_ref().map_or(at as u32, |o| o[at]);
-        }
+        tree.ids.iter_mut().filter(|id| **id != u32::MAX).for_each(|id| *id += first as u32);
         merged.append(tree, top.depths[c])?;
         first += cell.count;
     }
@@ -195,7 +256,7 @@ pub(super) fn build(input: Vec<Splat>, params: &BvhParams) -> Result<Tree, TooLa
 }
 
 /// `input` in the order of its chunks (stable), and where each came from if that moved any.
-fn in_chunk_order(input: Vec<Splat>, plan: &ChunkPlan) -> (Vec<Splat>, Option<Vec<u32>>) {
+pub(super) fn in_chunk_order(input: Vec<Splat>, plan: &ChunkPlan) -> (Vec<Splat>, Option<Vec<u32>>) {
     let chunk: Vec<u32> = input.par_iter().map(|s| plan.chunk_of(plan.code(s.center)) as u32).collect();
     // Sorted by the preprocessing, the input is in chunk order already.
     if chunk.windows(2).all(|w| w[0] <= w[1]) {
@@ -312,11 +373,6 @@ mod tests {
             Splat { center: p * 10.0, radius: 0.05, normal: p, color: i as u32 }
         };
         (0..n).map(|i| at(i * 7_919 % n)).collect()
-    }
-
-    fn plan_of(splats: &[Splat], most: usize) -> ChunkPlan {
-        let bounds = Aabb::from_points(splats.iter().map(|s| s.center));
-        ChunkPlan::new(bounds, splats.len(), most, |f| splats.iter().for_each(|s| f(morton::encode(s.center, &bounds))))
     }
 
     #[test]

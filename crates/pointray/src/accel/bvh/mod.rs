@@ -22,12 +22,14 @@ mod stored;
 mod streamed;
 pub(super) mod traverse;
 mod treelet;
+mod two_level;
 
 pub use build::{BvhParams, TooLarge};
 pub use chunk::{CHUNK_SPLATS, Cell, ChunkPlan};
 pub use lod::NodeBounds;
 pub use stored::{ARRAY_ALIGN, ARRAYS, BvhMeta, BvhStoredError};
 pub use streamed::{Finished, Sink, Spill, Spilled, StreamedBvh, StreamedError};
+pub use two_level::{PART_SPLATS, Part, TwoLevel};
 
 use glam::Vec3;
 

@@ -76,9 +76,12 @@ pub struct StreamedBvh {
     params: BvhParams,
     plan: ChunkPlan,
     top: Top,
-    /// The next chunk to add, and the input's id of its first splat.
+    /// The next chunk to add, and the splats added so far (the next one's id, counted on from
+    /// `id_base`).
     next: usize,
     first_id: usize,
+    /// Added to the ids counted on ([`Self::starting_at`]).
+    id_base: usize,
     /// The top's arrays: the octree's nodes (made by `finish`), then each chunk's top nodes.
     nodes: Vec<Node>,
     lod: Vec<NodeLod>,
@@ -110,6 +113,7 @@ impl StreamedBvh {
             plan,
             next: 0,
             first_id: 0,
+            id_base: 0,
             nodes: vec![empty; t],
             lod: vec![bytemuck::Zeroable::zeroed(); t],
             representatives: vec![bytemuck::Zeroable::zeroed(); t],
@@ -130,6 +134,12 @@ impl StreamedBvh {
 
     pub fn plan(&self) -> &ChunkPlan {
         &self.plan
+    }
+
+    /// This build with its unnamed splats' ids counted on from `first` (a part of a two-level
+    /// scene, whose ids count on from the parts before it).
+    pub fn starting_at(self, first: usize) -> StreamedBvh {
+        StreamedBvh { id_base: first, ..self }
     }
 
     /// Builds the next chunk from its splats (in the input's order), keeps its top and spills
@@ -159,7 +169,7 @@ impl StreamedBvh {
             return Err(TooLarge::Blocks(blocks + tree.blocks.len()).into());
         }
         for id in tree.ids.iter_mut().filter(|id| **id != u32::MAX) {
-            *id = names.map_or(*id + self.first_id as u32, |n| n[*id as usize]);
+            *id = names.map_or((*id as usize + self.id_base + self.first_id) as u32, |n| n[*id as usize]);
         }
         let lod = lod::build(&mut tree.nodes, &Disks { blocks: &tree.blocks, counts: &tree.counts }, self.params.shape);
         lod::choose_node_bounds_below(&mut tree.nodes, &lod.lod, self.params.node_bounds, depth as u32);

@@ -1,0 +1,596 @@
+//! The two-level scene: a cloud of more than `BvhParams::part_splats` splats is cut into
+//! parts, the cells of the Morton octree the chunk plan splits (`ChunkPlan::parts`) that hold
+//! at most that many. Each part is a BVH of its own, its positions relative to the centre of its
+//! cell (`Part::offset`, from the scene's origin), under a small binary tree over the parts'
+//! boxes. A BVH indexes at most 2²⁸ splats (its leaf references name a block in 27 bits); the
+//! parts lift that cap to the visitors' index space, 2³² lanes (some 2.8 billion splats at the
+//! blocks' usual fill), and each part can be stored, mapped and checked on its own.
+//!
+//! Index space: the parts' block lanes one after another (part `p`'s from `Part::lanes`), then
+//! their representatives (part `p`'s from `TwoLevel::lanes + Part::reps`), so that, as in one
+//! BVH, an index past the block lanes is a representative and the input's ids are indexed by
+//! the block lanes alone.
+//!
+//! A ray walks the parts its top boxes meet, nearest first, each in the part's frame (its
+//! origin moved by the offset; the cone and `t` unchanged), and the visitor gets every
+//! crossing with the scene's index and the scene's ray: a visitor never sees a part's frame.
+//! A scene of one part is the plain [`Bvh`] (no top, no moved rays): only clouds above the
+//! limit pay the walk of the top.
+
+use std::sync::OnceLock;
+
+use arrayvec::ArrayVec;
+use glam::Vec3;
+
+use super::build::{BvhParams, TooLarge};
+use super::chunk::{in_chunk_order, plan_of};
+use super::{Bvh, NodeBounds};
+use crate::accel::block::BLOCK;
+use crate::accel::{Accel, Crossing, SplatVisitor, TraversalStats};
+use crate::math::{Aabb, Ray};
+use crate::splat::footprint::{Aggregate, Beam, Candidates, FootprintVisitor};
+use crate::splat::{DiskShape, Splat};
+
+/// The most splats a part holds (`BvhParams::part_splats`): a fourth of what one BVH can
+/// index, so that no part's blocks come near the cap however its leaves fill them.
+pub const PART_SPLATS: usize = 1 << 26;
+
+/// A part of a two-level scene: its BVH, in the frame `offset` away from the scene's.
+pub struct Part {
+    pub bvh: Bvh,
+    pub offset: Vec3,
+    /// Its first block lane in the scene's index space, and its first representative lane
+    /// counted from [`TwoLevel::lanes`].
+    lanes: u32,
+    reps: u32,
+    /// Its bounds in the scene's frame, widened past the rounding of the move.
+    bounds: Aabb,
+}
+
+impl Part {
+    /// A scene's index of this part's index `local`.
+    #[inline(always)]
+    fn global(&self, local: u32, lanes: u32) -> u32 {
+        let blocks = (self.bvh.blocks.len() * BLOCK) as u32;
+        if local < blocks { self.lanes + local } else { lanes + self.reps + (local - blocks) }
+    }
+
+    /// `splat` of this part in the scene's frame.
+    #[inline(always)]
+    fn in_scene(&self, mut splat: Splat) -> Splat {
+        splat.center += self.offset;
+        splat
+    }
+}
+
+/// A node of the top: a part, or two children (`first`, `first + 1`).
+#[derive(Clone, Copy, Debug)]
+struct TopNode {
+    bounds: Aabb,
+    part: Option<u32>,
+    first: u32,
+}
+
+/// The deepest the top can be: a binary tree halving the parts, fewer than 2³².
+const TOP_DEPTH: usize = 40;
+
+/// Parts of one scene under a top (see the module).
+pub struct TwoLevel {
+    parts: Vec<Part>,
+    top: Vec<TopNode>,
+    /// All parts' block lanes: the first representative's index.
+    lanes: u32,
+    bounds: Aabb,
+    splat_count: usize,
+    wide_radius: f32,
+    lod_floor: f32,
+    coverage_density: OnceLock<f32>,
+    shape: DiskShape,
+}
+
+impl TwoLevel {
+    /// The two-level scene of `input` (more than `params.part_splats` splats), and for each
+    /// part, each of its block lanes' input splat (`u32::MAX` for the gaps), as
+    /// [`Bvh::try_build_with_ids`] gives them of one tree.
+    pub fn try_build_with_ids(input: Vec<Splat>, params: &BvhParams) -> Result<(TwoLevel, Vec<Vec<u32>>), TooLarge> {
+        assert!(params.part_splats >= params.chunk_splats, "parts hold whole chunks");
+        let plan = plan_of(&input, params.chunk_splats);
+        let (input, order) = in_chunk_order(input, &plan);
+        let (mut parts, mut ids, mut first) = (Vec::new(), Vec::new(), 0);
+        let cells = plan.parts(params.part_splats);
+        let lone = cells.len() == 1;
+        for (cell, chunks) in cells {
+            // A lone part (a cell that cannot split) stays in the scene's frame.
+            let offset = if lone { Vec3::ZERO } else { cell.center(&plan.bounds()) };
+            let splats = input[first..first + cell.count].iter().map(|s| moved(s, offset)).collect();
+            let (bvh, mut part_ids) = Bvh::try_build_planned(splats, &chunks, params)?;
+            for id in part_ids.iter_mut().filter(|id| **id != u32::MAX) {
+                let at = first + *id as usize;
+                *id = order.as_ref().map_or(at as u32, |o| o[at]);
+            }
+            parts.push((bvh, offset));
+            ids.push(part_ids);
+            first += cell.count;
+        }
+        Ok((TwoLevel::new(parts)?, ids))
+    }
+
+    /// The scene of these parts (each BVH with its offset), in the order of their index spaces.
+    pub fn new(parts: Vec<(Bvh, Vec3)>) -> Result<TwoLevel, TooLarge> {
+        let lanes: u64 = parts.iter().map(|(b, _)| (b.blocks.len() * BLOCK) as u64).sum();
+        let reps: u64 = parts.iter().map(|(b, _)| (b.representatives.len() * BLOCK) as u64).sum();
+        if lanes + reps >= u64::from(u32::MAX) {
+            return Err(TooLarge::Indices(lanes + reps));
+        }
+        let (mut at_lane, mut at_rep) = (0u32, 0u32);
+        let parts: Vec<Part> = parts
+            .into_iter()
+            .map(|(bvh, offset)| {
+                let (lanes, reps) = (at_lane, at_rep);
+                at_lane += (bvh.blocks.len() * BLOCK) as u32;
+                at_rep += (bvh.representatives.len() * BLOCK) as u32;
+                let bounds = scene_box(bvh.bounds, offset);
+                Part { bvh, offset, lanes, reps, bounds }
+            })
+            .collect();
+        let mut top = Vec::with_capacity(2 * parts.len());
+        top.push(TopNode { bounds: Aabb::EMPTY, part: None, first: 0 });
+        top_node(&parts, 0..parts.len(), 0, &mut top);
+        let of = |f: fn(&Bvh) -> f32| parts.iter().map(move |p| f(&p.bvh));
+        Ok(TwoLevel {
+            lanes: at_lane,
+            bounds: parts.iter().fold(Aabb::EMPTY, |b, p| b.union(scene_box(p.bvh.bounds, p.offset))),
+            splat_count: parts.iter().map(|p| p.bvh.splat_count).sum(),
+            wide_radius: of(|b| b.wide_radius).fold(0.0, f32::max),
+            lod_floor: of(|b| b.lod_floor).fold(f32::INFINITY, f32::min),
+            coverage_density: OnceLock::new(),
+            shape: parts.first().map_or(DiskShape::Oriented, |p| p.bvh.shape),
+            parts,
+            top,
+        })
+    }
+
+    /// The same scene, each part's arrays and checks shared (`Bvh::share`).
+    pub(crate) fn share(&self) -> TwoLevel {
+        let parts = self.parts.iter().map(|p| Part { bvh: p.bvh.share(), ..*p }).collect();
+        TwoLevel { parts, top: self.top.clone(), coverage_density: self.coverage_density.clone(), ..*self }
+    }
+
+    /// A scene of one part as that part's BVH (in the scene's frame), else itself.
+    pub fn into_lone(mut self) -> Result<Bvh, TwoLevel> {
+        match self.parts.len() {
+            1 if self.parts[0].offset == Vec3::ZERO => Ok(self.parts.pop().expect("one part").bvh),
+            _ => Err(self),
+        }
+    }
+
+    pub fn parts(&self) -> &[Part] {
+        &self.parts
+    }
+
+    /// The part an index of the scene's lies in, and its index there.
+    #[inline(always)]
+    pub fn locate(&self, index: u32) -> (usize, u32) {
+        if index < self.lanes {
+            let p = self.parts.partition_point(|p| p.lanes <= index) - 1;
+            (p, index - self.parts[p].lanes)
+        } else {
+            let r = index - self.lanes;
+            let p = self.parts.partition_point(|p| p.reps <= r) - 1;
+            let part = &self.parts[p];
+            (p, (part.bvh.blocks.len() * BLOCK) as u32 + r - part.reps)
+        }
+    }
+
+    /// The first damage a walk found in a stored part's treelets.
+    pub fn damage(&self) -> Option<&str> {
+        self.parts.iter().find_map(|p| p.bvh.damage())
+    }
+
+    pub fn node_count(&self) -> usize {
+        self.parts.iter().map(|p| p.bvh.node_count()).sum()
+    }
+
+    pub fn sphere_node_count(&self) -> usize {
+        self.parts.iter().map(|p| p.bvh.sphere_node_count()).sum()
+    }
+
+    pub fn node_bounds(&self) -> NodeBounds {
+        self.parts.first().map_or(NodeBounds::Boxes, |p| p.bvh.node_bounds())
+    }
+
+    /// Calls `part` with each part whose widened top box the segment from `origin` (with
+    /// `inv_dir`) meets before `t_max(visitor)`, nearest first, until `done(visitor)`.
+    #[inline(always)]
+    fn walk<V: ?Sized>(
+        &self,
+        (origin, inv_dir, t_min): (Vec3, Vec3, f32),
+        widen: impl Fn(&Aabb) -> f32,
+        visitor: &mut V,
+        t_max: impl Fn(&V) -> f32,
+        done: impl Fn(&V) -> bool,
+        mut part: impl FnMut(&Part, &mut V),
+    ) {
+        let entry = |n: &TopNode, t_max: f32| {
+            if n.bounds.is_empty() {
+                return None;
+            }
+            let w = widen(&n.bounds);
+            let b = Aabb::new(n.bounds.min - w, n.bounds.max + w);
+            let (t0, t1) = ((b.min - origin) * inv_dir, (b.max - origin) * inv_dir);
+            let near = t0.min(t1).max_element().max(t_min);
+            let far = t0.max(t1).min_element().min(t_max);
+            // NaN (an origin on a face's plane, parallel to it) enters: the part decides.
+            match near.partial_cmp(&far) {
+                Some(std::cmp::Ordering::Greater) => None,
+                _ => Some(near),
+            }
+        };
+        let mut stack: ArrayVec<(f32, u32), TOP_DEPTH> = ArrayVec::new();
+        if let Some(t) = entry(&self.top[0], t_max(visitor)) {
+            stack.push((t, 0));
+        }
+        while let Some((t, n)) = stack.pop() {
+            if done(visitor) {
+                return;
+            }
+            if t > t_max(visitor) {
+                continue;
+            }
+            let node = &self.top[n as usize];
+            if let Some(p) = node.part {
+                part(&self.parts[p as usize], visitor);
+                continue;
+            }
+            let limit = t_max(visitor);
+            let [a, b] = [node.first, node.first + 1].map(|c| entry(&self.top[c as usize], limit).map(|t| (t, c)));
+            // The farther first, so that the nearer is walked first.
+            let (near, far) = match (a, b) {
+                (Some(a), Some(b)) if b.0 < a.0 => (Some(b), Some(a)),
+                (a, b) => (a.or(b), a.and(b)),
+            };
+            stack.extend(far);
+            stack.extend(near);
+        }
+    }
+}
+
+/// `splat` moved into the frame `offset` away.
+fn moved(splat: &Splat, offset: Vec3) -> Splat {
+    Splat { center: splat.center - offset, ..*splat }
+}
+
+/// A part's `bounds` in the scene's frame: moved by `offset`, widened by a few units in the
+/// last place of the largest coordinate, so that no rounding of the move (or of a ray's) can
+/// make a ray that meets the part's own box miss this one.
+fn scene_box(bounds: Aabb, offset: Vec3) -> Aabb {
+    if bounds.is_empty() {
+        return bounds;
+    }
+    let (lo, hi) = (bounds.min + offset, bounds.max + offset);
+    let largest = lo.abs().max(hi.abs()).max(offset.abs()).max(bounds.extent()).max_element();
+    let slack = largest * 8.0 * f32::EPSILON;
+    Aabb::new(lo - slack, hi + slack)
+}
+
+/// Writes the top node at `at` over `range` of `parts` (halves of the Morton order, so that
+/// each node's parts lie together), its children appended.
+fn top_node(parts: &[Part], range: std::ops::Range<usize>, at: usize, top: &mut Vec<TopNode>) {
+    let bounds = parts[range.clone()].iter().fold(Aabb::EMPTY, |b, p| b.union(p.bounds));
+    // (No part: a root of empty bounds, which no ray enters.)
+    if range.len() <= 1 {
+        top[at] = TopNode { bounds, part: range.clone().next().map(|p| p as u32), first: 0 };
+        return;
+    }
+    let first = top.len();
+    top[at] = TopNode { bounds, part: None, first: first as u32 };
+    top.extend([TopNode { bounds: Aabb::EMPTY, part: None, first: 0 }; 2]);
+    let mid = range.start + range.len() / 2;
+    top_node(parts, range.start..mid, first, top);
+    top_node(parts, mid..range.end, first + 1, top);
+}
+
+/// A visitor of the scene's seen from a part: the crossings handed on with the scene's index
+/// and ray.
+struct InPart<'a, V> {
+    visitor: &'a mut V,
+    ray: &'a Ray,
+    part: &'a Part,
+    lanes: u32,
+}
+
+impl<V: SplatVisitor> SplatVisitor for InPart<'_, V> {
+    const SHAPE: DiskShape = V::SHAPE;
+
+    #[inline(always)]
+    fn t_max(&self) -> f32 {
+        self.visitor.t_max()
+    }
+
+    #[inline(always)]
+    fn hit(&mut self, _: &Ray, crossing: Crossing) {
+        let splat = self.part.global(crossing.splat, self.lanes);
+        self.visitor.hit(self.ray, Crossing { splat, ..crossing });
+    }
+
+    #[inline(always)]
+    fn done(&self) -> bool {
+        self.visitor.done()
+    }
+}
+
+/// A footprint visitor of the scene's seen from a part: disks and candidates moved back into
+/// the scene's frame, indices the scene's.
+struct BeamInPart<'a, V> {
+    visitor: &'a mut V,
+    part: &'a Part,
+    lanes: u32,
+}
+
+impl<V: FootprintVisitor> FootprintVisitor for BeamInPart<'_, V> {
+    fn t_cut(&self) -> f32 {
+        self.visitor.t_cut()
+    }
+
+    fn add(&mut self, index: u32, splat: &Splat, aggregate: Aggregate) {
+        self.visitor.add(self.part.global(index, self.lanes), &self.part.in_scene(*splat), aggregate);
+    }
+
+    fn screen(&self, candidates: &Candidates) -> u32 {
+        let center = std::array::from_fn(|k| candidates.center[k].map(|c| c + self.part.offset[k]));
+        self.visitor.screen(&Candidates { center, normal: candidates.normal, area_radius: candidates.area_radius })
+    }
+}
+
+impl Accel for TwoLevel {
+    fn name(&self) -> &'static str {
+        "bvh"
+    }
+
+    #[inline(always)]
+    fn splat(&self, index: u32) -> Splat {
+        let (p, local) = self.locate(index);
+        let part = &self.parts[p];
+        part.in_scene(part.bvh.splat(local))
+    }
+
+    fn is_representative(&self, index: u32) -> bool {
+        index >= self.lanes
+    }
+
+    fn splat_count(&self) -> usize {
+        self.splat_count
+    }
+
+    fn bounds(&self) -> Aabb {
+        self.bounds
+    }
+
+    fn wide_radius(&self) -> f32 {
+        self.wide_radius
+    }
+
+    /// The parts' densities, weighted by their splats.
+    fn coverage_density(&self) -> f32 {
+        *self.coverage_density.get_or_init(|| {
+            let weighted: f64 =
+                self.parts.iter().map(|p| p.bvh.coverage_density() as f64 * p.bvh.splat_count as f64).sum();
+            (weighted / self.splat_count.max(1) as f64) as f32
+        })
+    }
+
+    fn gather<V: FootprintVisitor>(&self, beam: &Beam, tau: f32, visitor: &mut V, stats: &mut TraversalStats) {
+        // A top box widened by the beam's radius at its farthest corner holds every disk the
+        // beam may overlap inside it.
+        let far = |b: &Aabb| beam.radius((b.min - beam.origin).abs().max((b.max - beam.origin).abs()).length());
+        let segment = (beam.origin, beam.dir.recip(), beam.t_min);
+        let lanes = self.lanes;
+        self.walk(
+            segment,
+            far,
+            visitor,
+            |v| v.t_cut().min(beam.t_max),
+            |_| false,
+            |part, visitor| {
+                let local = Beam { origin: beam.origin - part.offset, ..*beam };
+                part.bvh.gather(&local, tau, &mut BeamInPart { visitor, part, lanes }, stats);
+            },
+        );
+    }
+
+    fn may_stop_at_representatives(&self, ray: &Ray) -> bool {
+        self.parts.iter().any(|p| p.bvh.may_stop_at_representatives(&Ray { origin: ray.origin - p.offset, ..*ray }))
+    }
+
+    fn lod_floor(&self) -> f32 {
+        self.lod_floor
+    }
+
+    fn shape(&self) -> DiskShape {
+        self.shape
+    }
+
+    fn for_each_near<F: FnMut(u32, Splat)>(&self, center: Vec3, radius: f32, stats: &mut TraversalStats, mut f: F) {
+        for part in &self.parts {
+            let gap = (part.bounds.min - center).max(center - part.bounds.max).max(Vec3::ZERO);
+            if gap.length_squared() <= radius * radius {
+                part.bvh.for_each_near(center - part.offset, radius, stats, |j, s| {
+                    f(part.global(j, self.lanes), part.in_scene(s))
+                });
+            }
+        }
+    }
+
+    fn memory_bytes(&self) -> usize {
+        self.parts.iter().map(|p| p.bvh.memory_bytes()).sum::<usize>() + self.top.len() * size_of::<TopNode>()
+    }
+
+    fn traverse<V: SplatVisitor>(&self, ray: &Ray, visitor: &mut V, stats: &mut TraversalStats) {
+        let lanes = self.lanes;
+        let segment = (ray.origin, ray.inv_dir, ray.t_min);
+        self.walk(
+            segment,
+            |_| 0.0,
+            visitor,
+            |v| v.t_max(),
+            |v| v.done(),
+            |part, visitor| {
+                let local = Ray { origin: ray.origin - part.offset, ..*ray };
+                part.bvh.traverse(&local, &mut InPart { visitor, ray, part, lanes }, stats);
+            },
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{RngExt, SeedableRng};
+
+    use super::*;
+    use crate::accel::BruteForce;
+    use crate::math::RayCone;
+    use crate::splat::scheme::{self, SurfaceScheme};
+
+    /// `n` disks on a torus (radii 3 and 1) far from the origin, where the parts' frames
+    /// matter, in a fixed shuffled order.
+    fn torus(n: usize) -> Vec<Splat> {
+        let at = |i: usize| {
+            let (u, v) = (i as f32 * 0.618_034 % 1.0, (i as f32 + 0.5) / n as f32);
+            let (a, b) = (u * std::f32::consts::TAU, v * std::f32::consts::TAU);
+            let normal = Vec3::new(a.cos() * b.cos(), a.sin() * b.cos(), b.sin());
+            let ring = Vec3::new(a.cos(), a.sin(), 0.0) * 3.0;
+            let center = Vec3::new(1_000.0, -500.0, 250.0) + ring + normal;
+            Splat { center, radius: 12.0 / (n as f32).sqrt(), normal, color: i as u32 }
+        };
+        (0..n).map(|i| at(i * 7_919 % n)).collect()
+    }
+
+    fn rays(bounds: &Aabb, n: usize, seed: u64) -> Vec<Ray> {
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
+        let mut unit =
+            || Vec3::new(rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0), rng.random_range(-1.0..1.0));
+        let (c, size) = (bounds.center(), bounds.diagonal());
+        (0..n)
+            .map(|_| {
+                let origin = c + unit().normalize_or(Vec3::X) * size;
+                let target = c + unit() * 0.5 * bounds.extent();
+                Ray::new(origin, target - origin, RayCone::default())
+            })
+            .collect()
+    }
+
+    fn params() -> BvhParams {
+        BvhParams { chunk_splats: 700, part_splats: 3_000, ..BvhParams::standard() }
+    }
+
+    #[test]
+    fn a_scene_in_parts_finds_the_hits_each_part_finds_in_its_own_frame() {
+        let splats = torus(20_000);
+        let (scene, ids) = TwoLevel::try_build_with_ids(splats.clone(), &params()).unwrap();
+        assert!(scene.parts.len() >= 6, "{} parts", scene.parts.len());
+        assert_eq!(scene.splat_count(), splats.len());
+        // Each part's splats, in its frame, as an oracle of its own.
+        let oracles: Vec<BruteForce> =
+            scene.parts.iter().map(|p| BruteForce::new(p.bvh.splats().map(|(_, s)| s).collect())).collect();
+        let first_hit = SurfaceScheme::first_hit();
+        let mut hits = 0;
+        for (i, ray) in rays(&scene.bounds(), 3_000, 5).iter().enumerate() {
+            let stats = &mut TraversalStats::default();
+            let nearest = scene.parts.iter().zip(&oracles).filter_map(|(part, oracle)| {
+                let local = Ray { origin: ray.origin - part.offset, ..*ray };
+                scheme::intersect(oracle, &local, &first_hit, stats)
+                    .map(|h| (h.t, part.in_scene(oracle.splat(h.splat))))
+            });
+            let expected = nearest.min_by(|a, b| a.0.total_cmp(&b.0));
+            let found = scheme::intersect(&scene, ray, &first_hit, stats).map(|h| (h.t, scene.splat(h.splat)));
+            assert_eq!(
+                found.map(|(t, s)| (t.to_bits(), s.bits())),
+                expected.map(|(t, s)| (t.to_bits(), s.bits())),
+                "ray {i}"
+            );
+            hits += usize::from(found.is_some());
+            let sj = SurfaceScheme::sj();
+            let occluded = scene.parts.iter().zip(&oracles).any(|(part, oracle)| {
+                let local = Ray { origin: ray.origin - part.offset, ..*ray };
+                scheme::occluded(oracle, &local, 5.0, &sj, stats)
+            });
+            assert_eq!(scheme::occluded(&scene, ray, 5.0, &sj, stats), occluded, "ray {i}: occlusion");
+        }
+        assert!(hits > 1_000, "{hits} hits");
+        // Every input splat named once by the ids, as the scene's index holds it.
+        let mut seen = vec![false; splats.len()];
+        for (p, part_ids) in ids.iter().enumerate() {
+            for (lane, &id) in part_ids.iter().enumerate().filter(|(_, id)| **id != u32::MAX) {
+                assert!(!std::mem::replace(&mut seen[id as usize], true), "splat {id} twice");
+                let index = scene.parts[p].lanes + lane as u32;
+                assert_eq!(scene.locate(index), (p, lane as u32));
+                assert!((scene.splat(index).center - splats[id as usize].center).length() < 1e-3);
+            }
+        }
+        assert!(seen.iter().all(|&s| s));
+    }
+
+    #[test]
+    fn a_scene_in_parts_finds_the_scenes_hits_up_to_the_rounding_of_its_frames() {
+        let splats = torus(20_000);
+        let (scene, ids) = TwoLevel::try_build_with_ids(splats.clone(), &params()).unwrap();
+        let brute = BruteForce::new(splats.clone());
+        let (mut same, mut hits) = (0, 0);
+        for (i, ray) in rays(&scene.bounds(), 2_000, 6).iter().enumerate() {
+            let stats = &mut TraversalStats::default();
+            for scheme in [SurfaceScheme::first_hit(), SurfaceScheme::sj()] {
+                let (a, b) =
+                    (scheme::intersect(&brute, ray, &scheme, stats), scheme::intersect(&scene, ray, &scheme, stats));
+                let (Some(a), Some(b)) = (a, b) else {
+                    assert_eq!(a.is_some(), b.is_some(), "ray {i} {scheme:?}");
+                    continue;
+                };
+                let (p, lane) = scene.locate(b.splat);
+                hits += 1;
+                if ids[p][lane as usize] != a.splat {
+                    // Another of the overlapping disks there.
+                    assert!((a.t - b.t).abs() <= 2.0 * a.radius, "ray {i} {scheme:?}: {} vs {}", a.t, b.t);
+                    continue;
+                }
+                // Snapped in each frame, a disk's centre moves by up to a 2,048th of its radius
+                // either way: its plane's distance along the ray by that over the cosine.
+                let apart = (a.t - b.t).abs() * ray.dir.dot(a.normal).abs();
+                assert!(apart <= a.radius / 1_024.0, "ray {i} {scheme:?}: {} vs {}", a.t, b.t);
+                assert!(a.normal.dot(b.normal) > 0.9999, "ray {i} {scheme:?}");
+                same += 1;
+            }
+        }
+        // A crossing of two disks within the rounding may be found on either.
+        assert!(hits > 1_000 && same * 100 >= hits * 99, "{same} of {hits} hits on the same disk");
+    }
+
+    #[test]
+    fn a_scene_of_no_part_is_met_by_no_ray() {
+        let scene = TwoLevel::new(Vec::new()).unwrap();
+        let ray = Ray::new(Vec3::ZERO, Vec3::X, RayCone::default());
+        let first_hit = SurfaceScheme::first_hit();
+        assert!(scheme::intersect(&scene, &ray, &first_hit, &mut TraversalStats::default()).is_none());
+    }
+
+    #[test]
+    fn the_parts_hold_whole_chunks_of_at_most_the_limit() {
+        let splats = torus(20_000);
+        let plan = plan_of(&splats, 700);
+        let parts = plan.parts(3_000);
+        assert_eq!(parts.iter().map(|(c, _)| c.count).sum::<usize>(), splats.len());
+        assert_eq!(parts.iter().flat_map(|(_, p)| p.chunks().to_vec()).collect::<Vec<_>>(), plan.chunks());
+        // What a plan with the parts' limit makes, from passes over the codes.
+        let direct = plan_of(&splats, 3_000);
+        assert_eq!(parts.iter().map(|(c, _)| *c).collect::<Vec<_>>(), direct.chunks());
+        // Each part's centre is its cell's: every splat within half the cell of it.
+        let mut first = 0;
+        for (cell, _) in &parts {
+            let (center, half) = (cell.center(&plan.bounds()), plan.bounds().extent() / (2u32 << cell.level) as f32);
+            let inside = |s: &Splat| ((s.center - center).abs() - half).max_element() <= 1e-4;
+            let mut part: Vec<Splat> = splats.clone();
+            part.sort_by_key(|s| plan.chunk_of(plan.code(s.center)));
+            assert!(part[first..first + cell.count].iter().all(inside), "cell {cell:?}");
+            first += cell.count;
+        }
+    }
+}
