@@ -815,6 +815,28 @@ struct Cells<'a> {
     failed: Option<IoError>,
 }
 
+/// Files a preparation holds open beside its cells': the input, the spill, the output, the
+/// standard streams, with a margin.
+const OTHER_FILES: u64 = 64;
+
+/// Raises the soft limit on open files to what `cells` files written at once take (a cloud of
+/// 10⁹ points under a 1 GiB budget routes to some 300, past the usual soft limit of 1,024 by
+/// 3·10⁹), or says which limit stands in the way.
+fn open_files_for(cells: usize, dir: &Path) -> Result<(), IoError> {
+    let needed = cells as u64 + OTHER_FILES;
+    let limit = rlimit::increase_nofile_limit(needed).map_err(|e| IoError::io(dir, e))?;
+    if limit < needed {
+        return Err(IoError::invalid(
+            dir,
+            format!(
+                "preparing out of core writes {cells} cells' files at once, and this process may open {limit} files: \
+                 raise the limit (`ulimit -n`) or the memory budget"
+            ),
+        ));
+    }
+    Ok(())
+}
+
 impl<'a> Cells<'a> {
     /// A file in `dir` for each of `plan`'s cells, named `name` and the cell's number.
     fn create(plan: &'a ChunkPlan, dir: &Path, name: &str) -> Result<Self, IoError> {
@@ -826,6 +848,7 @@ impl<'a> Cells<'a> {
                 bounds: Aabb::EMPTY,
             })
             .collect();
+        open_files_for(buckets.len(), dir)?;
         let mut writers = Vec::with_capacity(buckets.len());
         for b in &buckets {
             writers

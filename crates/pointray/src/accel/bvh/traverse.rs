@@ -20,7 +20,7 @@ use crate::math::Ray;
 /// The ray in the form the eight-wide tests want: per axis the origin, direction and negated
 /// inverse direction splatted to all lanes, and the footprint scaled by the level-of-detail
 /// threshold.
-struct SlabRay<W> {
+pub(super) struct SlabRay<W> {
     origin: [W; 3],
     dir: [W; 3],
     /// −1/d per axis, held within ±[`MAX_INV_DIR`]: finite, so no slab distance is NaN (0·∞)
@@ -33,7 +33,7 @@ struct SlabRay<W> {
 
 impl<W: Wide> SlabRay<W> {
     #[inline(always)]
-    fn new(ray: &Ray) -> Self {
+    pub(super) fn new(ray: &Ray) -> Self {
         let tau = ray.lod_threshold;
         Self {
             origin: std::array::from_fn(|k| W::splat(ray.origin[k])),
@@ -120,7 +120,7 @@ impl<W: Wide> SlabRay<W> {
     /// nodes: 62 → 50 instructions a node). Unused slots (minimum +∞, maximum −∞) come out
     /// entered and are masked off.
     #[inline(always)]
-    fn entries(&self, node: &Node, t0: f32, t1: f32) -> (W, u32) {
+    pub(super) fn entries(&self, node: &Node, t0: f32, t1: f32) -> (W, u32) {
         let slab = |k: usize| {
             let lo = (self.origin[k] - W::load(&node.planes[k])) * self.neg_inv_dir[k];
             let hi = (self.origin[k] - W::load(&node.planes[3 + k])) * self.neg_inv_dir[k];
