@@ -347,7 +347,8 @@ fn source_paths(source: &Bound<'_, PyAny>) -> PyResult<Vec<PathBuf>> {
 /// (`.prs`, written whole or not at all), as `pointray prepare SOURCE -o OUTPUT` does: in memory,
 /// or out of core where that would take more than `memory_budget` bytes (default: half this
 /// machine's memory). Options: the preprocessing's and the build's, as for `prepare`. Returns
-/// what it did: `points`, `chunks` (out of core; else None) and `bytes`.
+/// what it did: `points`, `chunks` (out of core; else None), `parts` (a scene in parts: more
+/// than one) and `bytes`.
 #[pyfunction]
 #[pyo3(signature = (source, output, *, memory_budget=None, **options))]
 fn prepare_file<'py>(

@@ -87,7 +87,7 @@ def test_a_scene_file_is_prepared_in_memory_or_out_of_core_alike(tmp_path):
     np.savetxt(west, points[:2000], fmt="%.9f")
     np.savetxt(east, points[2000:], fmt="%.9f")
     whole = pointray.prepare_file([west, east], tmp_path / "memory.prs")
-    assert whole == {"points": 4000, "chunks": None, "bytes": (tmp_path / "memory.prs").stat().st_size}
+    assert whole == {"points": 4000, "chunks": None, "parts": 1, "bytes": (tmp_path / "memory.prs").stat().st_size}
     assert len(pointray.prepare([str(west), str(east)])) == 4000
     # Out of core takes binary PLY and LAS: the tiles as PLYs, then both ways.
     plys = []
@@ -99,7 +99,7 @@ def test_a_scene_file_is_prepared_in_memory_or_out_of_core_alike(tmp_path):
     for options in ({}, {"surface": "rfd", "color_by": "elevation"}):
         memory = pointray.prepare_file(plys, tmp_path / "a.prs", **options)
         streamed = pointray.prepare_file(plys, tmp_path / "b.prs", memory_budget=1024, **options)
-        assert memory["chunks"] is None and streamed["chunks"] == 1
+        assert memory["chunks"] is None and streamed["chunks"] == 1 and memory["parts"] == streamed["parts"] == 1
         assert (tmp_path / "a.prs").read_bytes() == (tmp_path / "b.prs").read_bytes()
     with pytest.raises(ValueError, match="accel"):
         pointray.prepare_file(plys, tmp_path / "c.prs", memory_budget=1024, accel="kdtree")

@@ -83,7 +83,8 @@ def prepare_file(
 ) -> Dict[str, Any]:
     """The scene file (.prs) ``pointray prepare SOURCE -o OUTPUT`` writes: in memory, or out of
     core where that would take more than ``memory_budget`` bytes (default: half the machine's
-    memory). Returns ``points``, ``chunks`` (out of core, else None) and ``bytes``."""
+    memory). Returns ``points``, ``chunks`` (out of core, else None), ``parts`` (more than one
+    for a scene in parts) and ``bytes``."""
 
 def render(source: Source, **options: Any) -> npt.NDArray[np.float32]:
     """The linear RGB image, H x W x 3 float32. Besides the render options: ``threads`` (default
