@@ -1342,28 +1342,33 @@ struct Sums {
     radii: f64,
 }
 
-/// Every chunk of `build` (the part `first_chunk` on of `whole`'s) built in turn from its
-/// buckets' points (taken from `left`), as splats in the part's frame `offset` away.
-#[allow(clippy::too_many_arguments)]
+/// Where a part lies: its first chunk among the whole cloud's, and its frame's offset.
+struct PartAt {
+    first_chunk: usize,
+    offset: Vec3,
+}
+
+/// Every chunk of `build` (the part `at` of `whole`'s) built in turn from its buckets' points
+/// (taken from `left`), as splats in the part's frame.
 fn build_chunks<'b>(
     mut build: StreamedBvh,
     whole: &Build<'b>,
-    first_chunk: usize,
+    at: &PartAt,
     left: &mut std::iter::Peekable<impl Iterator<Item = &'b Bucket>>,
-    offset: Vec3,
     sums: &mut Sums,
     spill: &mut Files,
     ticker: &mut Ticker,
 ) -> Result<StreamedBvh, IoError> {
     for c in 0..build.plan().chunks().len() {
         let (mut splats, mut names) = (Vec::new(), Vec::new());
-        while let Some(bucket) = left.next_if(|b| whole.plan.chunk_of(b.first_code) == first_chunk + c) {
+        while let Some(bucket) = left.next_if(|b| whole.plan.chunk_of(b.first_code) == at.first_chunk + c) {
             for_each_record(bucket, |r| {
                 let center = Vec3::from(r.position);
                 sums.bounds = sums.bounds.union(Aabb::new(center, center));
                 sums.radii += f64::from(r.radius);
                 let normal = Vec3::from(r.normal);
-                splats.push(Splat { center: center - offset, radius: r.radius, normal, color: whole.style.color(r) });
+                let color = whole.style.color(r);
+                splats.push(Splat { center: center - at.offset, radius: r.radius, normal, color });
                 names.push(r.index);
             })?;
         }
@@ -1400,17 +1405,18 @@ fn build_parts(
         let mut spill = Files::new(build.dir)?;
         let count = chunks.chunks().len();
         let part = StreamedBvh::new(chunks, &build.params).starting_at(first_id);
-        let part = build_chunks(part, build, first_chunk, &mut left, offset, &mut sums, &mut spill, ticker)?;
-        let at = crate::prs::layout(part.lengths(), crate::prs::arrays_end(&ranges));
-        let finished = part.finish(&mut spill, &mut FileSink { file, ranges: &at }).map_err(|e| match e {
+        let at = PartAt { first_chunk, offset };
+        let part = build_chunks(part, build, &at, &mut left, &mut sums, &mut spill, ticker)?;
+        let placed = crate::prs::layout(part.lengths(), crate::prs::arrays_end(&ranges));
+        let finished = part.finish(&mut spill, &mut FileSink { file, ranges: &placed }).map_err(|e| match e {
             pointray::accel::bvh::StreamedError::Io(e) => IoError::io(&spill.dir, e),
             e => IoError::invalid(&spill.dir, e.to_string()),
         })?;
         let mut bvh = finished.meta;
-        let density = coverage_density(file, &at, &bvh, &finished.coverage_samples);
+        let density = coverage_density(file, &placed, &bvh, &finished.coverage_samples);
         bvh.coverage_density = density.map_err(|e| IoError::io(&spill.dir, e))?;
         metas.push(PartMeta { offset: offset.to_array(), bvh, ids_crc: finished.ids_crc });
-        ranges.push(at);
+        ranges.push(placed);
         (first_chunk, first_id) = (first_chunk + count, first_id + cell.count);
     }
     let Sums { points, bounds, radii } = sums;

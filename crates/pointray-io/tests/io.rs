@@ -3,6 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
+mod common;
+
 use glam::{DVec3, Vec3};
 use pointray::PointCloud;
 use pointray::cloud::ScanAttributes;
@@ -1118,26 +1120,8 @@ fn build_settings_out_of_core_make_the_scene_file_made_in_memory() {
 fn a_scene_in_parts_prepared_out_of_core_is_the_one_built_in_memory() {
     use pointray::color_by::ColorBy;
     let dir = temp_dir();
-    let n = 12_000;
-    let positions: Vec<Vec3> = (0..n)
-        .map(|i| {
-            let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
-            let (r, phi) = ((1.0 - z * z).sqrt(), i as f32 * 2.399_963);
-            Vec3::new(r * phi.cos(), r * phi.sin(), z) * 3.0
-        })
-        .collect();
-    let cloud = PointCloud {
-        normals: Some(positions.iter().map(|p| p.normalize()).collect()),
-        radii: Some(vec![0.06; n]),
-        scan: ScanAttributes {
-            classification: Some((0..n).map(|i| [2, 5, 6][i % 3]).collect()),
-            intensity: Some((0..n).map(|i| (i * 37 % 1000) as f32).collect()),
-            ..ScanAttributes::default()
-        },
-        positions,
-        origin: glam::DVec3::new(500_000.0, 4_000_000.0, 100.0),
-        ..PointCloud::default()
-    };
+    let origin = DVec3::new(500_000.0, 4_000_000.0, 100.0);
+    let cloud = PointCloud { origin, ..common::classified_sphere(12_000) };
     let input = [dir.path().join("sphere.ply")];
     pointray_io::write_ply(&input[0], &cloud).unwrap();
     let limits = pointray::scene::BuildLimits { chunk_splats: 700, part_splats: 3_000 };
@@ -1173,25 +1157,7 @@ fn a_scene_in_parts_prepared_out_of_core_is_the_one_built_in_memory() {
 fn cells_smaller_than_the_chunks_make_the_same_scene_file() {
     use pointray::color_by::ColorBy;
     let dir = temp_dir();
-    let n = 12_000;
-    let positions: Vec<Vec3> = (0..n)
-        .map(|i| {
-            let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
-            let (r, phi) = ((1.0 - z * z).sqrt(), i as f32 * 2.399_963);
-            Vec3::new(r * phi.cos(), r * phi.sin(), z) * 3.0
-        })
-        .collect();
-    let cloud = PointCloud {
-        normals: Some(positions.iter().map(|p| p.normalize()).collect()),
-        radii: Some(vec![0.06; n]),
-        scan: ScanAttributes {
-            classification: Some((0..n).map(|i| [2, 5, 6][i % 3]).collect()),
-            intensity: Some((0..n).map(|i| (i * 37 % 1000) as f32).collect()),
-            ..ScanAttributes::default()
-        },
-        positions,
-        ..PointCloud::default()
-    };
+    let cloud = common::classified_sphere(12_000);
     let input = [dir.path().join("sphere.ply")];
     pointray_io::write_ply(&input[0], &cloud).unwrap();
     let cases = [

@@ -2,26 +2,12 @@
 //! what its cells take, and where the hard limit stands in the way says so, naming the limit.
 //! (A test binary of its own: it lowers its process's limits for good.)
 
-use glam::Vec3;
-use pointray::PointCloud;
+mod common;
 
 #[test]
 fn the_open_files_limit_is_raised_to_the_cells_or_named() {
     let dir = tempfile::tempdir().unwrap();
-    let n = 20_000;
-    let positions: Vec<Vec3> = (0..n)
-        .map(|i| {
-            let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
-            let (r, phi) = ((1.0 - z * z).sqrt(), i as f32 * 2.399_963);
-            Vec3::new(r * phi.cos(), r * phi.sin(), z) * 3.0
-        })
-        .collect();
-    let cloud = PointCloud {
-        normals: Some(positions.iter().map(|p| p.normalize()).collect()),
-        radii: Some(vec![0.06; n]),
-        positions,
-        ..PointCloud::default()
-    };
+    let cloud = common::classified_sphere(20_000);
     let input = [dir.path().join("sphere.ply")];
     pointray_io::write_ply(&input[0], &cloud).unwrap();
     // Cells of at most 100 points: some 200 files at once, past a soft limit of 64.
