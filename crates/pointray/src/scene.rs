@@ -261,7 +261,8 @@ impl Scene {
     /// `surface` tests) over the parts' cloud, which it consumes: the splats hold all the rest
     /// needs of the points, and the cloud is freed before the build's peak. The points are
     /// those of the settings' `classes` (less `exclude_classes`) inside their clip, coloured by
-    /// `color_by`.
+    /// `color_by`. A BVH over more than `accel::bvh::PART_SPLATS` is a scene in parts
+    /// (`accel::bvh::TwoLevel`).
     pub fn build(parts: SceneParts, settings: &Settings) -> Result<Scene, SceneError> {
         Self::build_with_limits(parts, settings, BuildLimits::default())
     }
