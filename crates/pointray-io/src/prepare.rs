@@ -1510,11 +1510,11 @@ fn write(
             std::io::Error::other(message)
         };
         let (ranges, parts, cloud) = build_parts(file, build, ticker).map_err(&mut fail)?;
-        file.set_len(crate::prs::index_at(&ranges) as u64)?;
+        file.set_len(crate::prs::arrays_end(&ranges) as u64)?;
         let count = parts.len();
         let meta = SceneMeta::streamed(settings, &scene(&cloud), &cloud, parts);
         let (header, tail) = crate::prs::tail(output, &ranges, &meta).map_err(&mut fail)?;
-        std::os::unix::fs::FileExt::write_all_at(file, &tail, crate::prs::index_at(&ranges) as u64)?;
+        std::os::unix::fs::FileExt::write_all_at(file, &tail, crate::prs::arrays_end(&ranges) as u64)?;
         std::os::unix::fs::FileExt::write_all_at(file, &header, 0)?;
         done = Some((cloud, count));
         Ok(())

@@ -48,7 +48,7 @@ pub fn write_prs(path: &Path, scene: &Scene) -> Result<(), IoError> {
             w.write_all(array)?;
             written = range.end;
         }
-        w.write_all(&zeros[..index_at(&ranges) - written])?;
+        w.write_all(&zeros[..arrays_end(&ranges) - written])?;
         w.write_all(&index)
     })
 }
@@ -63,15 +63,10 @@ pub(crate) fn layout(lengths: [usize; 7], mut at: usize) -> PartRanges {
     })
 }
 
-/// Where the arrays after these parts' start: the page after the last array, or after the
-/// header's page.
+/// Where the arrays after these parts start (the index, after the last part): the page after
+/// the last array, or after the header's page.
 pub(crate) fn arrays_end(ranges: &[PartRanges]) -> usize {
     ranges.last().map_or(PAGE, |r| r[6].end.next_multiple_of(PAGE))
-}
-
-/// Where the index starts: the page after the last array.
-pub(crate) fn index_at(ranges: &[PartRanges]) -> usize {
-    arrays_end(ranges)
 }
 
 /// The header (its 64 bytes) and what follows the arrays (the index, then the metadata) of a
@@ -84,7 +79,7 @@ pub(crate) fn tail(path: &Path, ranges: &[PartRanges], meta: &SceneMeta) -> Resu
         index.extend_from_slice(&(range.start as u64).to_le_bytes());
         index.extend_from_slice(&(range.len() as u64).to_le_bytes());
     }
-    let index_at = index_at(ranges);
+    let index_at = arrays_end(ranges);
     let meta_at = index_at + index.len();
     let end = meta_at + meta.len();
     let mut header = Vec::with_capacity(HEADER);

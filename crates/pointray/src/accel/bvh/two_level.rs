@@ -147,7 +147,7 @@ impl TwoLevel {
         let of = |f: fn(&Bvh) -> f32| parts.iter().map(move |p| f(&p.bvh));
         Ok(TwoLevel {
             lanes: at_lane,
-            bounds: parts.iter().fold(Aabb::EMPTY, |b, p| b.union(scene_box(p.bvh.bounds, p.offset))),
+            bounds: parts.iter().fold(Aabb::EMPTY, |b, p| b.union(p.bounds)),
             splat_count: parts.iter().map(|p| p.bvh.splat_count).sum(),
             wide_radius: of(|b| b.wide_radius).fold(0.0, f32::max),
             lod_floor: of(|b| b.lod_floor).fold(f32::INFINITY, f32::min),
@@ -634,13 +634,13 @@ mod tests {
         let direct = plan_of(&splats, 3_000);
         assert_eq!(parts.iter().map(|(c, _)| *c).collect::<Vec<_>>(), direct.chunks());
         // Each part's centre is its cell's: every splat within half the cell of it.
+        let mut sorted = splats.clone();
+        sorted.sort_by_key(|s| plan.chunk_of(plan.code(s.center)));
         let mut first = 0;
         for (cell, _) in &parts {
             let (center, half) = (cell.center(&plan.bounds()), plan.bounds().extent() / (2u32 << cell.level) as f32);
             let inside = |s: &Splat| ((s.center - center).abs() - half).max_element() <= 1e-4;
-            let mut part: Vec<Splat> = splats.clone();
-            part.sort_by_key(|s| plan.chunk_of(plan.code(s.center)));
-            assert!(part[first..first + cell.count].iter().all(inside), "cell {cell:?}");
+            assert!(sorted[first..first + cell.count].iter().all(inside), "cell {cell:?}");
             first += cell.count;
         }
     }
