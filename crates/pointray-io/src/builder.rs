@@ -150,8 +150,8 @@ impl CloudBuilder {
     }
 }
 
-/// Clouds read one by one, merged in order into one: each point's world position (its cloud's
-/// origin plus its offset, as reading the cloud alone holds it) placed by `place`, its normal
+/// Clouds read one by one, merged in order into one: each point's world position (as reading
+/// the cloud alone holds it) placed by `place`, its normal
 /// turned by `turn` (both told the cloud's number); normals, radii and colours kept where every
 /// cloud has them, scan attributes where any has (zeros for the others); the merged cloud
 /// recentred as a file's.
@@ -171,7 +171,7 @@ pub(crate) fn merge(
     for (k, c) in clouds.iter().enumerate() {
         for i in 0..c.len() {
             builder.push(&PointRecord {
-                position: place(k, c.origin + c.positions[i].as_dvec3()),
+                position: place(k, c.world_position(i)),
                 normal: c.normals.as_ref().map_or(Vec3::ZERO, |n| turn(k, n[i])),
                 radius: c.radii.as_ref().map_or(0.0, |r| r[i]),
                 color: c.colors.as_ref().map_or([0.0; 3], |col| col[i]),

@@ -22,8 +22,9 @@ use bytemuck::Zeroable;
 use glam::{DVec3, Vec3};
 use pointray::Settings;
 use pointray::accel::Bvh;
-use pointray::accel::bvh::{BvhMeta, BvhParams, ChunkPlan, Sink, Spill, Spilled, StreamedBvh};
+use pointray::accel::bvh::{BvhMeta, BvhParams, ChunkPlan, Sink, Spill, Spilled, StreamedBvh, part_offset};
 use pointray::accel::stored::StableBytes;
+use pointray::cloud::{WorldBounds, moved_precisely, residual};
 use pointray::color_by::{self, ColorBy, UnitScale};
 use pointray::math::{Aabb, morton};
 use pointray::preprocess::{PreprocessConfig, outliers};
@@ -160,6 +161,10 @@ struct Record {
     /// [`GIVEN_NORMAL`], [`GIVEN_RADIUS`]: which are valid (given by the file, or computed);
     /// the class from [`CLASS_SHIFT`] on, the viewpoint from [`VIEWPOINT_SHIFT`].
     flags: u32,
+    /// What `position` rounded off the file's coordinates, for a cloud that keeps it
+    /// (`PointCloud::residuals`; zeros otherwise).
+    residual: [f32; 3],
+    _unused: u32,
 }
 
 const GIVEN_NORMAL: u32 = 1;
@@ -333,8 +338,8 @@ impl Stream {
 /// point placed and given what reading the tiles in memory gives it.
 struct Input {
     streams: Vec<Stream>,
-    /// With several tiles, each one's origin, once [`Input::find_tile_origins`] has found them.
-    tile_origins: Vec<DVec3>,
+    /// With several tiles, each one's bounds, once [`Input::find_tile_bounds`] has found them.
+    tile_bounds: Vec<WorldBounds>,
 }
 
 impl Input {
@@ -343,7 +348,7 @@ impl Input {
         if streams.is_empty() {
             return Err(IoError::invalid(Path::new(""), "no input file"));
         }
-        Ok(Self { streams, tile_origins: Vec::new() })
+        Ok(Self { streams, tile_bounds: Vec::new() })
     }
 
     fn count(&self) -> usize {
@@ -376,13 +381,14 @@ impl Input {
         [any(|s| s.intensity), any(|s| s.classification)]
     }
 
-    /// With several tiles, a pass finding each one's origin, as reading it alone would.
-    fn find_tile_origins(&mut self, ticker: &mut Ticker) -> Result<(), IoError> {
+    /// With several tiles, a pass finding each one's bounds (its origin, whether it keeps its
+    /// residuals), as reading it alone would.
+    fn find_tile_bounds(&mut self, ticker: &mut Ticker) -> Result<(), IoError> {
         if self.streams.len() > 1 {
             ticker.total += self.count();
-            self.tile_origins = Vec::with_capacity(self.streams.len());
+            self.tile_bounds = Vec::with_capacity(self.streams.len());
             for stream in &mut self.streams {
-                self.tile_origins.push(world_bounds(stream, ticker)?.origin());
+                self.tile_bounds.push(world_bounds(stream, ticker)?);
             }
         }
         Ok(())
@@ -395,11 +401,11 @@ impl Input {
         let given = self.streams.iter().map(Stream::given);
         let [normals, radii] = given.fold([true; 2], |all, g| [all[0] && g[0], all[1] && g[1]]);
         for (k, stream) in self.streams.iter_mut().enumerate() {
-            let origin = self.tile_origins.get(k).copied();
-            stream.for_each(|r| match origin {
+            let tile = self.tile_bounds.get(k);
+            stream.for_each(|r| match tile {
                 None => visit(r),
-                Some(origin) => visit(&PointRecord {
-                    position: crate::tiles::placed(r.position, origin),
+                Some(tile) => visit(&PointRecord {
+                    position: crate::tiles::placed(r.position, tile),
                     normal: if normals { r.normal } else { Vec3::ZERO },
                     radius: if radii { r.radius } else { 0.0 },
                     ..*r
@@ -411,8 +417,8 @@ impl Input {
 }
 
 /// The bounds of `stream`'s points as one cloud read in memory finds them.
-fn world_bounds(stream: &mut Stream, ticker: &mut Ticker) -> Result<pointray::cloud::WorldBounds, IoError> {
-    let mut bounds = pointray::cloud::WorldBounds::default();
+fn world_bounds(stream: &mut Stream, ticker: &mut Ticker) -> Result<WorldBounds, IoError> {
+    let mut bounds = WorldBounds::default();
     stream.for_each(|r| {
         ticker.tick(1);
         bounds = bounds.with(r.position);
@@ -511,7 +517,8 @@ pub fn prepare_out_of_core(
     let mut stream = Input::open(inputs).map_err(io)?;
     let points_read = stream.count();
     let ticker = |stage, total| Ticker::new(progress, stage, total);
-    let origin = world_origin(&mut stream, &mut ticker("read: origin", points_read)).map_err(io)?;
+    let world = world_bounds_of(&mut stream, &mut ticker("read: origin", points_read)).map_err(io)?;
+    let origin = world.origin();
     let (bounds, kept) = local_bounds(&mut stream, origin, &mut ticker("read: bounds", points_read)).map_err(io)?;
     if kept == 0 {
         return Err(io(IoError::invalid(input, "no point with finite coordinates")));
@@ -523,7 +530,8 @@ pub fn prepare_out_of_core(
     let provisional = plan(&mut stream, origin, bounds, kept, cell_points, &mut ticker("read: cells", 0));
     let provisional = provisional.map_err(io)?;
     let route_ticker = &mut ticker("read: route", points_read);
-    let routing = Routing { origin, recompute: config.recompute, intensity: settings.color_by == ColorBy::Intensity };
+    let intensity = settings.color_by == ColorBy::Intensity;
+    let routing = Routing { origin, residuals: world.keeps_residuals(), recompute: config.recompute, intensity };
     let mut buckets = route(&mut stream, &routing, &provisional, dir.path(), route_ticker).map_err(io)?;
     let sensors: Vec<Vec3> = stream.viewpoints().iter().map(|v| (*v - origin).as_vec3()).collect();
     let done = preprocess_cells(&mut buckets, config, &sensors, progress, kept).map_err(io)?;
@@ -731,16 +739,16 @@ fn percentiles(buckets: &[Bucket], value: impl Fn(&Record) -> f32) -> Result<Uni
     Ok(selected.map_or(UnitScale::between(0.0, 0.0), |[lo, hi]| UnitScale::between(lo, hi)))
 }
 
-/// The origin reading the cloud in memory gives it (`PointCloud::from_world_positions`): the
-/// centre of its finite points' bounds.
-fn world_origin(stream: &mut Input, ticker: &mut Ticker) -> Result<DVec3, IoError> {
-    stream.find_tile_origins(ticker)?;
-    let mut bounds = pointray::cloud::WorldBounds::default();
+/// The bounds reading the cloud in memory finds (`PointCloud::from_world_positions`): their
+/// centre is its origin, and they say whether it keeps its residuals.
+fn world_bounds_of(stream: &mut Input, ticker: &mut Ticker) -> Result<WorldBounds, IoError> {
+    stream.find_tile_bounds(ticker)?;
+    let mut bounds = WorldBounds::default();
     stream.for_each(|r| {
         ticker.tick(1);
         bounds = bounds.with(r.position);
     })?;
-    Ok(bounds.origin())
+    Ok(bounds)
 }
 
 /// A point's position as the cloud in memory holds it (`None`: dropped as non-finite).
@@ -882,6 +890,8 @@ impl<'a> Cells<'a> {
 struct Routing {
     /// Where the cloud's positions are from.
     origin: DVec3,
+    /// Whether the records keep what their positions rounded off.
+    residuals: bool,
     /// Normals and radii ignored, to be computed.
     recompute: bool,
     /// The intensity kept in place of the colour, which will show it.
@@ -919,6 +929,11 @@ fn route(
                     false => pack_color(if colors { r.color } else { DEFAULT_COLOR }),
                 },
                 flags: given | u32::from(r.classification) << CLASS_SHIFT | u32::from(r.viewpoint) << VIEWPOINT_SHIFT,
+                residual: match routing.residuals {
+                    true => residual(r.position, routing.origin, p).to_array(),
+                    false => [0.0; 3],
+                },
+                _unused: 0,
             });
         }
         index += 1;
@@ -1366,9 +1381,9 @@ fn build_chunks<'b>(
                 let center = Vec3::from(r.position);
                 sums.bounds = sums.bounds.union(Aabb::new(center, center));
                 sums.radii += f64::from(r.radius);
-                let normal = Vec3::from(r.normal);
-                let color = whole.style.color(r);
-                splats.push(Splat { center: center - at.offset, radius: r.radius, normal, color });
+                let (normal, color) = (Vec3::from(r.normal), whole.style.color(r));
+                let center = moved_precisely(center, Vec3::from(r.residual), at.offset);
+                splats.push(Splat { center, radius: r.radius, normal, color });
                 names.push(r.index);
             })?;
         }
@@ -1400,10 +1415,13 @@ fn build_parts(
     let (mut ranges, mut metas, mut sums) = (Vec::new(), Vec::new(), Sums::default());
     let (lone, mut first_chunk, mut first_id) = (parts.len() == 1, 0, 0);
     for (cell, chunks) in parts {
-        // A lone part stays in the scene's frame, as a lone BVH in memory.
-        let offset = if lone { Vec3::ZERO } else { cell.center(&build.plan.bounds()) };
-        let mut spill = Files::new(build.dir)?;
         let count = chunks.chunks().len();
+        // A lone part stays in the scene's frame, as a lone BVH in memory.
+        let offset = match lone {
+            true => Vec3::ZERO,
+            false => part_offset(part_bounds(build, first_chunk..first_chunk + count)?),
+        };
+        let mut spill = Files::new(build.dir)?;
         let part = StreamedBvh::new(chunks, &build.params).starting_at(first_id);
         let at = PartAt { first_chunk, offset };
         let part = build_chunks(part, build, &at, &mut left, &mut sums, &mut spill, ticker)?;
@@ -1422,6 +1440,17 @@ fn build_parts(
     let Sums { points, bounds, radii } = sums;
     let cloud = StreamedCloud { points, origin: build.origin, bounds, mean_radius: radii / points as f64 };
     Ok((ranges, metas, cloud))
+}
+
+/// The bounds of the points of `chunks` (their buckets'), found in a pass over them: a part's
+/// frame is centred on them, as in memory (`TwoLevel`). (The buckets' own bounds may hold
+/// points since dropped.)
+fn part_bounds(build: &Build<'_>, chunks: std::ops::Range<usize>) -> Result<Aabb, IoError> {
+    let mut bounds = Aabb::EMPTY;
+    for b in build.buckets.iter().filter(|b| chunks.contains(&build.plan.chunk_of(b.first_code))) {
+        for_each_record(b, |r| bounds = bounds.union(Aabb::new(r.position.into(), r.position.into())))?;
+    }
+    Ok(bounds)
 }
 
 /// [`Bvh::measure_coverage_density`] of the tree written to `file` (its `samples` read while it
@@ -1566,11 +1595,11 @@ mod tests {
         pointray::preprocess::preprocess(&mut whole, &config).unwrap();
         let ticker = &mut Ticker::new(&|_| {}, "test", 0);
         let mut stream = Input::open(std::slice::from_ref(&path)).unwrap();
-        let origin = world_origin(&mut stream, ticker).unwrap();
+        let origin = world_bounds_of(&mut stream, ticker).unwrap().origin();
         assert_eq!(origin, whole.origin);
         let (bounds, kept) = local_bounds(&mut stream, origin, ticker).unwrap();
         let plan = plan(&mut stream, origin, bounds, kept, cell, ticker).unwrap();
-        let routing = Routing { origin, recompute: false, intensity: false };
+        let routing = Routing { origin, residuals: false, recompute: false, intensity: false };
         let mut buckets = route(&mut stream, &routing, &plan, dir.path(), ticker).unwrap();
         assert!(buckets.len() >= 8, "{} cells", buckets.len());
         let cleaned = clean(&mut buckets, ticker).unwrap();
@@ -1622,10 +1651,10 @@ mod tests {
         assert!(stats.dropped_outliers >= 40, "{}", stats.dropped_outliers);
         let ticker = &mut Ticker::new(&|_| {}, "test", 0);
         let mut stream = Input::open(&[path]).unwrap();
-        let origin = world_origin(&mut stream, ticker).unwrap();
+        let origin = world_bounds_of(&mut stream, ticker).unwrap().origin();
         let (bounds, kept) = local_bounds(&mut stream, origin, ticker).unwrap();
         let plan = plan(&mut stream, origin, bounds, kept, 800, ticker).unwrap();
-        let routing = Routing { origin, recompute: false, intensity: false };
+        let routing = Routing { origin, residuals: false, recompute: false, intensity: false };
         let mut buckets = route(&mut stream, &routing, &plan, dir.path(), ticker).unwrap();
         assert!(buckets.len() >= 16, "{} cells", buckets.len());
         clean(&mut buckets, ticker).unwrap();

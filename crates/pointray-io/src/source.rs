@@ -339,9 +339,16 @@ fn place(points: &mut PointCloud, spec: &CloudSpec) {
     let [rx, ry, rz] = spec.rotate.map(f64::to_radians);
     let rotation = DMat3::from_rotation_z(rz) * DMat3::from_rotation_y(ry) * DMat3::from_rotation_x(rx);
     let (scale, translate, origin) = (spec.scale, DVec3::from(spec.translate), points.origin);
-    for p in &mut points.positions {
-        *p = (rotation * ((origin + p.as_dvec3()) * scale) + translate).as_vec3();
+    let mut residuals = points.residuals.take();
+    for (i, p) in points.positions.iter_mut().enumerate() {
+        let residual = residuals.as_ref().map_or(DVec3::ZERO, |r| r[i].as_dvec3());
+        let world = rotation * ((origin + p.as_dvec3() + residual) * scale) + translate;
+        *p = world.as_vec3();
+        if let Some(r) = &mut residuals {
+            r[i] = pointray::cloud::residual(world, DVec3::ZERO, *p);
+        }
     }
+    points.residuals = residuals;
     if let Some(normals) = &mut points.normals {
         normals.iter_mut().for_each(|n| *n = (rotation * n.as_dvec3()).normalize().as_vec3());
     }
@@ -355,11 +362,15 @@ fn place(points: &mut PointCloud, spec: &CloudSpec) {
 /// colour for those without; scan attributes likewise (zero for those without).
 fn merge(clouds: Vec<PointCloud>) -> PointCloud {
     let any_colors = clouds.iter().any(|c| c.colors.is_some());
+    let any_residuals = clouds.iter().any(|c| c.residuals.is_some());
     let mut all = PointCloud::default();
-    let (mut normals, mut radii, mut colors) = (Vec::new(), Vec::new(), Vec::new());
+    let (mut normals, mut radii, mut colors, mut residuals) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
     for c in clouds {
         let n = c.len();
         all.scan.append(all.positions.len(), c.scan, n);
+        if any_residuals {
+            residuals.extend(c.residuals.unwrap_or_else(|| vec![Vec3::ZERO; n]));
+        }
         all.positions.extend(c.positions);
         normals.extend(c.normals.expect("preprocessed"));
         radii.extend(c.radii.expect("preprocessed"));
@@ -371,6 +382,7 @@ fn merge(clouds: Vec<PointCloud>) -> PointCloud {
     all.normals = Some(normals);
     all.radii = Some(radii);
     all.colors = any_colors.then_some(colors);
+    all.residuals = any_residuals.then_some(residuals);
     all
 }
 

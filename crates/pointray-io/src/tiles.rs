@@ -6,7 +6,8 @@
 
 use std::path::{Path, PathBuf};
 
-use glam::DVec3;
+use glam::{DVec3, Vec3};
+use pointray::cloud::{WorldBounds, held, residual};
 
 use crate::{FileInfo, IoError, LoadedCloud, ReadOptions, read_cloud_with};
 
@@ -40,10 +41,14 @@ pub(crate) fn agreed<T: PartialEq>(mut values: impl Iterator<Item = Option<T>>) 
     values.all(|v| v.as_ref() == Some(&first)).then_some(first)
 }
 
-/// Where a point of a tile whose origin is `tile_origin` lies once that tile is read alone:
-/// its offset rounded to `f32` as the tile's cloud holds it (see the module).
-pub(crate) fn placed(position: DVec3, tile_origin: DVec3) -> DVec3 {
-    tile_origin + (position - tile_origin).as_vec3().as_dvec3()
+/// Where a point of a tile of bounds `tile` lies once that tile is read alone: as the tile's
+/// cloud holds it ([`pointray::PointCloud::world_position`]: its offset rounded to `f32`, with what that
+/// rounded off where the tile keeps it; see the module).
+pub(crate) fn placed(position: DVec3, tile: &WorldBounds) -> DVec3 {
+    let origin = tile.origin();
+    let offset = (position - origin).as_vec3();
+    let residual = if tile.keeps_residuals() { residual(position, origin, offset) } else { Vec3::ZERO };
+    held(origin, offset, residual)
 }
 
 /// How errors about the set name it: its first file, and how many more.

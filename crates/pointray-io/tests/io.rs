@@ -1149,6 +1149,47 @@ fn a_scene_in_parts_prepared_out_of_core_is_the_one_built_in_memory() {
     }
 }
 
+/// A survey wider than `f32` keeps to a quarter of a millimetre (two sites 40 km apart in UTM
+/// coordinates, each point placed to a hundredth of a millimetre) is moved into its parts'
+/// frames from the file's `f64` coordinates alike in memory and out of core, as one file and
+/// as two tiles.
+#[test]
+fn a_wide_survey_in_parts_keeps_its_precision_alike_out_of_core() {
+    let dir = temp_dir();
+    let sphere = common::classified_sphere(8_000);
+    let site = |i: usize| DVec3::new(if i.is_multiple_of(2) { 480_000.0 } else { 520_000.0 }, 5_000_000.0, 120.0);
+    let fine = |i: usize| DVec3::new((i % 7) as f64, (i % 11) as f64, (i % 13) as f64) * 1e-5;
+    let world: Vec<DVec3> =
+        sphere.positions.iter().enumerate().map(|(i, p)| site(i) + p.as_dvec3() + fine(i)).collect();
+    let cloud = PointCloud { scan: sphere.scan.clone(), ..PointCloud::from_world_positions(&world) };
+    let cloud = PointCloud { normals: sphere.normals.clone(), radii: sphere.radii.clone(), ..cloud };
+    assert!(cloud.residuals.is_some());
+    let whole = [dir.path().join("survey.ply")];
+    pointray_io::write_ply(&whole[0], &cloud).unwrap();
+    let tiles = [dir.path().join("west.ply"), dir.path().join("east.ply")];
+    for (t, path) in tiles.iter().enumerate() {
+        // Each tile of both sites, wide as the survey.
+        let order: Vec<u32> = (0..cloud.len() as u32).filter(|i| (i / 2) % 2 == t as u32).collect();
+        let mut tile = cloud.clone();
+        tile.permute(&order);
+        pointray_io::write_ply(path, &tile).unwrap();
+    }
+    let limits = pointray::scene::BuildLimits { chunk_splats: 500, part_splats: 2_000 };
+    let settings = pointray::Settings::default();
+    for input in [&whole[..], &tiles[..]] {
+        let config = pointray::preprocess::PreprocessConfig::default();
+        let source = pointray_io::source::load_tiles(input, &config, &Default::default(), &|_| {}).unwrap();
+        let scene = pointray::Scene::build_with_limits(source.parts, &settings, limits).unwrap();
+        assert!(scene.parts() >= 4, "{} parts", scene.parts());
+        let (memory, streamed) = (dir.path().join("memory.prs"), dir.path().join("streamed.prs"));
+        pointray_io::prs::write_prs(&memory, &scene).unwrap();
+        let options = pointray_io::prepare::OutOfCore { settings: settings.clone(), limits, ..Default::default() };
+        pointray_io::prepare::prepare_out_of_core(input, &streamed, &options, &|_| {}).unwrap();
+        let same = std::fs::read(&memory).unwrap() == std::fs::read(&streamed).unwrap();
+        assert!(same, "{} inputs: the files differ", input.len());
+    }
+}
+
 /// Cells smaller than the build's chunks (a small memory budget's) change nothing where the
 /// normals and radii are given: each cell lies inside one chunk, and the chunks are the ones a
 /// build in memory makes. A sphere with classes and intensities in cells of at most 700 points,

@@ -83,7 +83,7 @@ impl Cloud {
     #[getter]
     fn positions<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray2<f64>> {
         let c = &self.inner;
-        table(c.positions.iter().map(|p| (c.origin + p.as_dvec3()).to_array())).into_pyarray(py)
+        table((0..c.len()).map(|i| c.world_position(i).to_array())).into_pyarray(py)
     }
 
     #[getter]

@@ -21,6 +21,11 @@ pub struct PointCloud {
     pub colors: Option<Vec<[f32; 3]>>,
     /// Offset subtracted from every input coordinate (see the type's doc).
     pub origin: DVec3,
+    /// What each position rounded off its world coordinates (world = `origin + position +
+    /// residual`, summed in `f64`), kept for clouds wider than [`RESIDUALS_PAST`]: a scene in
+    /// parts moves each point into its part's frame with it, so that each part keeps the
+    /// precision of its own extent, not the cloud's.
+    pub residuals: Option<Vec<Vec3>>,
     /// Where the scanner stood, in the same local coordinates as `positions`, where the file
     /// says: a position per scan (an organised depth frame's PCD `VIEWPOINT`, each E57 scan's
     /// pose). Computed normals are turned to face their point's scanner.
@@ -84,6 +89,11 @@ impl ScanAttributes {
     }
 }
 
+/// Half the extent (on an axis, in the file's units) past which a cloud keeps its positions'
+/// [`PointCloud::residuals`]: `f32` offsets from its centre round by at most 2⁻¹² of a unit
+/// within it (a quarter of a millimetre in metres), by 4 mm 100 km out.
+pub const RESIDUALS_PAST: f64 = 4096.0;
+
 /// Element `i` of the result is element `order[i]` of `v`.
 fn permute_some<T: Copy>(v: &mut Option<Vec<T>>, order: &[u32]) {
     if let Some(v) = v {
@@ -129,6 +139,27 @@ impl WorldBounds {
     pub fn origin(&self) -> DVec3 {
         if self.lo.x <= self.hi.x { (self.lo + self.hi) * 0.5 } else { DVec3::ZERO }
     }
+
+    /// Whether a cloud of these bounds keeps its [`PointCloud::residuals`].
+    pub fn keeps_residuals(&self) -> bool {
+        self.lo.x <= self.hi.x && ((self.hi - self.lo) * 0.5).max_element() > RESIDUALS_PAST
+    }
+}
+
+/// The world coordinates a cloud of `origin` holds of a point at `position` with `residual`
+/// ([`PointCloud::world_position`]).
+pub fn held(origin: DVec3, position: Vec3, residual: Vec3) -> DVec3 {
+    origin + position.as_dvec3() + residual.as_dvec3()
+}
+
+/// What `position` (of `world`, less `origin`) rounded off, as [`PointCloud::residuals`] keeps it.
+pub fn residual(world: DVec3, origin: DVec3, position: Vec3) -> Vec3 {
+    (world - origin - position.as_dvec3()).as_vec3()
+}
+
+/// `position` and its `residual` (in the cloud's frame) in the frame `offset` away, rounded once.
+pub fn moved_precisely(position: Vec3, residual: Vec3, offset: Vec3) -> Vec3 {
+    (position.as_dvec3() - offset.as_dvec3() + residual.as_dvec3()).as_vec3()
 }
 
 impl PointCloud {
@@ -140,15 +171,25 @@ impl PointCloud {
     /// Builds a cloud from world coordinates in `f64`: recentres them on the bounding-box
     /// centre of the finite ones and stores `f32` offsets from it. Non-finite coordinates stay
     /// non-finite (preprocessing drops them); they do not move the origin. Neither do
-    /// coordinates beyond `f32`'s range (±3.4·10³⁸), which become infinite.
+    /// coordinates beyond `f32`'s range (±3.4·10³⁸), which become infinite. A cloud wider than
+    /// [`RESIDUALS_PAST`] keeps what the `f32` offsets rounded off.
     pub fn from_world_positions(world: &[DVec3]) -> Self {
-        let origin = world.iter().fold(WorldBounds::default(), |b, p| b.with(*p)).origin();
-        let positions = world.iter().map(|p| (*p - origin).as_vec3()).collect();
-        Self { positions, origin, ..Self::default() }
+        let bounds = world.iter().fold(WorldBounds::default(), |b, p| b.with(*p));
+        let origin = bounds.origin();
+        let positions: Vec<Vec3> = world.iter().map(|p| (*p - origin).as_vec3()).collect();
+        let residuals = bounds
+            .keeps_residuals()
+            .then(|| world.iter().zip(&positions).map(|(w, p)| residual(*w, origin, *p)).collect());
+        Self { positions, origin, residuals, ..Self::default() }
     }
 
     pub fn len(&self) -> usize {
         self.positions.len()
+    }
+
+    /// Point `i`'s world coordinates, as the cloud holds them.
+    pub fn world_position(&self, i: usize) -> DVec3 {
+        held(self.origin, self.positions[i], self.residuals.as_ref().map_or(Vec3::ZERO, |r| r[i]))
     }
 
     pub fn is_empty(&self) -> bool {
@@ -167,6 +208,7 @@ impl PointCloud {
         permute_some(&mut self.radii, order);
         permute_some(&mut self.colors, order);
         permute_some(&mut self.viewpoint_of, order);
+        permute_some(&mut self.residuals, order);
         self.scan.permute(order);
     }
 
@@ -181,6 +223,7 @@ impl PointCloud {
         check("radii", self.radii.as_ref().map(Vec::len))?;
         check("colors", self.colors.as_ref().map(Vec::len))?;
         check("viewpoint_of", self.viewpoint_of.as_ref().map(Vec::len))?;
+        check("residuals", self.residuals.as_ref().map(Vec::len))?;
         if let Some(&last) =
             self.viewpoint_of.iter().flatten().max().filter(|&&v| usize::from(v) >= self.viewpoints.len())
         {
@@ -224,5 +267,27 @@ mod tests {
         let cloud = PointCloud::from_world_positions(&[DVec3::ONE, DVec3::new(1e39, 0.0, 0.0), DVec3::splat(3.0)]);
         assert_eq!((cloud.origin, cloud.positions[0]), (DVec3::splat(2.0), Vec3::splat(-1.0)));
         assert!(cloud.positions[1].x.is_infinite());
+        assert!(cloud.residuals.is_none());
+    }
+
+    #[test]
+    fn a_wide_cloud_keeps_what_its_positions_rounded_off() {
+        // 200 km of UTM eastings on a tenth-of-a-millimetre lattice.
+        let world: Vec<DVec3> =
+            (0..1000).map(|i| DVec3::new(400_000.0 + i as f64 * 200.000_1, 5_000_000.0, 12.3456)).collect();
+        let cloud = PointCloud::from_world_positions(&world);
+        let residuals = cloud.residuals.as_ref().expect("wider than the limit");
+        let rounded = |w: DVec3, p: Vec3| (w - cloud.origin - p.as_dvec3()).length();
+        let worst = world.iter().zip(&cloud.positions).map(|(w, p)| rounded(*w, *p)).fold(0.0, f64::max);
+        assert!(worst > 1e-3, "f32 alone rounds by {worst}");
+        for ((w, p), r) in world.iter().zip(&cloud.positions).zip(residuals) {
+            assert!((*w - cloud.origin - p.as_dvec3() - r.as_dvec3()).length() < 1e-9);
+        }
+        // Moved into a frame near the point, the point keeps the world's precision.
+        let offset = cloud.positions[999] - Vec3::new(3.0, 0.0, 0.0);
+        let moved = moved_precisely(cloud.positions[999], residuals[999], offset);
+        assert!((cloud.origin + offset.as_dvec3() + moved.as_dvec3() - world[999]).length() < 1e-6);
+        let narrow = PointCloud::from_world_positions(&world[..10]);
+        assert!(narrow.residuals.is_none(), "2 km wide: f32 keeps a quarter of a millimetre");
     }
 }

@@ -307,6 +307,7 @@ impl Scene {
         }
         let mean_radius = splats.iter().map(|s| f64::from(s.radius)).sum::<f64>() / splats.len() as f64;
         let (origin, points, bounds) = (cloud.origin, cloud.len(), cloud.bounds());
+        let residuals = cloud.residuals.take();
         drop(cloud);
         let build = Build::of_cloud(settings, up);
         let start = std::time::Instant::now();
@@ -316,7 +317,7 @@ impl Scene {
             BvhParams { chunk_splats: limits.chunk_splats, part_splats: limits.part_splats, ..build.bvh_params() };
         let accel = match build.accel {
             AccelKind::Bvh if splats.len() > params.part_splats => {
-                let (scene, part_ids) = TwoLevel::try_build_with_ids(splats, &params)?;
+                let (scene, part_ids) = TwoLevel::try_build_with_ids(splats, residuals.as_deref(), &params)?;
                 ids = Some(part_ids);
                 scene.into_lone().map_or_else(Accelerator::TwoLevel, Accelerator::Bvh)
             }

@@ -230,7 +230,8 @@ pub fn write_ply_with_axes(path: &Path, cloud: &PointCloud, axes: Axes) -> Resul
     cloud
         .check_lengths()
         .map_err(|message| IoError::invalid(path, format!("cannot write an inconsistent cloud: {message}")))?;
-    let world_doubles = cloud.origin.abs().max_element() > f64::from(cloud.bounds().diagonal());
+    let far = cloud.origin.abs().max_element() > f64::from(cloud.bounds().diagonal());
+    let world_doubles = far || cloud.residuals.is_some();
     let header = write_header(cloud, world_doubles, axes);
     atomic_write(path, |out| {
         out.write_all(header.as_bytes())?;
@@ -285,10 +286,10 @@ fn write_header(cloud: &PointCloud, world_doubles: bool, axes: Axes) -> String {
 }
 
 fn encode_vertex(cloud: &PointCloud, index: usize, world_doubles: bool, record: &mut Vec<u8>) {
-    let Some(position) = cloud.positions.get(index) else {
+    if index >= cloud.len() {
         return;
-    };
-    let world = cloud.origin + position.as_dvec3();
+    }
+    let world = cloud.world_position(index);
     if world_doubles {
         for value in world.to_array() {
             record.extend_from_slice(&value.to_le_bytes());

@@ -29,7 +29,7 @@ pub use chunk::{CHUNK_SPLATS, Cell, ChunkPlan};
 pub use lod::NodeBounds;
 pub use stored::{ARRAY_ALIGN, ARRAYS, BvhMeta, BvhStoredError};
 pub use streamed::{Finished, Sink, Spill, Spilled, StreamedBvh, StreamedError};
-pub use two_level::{PART_SPLATS, Part, TwoLevel};
+pub use two_level::{PART_SPLATS, Part, TwoLevel, part_offset};
 
 use glam::Vec3;
 

@@ -1,7 +1,9 @@
 //! The two-level scene: a cloud of more than `BvhParams::part_splats` splats is cut into
 //! parts, the cells of the Morton octree the chunk plan splits (`ChunkPlan::parts`) that hold
 //! at most that many. Each part is a BVH of its own, its positions relative to the centre of its
-//! cell (`Part::offset`, from the scene's origin), under a small tree of eight-wide nodes over
+//! points' bounds (`Part::offset`, from the scene's origin; moved there from the cloud's `f64`
+//! coordinates where it keeps them, `PointCloud::residuals`, so that a part keeps the precision
+//! of its own extent), under a small tree of eight-wide nodes over
 //! the parts' boxes. A BVH indexes at most 2²⁸ splats (its leaf references name a block in 27 bits); the
 //! parts lift that cap to the visitors' index space, 2³² lanes (3.7 billion splats at the 1.17
 //! a splat a torus of 300 million takes), and each part can be stored, mapped and checked on its
@@ -92,18 +94,32 @@ pub struct TwoLevel {
 impl TwoLevel {
     /// The two-level scene of `input` (more than `params.part_splats` splats), and for each
     /// part, each of its block lanes' input splat (`u32::MAX` for the gaps), as
-    /// [`Bvh::try_build_with_ids`] gives them of one tree.
-    pub fn try_build_with_ids(input: Vec<Splat>, params: &BvhParams) -> Result<(TwoLevel, Vec<Vec<u32>>), TooLarge> {
+    /// [`Bvh::try_build_with_ids`] gives them of one tree. Each centre is moved into its part's
+    /// frame with its `residuals`' (`PointCloud::residuals`) where they are given.
+    pub fn try_build_with_ids(
+        input: Vec<Splat>,
+        residuals: Option<&[Vec3]>,
+        params: &BvhParams,
+    ) -> Result<(TwoLevel, Vec<Vec<u32>>), TooLarge> {
         assert!(params.part_splats >= params.chunk_splats, "parts hold whole chunks");
+        assert!(residuals.is_none_or(|r| r.len() == input.len()), "a residual a splat");
         let plan = plan_of(&input, params.chunk_splats);
         let (input, order) = in_chunk_order(input, &plan);
+        let residual = |at: usize| {
+            let from = order.as_ref().map_or(at, |o| o[at] as usize);
+            residuals.map_or(Vec3::ZERO, |r| r[from])
+        };
         let (mut parts, mut ids, mut first) = (Vec::new(), Vec::new(), 0);
         let cells = plan.parts(params.part_splats);
         let lone = cells.len() == 1;
         for (cell, chunks) in cells {
             // A lone part (a cell that cannot split) stays in the scene's frame.
-            let offset = if lone { Vec3::ZERO } else { cell.center(&plan.bounds()) };
-            let splats = input[first..first + cell.count].iter().map(|s| moved(s, offset)).collect();
+            let range = first..first + cell.count;
+            let offset = match lone {
+                true => Vec3::ZERO,
+                false => part_offset(Aabb::from_points(input[range.clone()].iter().map(|s| s.center))),
+            };
+            let splats = range.map(|at| moved(&input[at], residual(at), offset)).collect();
             let (bvh, mut part_ids) = Bvh::try_build_planned(splats, &chunks, params)?;
             for id in part_ids.iter_mut().filter(|id| **id != u32::MAX) {
                 let at = first + *id as usize;
@@ -272,9 +288,27 @@ fn widened_children(
     stack.extend(entered);
 }
 
-/// `splat` moved into the frame `offset` away.
-fn moved(splat: &Splat, offset: Vec3) -> Splat {
-    Splat { center: splat.center - offset, ..*splat }
+/// Where the frame of a part whose points' centres lie in `points` is: their centre (not their
+/// cell's, which may lie far from them: the plan's cells are as long as the cloud's bounds on
+/// each axis), rounded to a multiple of the power of two at or above a 1,024th of their extent,
+/// so that the splats' grids ([`crate::accel::block`]'s snapping, far finer) are the scene's,
+/// moved.
+pub fn part_offset(points: Aabb) -> Vec3 {
+    let x = points.extent().max_element() / 1024.0;
+    if !x.is_normal() {
+        return points.center();
+    }
+    // From the bits: the exponent of `x`, one up unless `x` is a power of two.
+    let bits = x.to_bits();
+    let step = f32::from_bits(((bits >> 23) + u32::from(bits & 0x7f_ffff != 0)) << 23);
+    (points.center() / step).round() * step
+}
+
+/// `splat` moved into the frame `offset` away, its centre with the `residual` it rounded off,
+/// rounded once (without one, as `f32` subtracts: within a cloud, the difference of two of its
+/// `f32`s is exact in `f64`).
+fn moved(splat: &Splat, residual: Vec3, offset: Vec3) -> Splat {
+    Splat { center: crate::cloud::moved_precisely(splat.center, residual, offset), ..*splat }
 }
 
 /// A part's `bounds` in the scene's frame: moved by `offset`, widened by a few units in the
@@ -481,6 +515,8 @@ impl Accel for TwoLevel {
 mod tests {
     use rand::{RngExt, SeedableRng};
 
+    use glam::DVec3;
+
     use super::*;
     use crate::accel::BruteForce;
     use crate::math::RayCone;
@@ -521,7 +557,7 @@ mod tests {
     #[test]
     fn a_scene_in_parts_finds_the_hits_each_part_finds_in_its_own_frame() {
         let splats = torus(20_000);
-        let (scene, ids) = TwoLevel::try_build_with_ids(splats.clone(), &params()).unwrap();
+        let (scene, ids) = TwoLevel::try_build_with_ids(splats.clone(), None, &params()).unwrap();
         // More parts than a top node holds: a top of two levels.
         assert!(scene.parts.len() > WIDTH && scene.top.len() > 1, "{} parts", scene.parts.len());
         assert_eq!(scene.splat_count(), splats.len());
@@ -569,7 +605,7 @@ mod tests {
     #[test]
     fn a_scene_in_parts_finds_the_scenes_hits_up_to_the_rounding_of_its_frames() {
         let splats = torus(20_000);
-        let (scene, ids) = TwoLevel::try_build_with_ids(splats.clone(), &params()).unwrap();
+        let (scene, ids) = TwoLevel::try_build_with_ids(splats.clone(), None, &params()).unwrap();
         let brute = BruteForce::new(splats.clone());
         let (mut same, mut hits) = (0, 0);
         for (i, ray) in rays(&scene.bounds(), 2_000, 6).iter().enumerate() {
@@ -601,6 +637,41 @@ mod tests {
     }
 
     #[test]
+    fn each_part_keeps_the_precision_of_its_own_frame() {
+        // Two sites 200 km apart in UTM coordinates, a centimetre between points, each point
+        // placed to a hundredth of a millimetre.
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(3);
+        let world: Vec<DVec3> = (0..6_000)
+            .map(|i: usize| {
+                let site = DVec3::new(if i.is_multiple_of(2) { 400_000.0 } else { 600_000.0 }, 5_000_000.0, 30.0);
+                let (x, z) = ((i / 2 % 60) as f64 * 0.01, (i / 120) as f64 * 0.01);
+                site + DVec3::new(x, 0.0, z) + DVec3::splat(rng.random_range(0.0..1e-3)).round() * 1e-5
+            })
+            .collect();
+        let cloud = crate::PointCloud::from_world_positions(&world);
+        let splats: Vec<Splat> =
+            cloud.positions.iter().map(|&center| Splat { center, radius: 0.01, normal: Vec3::Y, color: 0 }).collect();
+        // How far each part puts its points from the world's (less the centres' snapping:
+        // a 2,048th of the radius).
+        let worst = |residuals: Option<&[Vec3]>| {
+            let (scene, ids) = TwoLevel::try_build_with_ids(splats.clone(), residuals, &params()).unwrap();
+            assert!(scene.parts.len() > 2, "{} parts", scene.parts.len());
+            let mut worst = 0.0f64;
+            for (part, ids) in scene.parts.iter().zip(&ids) {
+                for (lane, s) in part.bvh.splats() {
+                    let placed = cloud.origin + part.offset.as_dvec3() + s.center.as_dvec3();
+                    worst = worst.max((placed - world[ids[lane as usize] as usize]).length());
+                }
+            }
+            worst
+        };
+        let rounded = worst(None);
+        let precise = worst(cloud.residuals.as_deref());
+        assert!(rounded > 1e-3, "the cloud's f32 positions round by {rounded}");
+        assert!(precise < 0.01 / 2_048.0 * 1.8, "{precise}");
+    }
+
+    #[test]
     fn a_scene_of_no_part_is_met_by_no_ray_and_one_of_one_part_is_that_part() {
         let scene = TwoLevel::new(Vec::new()).unwrap();
         let ray = Ray::new(Vec3::ZERO, Vec3::X, RayCone::default());
@@ -608,8 +679,8 @@ mod tests {
         assert!(scheme::intersect(&scene, &ray, &first_hit, &mut TraversalStats::default()).is_none());
         let splats = torus(3_000);
         let offset = Vec3::new(1_000.0, -500.0, 250.0);
-        let part = Bvh::build(splats.iter().map(|s| moved(s, offset)).collect(), &BvhParams::standard());
-        let lone = Bvh::build(splats.iter().map(|s| moved(s, offset)).collect(), &BvhParams::standard());
+        let part = Bvh::build(splats.iter().map(|s| moved(s, Vec3::ZERO, offset)).collect(), &BvhParams::standard());
+        let lone = Bvh::build(splats.iter().map(|s| moved(s, Vec3::ZERO, offset)).collect(), &BvhParams::standard());
         let scene = TwoLevel::new(vec![(part, offset)]).unwrap();
         let mut hits = 0;
         for ray in rays(&scene.bounds(), 500, 7) {
