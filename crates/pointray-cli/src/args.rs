@@ -338,6 +338,14 @@ pub struct RenderArgs {
     /// written as OUT_0000.png, OUT_0001.png, … (frame 0 is the view the other flags give).
     #[arg(long, default_value_t = 0, conflicts_with_all = ["stats", "aov", "bench_frames"])]
     pub turntable: u32,
+    /// The frames of the animation (a scene file's [animation], or --turntable's) to render:
+    /// A..B (A to B − 1) or K; all by default. Each is written as OUT_0007.png, or into the #s
+    /// of -o out_####.png; -o out.mp4 encodes them with ffmpeg (the PNGs beside it without).
+    #[arg(long, value_parser = crate::commands::animation::parse_frames)]
+    pub frames: Option<std::ops::Range<u32>>,
+    /// Frames a second of an -o .mp4 animation.
+    #[arg(long, default_value_t = 30.0, value_parser = positive_fps)]
+    pub fps: f32,
     /// Timed frames after one untimed warm-up frame (benchmarking; median and min reported).
     #[arg(long, default_value_t = 0)]
     pub bench_frames: u32,
@@ -702,6 +710,10 @@ fn parse_vec3(s: &str) -> Result<glam::Vec3, String> {
 /// A position in the file's coordinates: kept in f64 until the cloud's origin is subtracted.
 fn parse_dvec3(s: &str) -> Result<glam::DVec3, String> {
     parse_floats::<3>(s).map(glam::DVec3::from)
+}
+
+fn positive_fps(s: &str) -> Result<f32, String> {
+    s.parse::<f32>().ok().filter(|f| *f > 0.0 && *f <= 1000.0).ok_or_else(|| format!("{s:?}: between 0 and 1000"))
 }
 
 fn parse_bit_depth(s: &str) -> Result<u8, String> {

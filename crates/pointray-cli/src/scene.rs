@@ -143,6 +143,8 @@ mod tests {
             "transparent",
             "bit_depth",
             "turntable",
+            "frames",
+            "fps",
             "stats",
             "bench_frames",
             "bench_builds",

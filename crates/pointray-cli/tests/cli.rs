@@ -607,6 +607,16 @@ fn bad_scene_files_are_refused_with_their_name_and_line() {
         ("tile.toml", two_sphere_scene(1).replace("tile = 1.0", "tile = 0.0"), "[ground]: the checker's `tile`"),
         ("spp.toml", two_sphere_scene(1).replace("spp = 1", "spp = 0"), "[render] spp"),
         ("fov.toml", two_sphere_scene(1).replace("[render]", "fov = 0.0\n[render]"), "[camera] fov"),
+        (
+            "animation.toml",
+            format!("{}\n[animation]\nframes = 4\norbit = true\n{}", two_sphere_scene(1), keyframes(2)),
+            "[animation]: give either orbit = true or [[animation.keyframe]]s, not both",
+        ),
+        (
+            "keyframe.toml",
+            format!("{}\n[animation]\nframes = 4\n{}", two_sphere_scene(1), keyframes(1)),
+            "[animation] keyframes a camera path needs two keyframes or more, not 1",
+        ),
     ];
     for (name, text, fragment) in &cases {
         write_file(dir.path(), name, text);
@@ -1130,6 +1140,75 @@ fn png_bytes(path: &std::path::Path) -> (Vec<u8>, png::OutputInfo) {
     let info = reader.next_frame(&mut buf).unwrap();
     buf.truncate(info.buffer_size());
     (buf, info)
+}
+
+/// `n` keyframes round the two spheres, the first the scene's own camera.
+fn keyframes(n: usize) -> String {
+    let eyes = ["[0.0, 1.5, 6.0]", "[4.0, 2.0, 4.0]", "[6.0, 1.0, 0.0]"];
+    eyes[..n].iter().map(|eye| format!("[[animation.keyframe]]\neye = {eye}\nlook_at = [0.0, 0.5, 0.0]\n")).collect()
+}
+
+#[test]
+fn a_scene_files_animation_renders_its_frames_along_its_keyframes() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let scene = format!("{}\n[animation]\nframes = 5\n{}", two_sphere_scene(1), keyframes(3));
+    write_file(dir.path(), "path.toml", &scene);
+    write_file(dir.path(), "still.toml", two_sphere_scene(1));
+    run_in(dir.path(), &["-q", "render", "still.toml", "-o", "still.png"]).assert_success();
+    run_in(dir.path(), &["-q", "render", "path.toml", "-o", "fly_###.png", "--frames", "0..3"]).assert_success();
+    let frames = ["fly_000.png", "fly_001.png", "fly_002.png"].map(|f| read_png(&dir.path().join(f)));
+    assert!(!dir.path().join("fly_003.png").exists());
+    assert_eq!(frames[0].rgb, read_png(&dir.path().join("still.png")).rgb, "the first keyframe is the camera");
+    assert!(frames[0].rgb != frames[1].rgb && frames[1].rgb != frames[2].rgb);
+    // The last frame is the last keyframe, rendered alone.
+    run_in(dir.path(), &["-q", "render", "path.toml", "-o", "fly_###.png", "--frames", "4"]).assert_success();
+    let last = two_sphere_scene(1).replace("eye = [0.0, 1.5, 6.0]", "eye = [6.0, 1.0, 0.0]");
+    write_file(dir.path(), "last.toml", &last);
+    run_in(dir.path(), &["-q", "render", "last.toml", "-o", "last.png"]).assert_success();
+    assert_eq!(read_png(&dir.path().join("fly_004.png")).rgb, read_png(&dir.path().join("last.png")).rgb);
+    // An orbit in the file is the turntable's.
+    write_file(dir.path(), "orbit.toml", format!("{}\n[animation]\nframes = 3\norbit = true\n", two_sphere_scene(1)));
+    run_in(dir.path(), &["-q", "render", "orbit.toml", "-o", "orbit.png", "--frames", "1"]).assert_success();
+    run_in(dir.path(), &["-q", "render", "still.toml", "-o", "turn.png", "--turntable", "3"]).assert_success();
+    assert_eq!(read_png(&dir.path().join("orbit_0001.png")).rgb, read_png(&dir.path().join("turn_0001.png")).rgb);
+    // Frames the animation has not, or an animation the input has not.
+    let past = run_in(dir.path(), &["-q", "render", "path.toml", "-o", "x.png", "--frames", "4..6"]);
+    past.assert_failure(2).assert_stderr_contains("the animation has frames 0..5");
+    let none = run_in(dir.path(), &["-q", "render", "sphere.ply", "-o", "x.png", "--frames", "0..2"]);
+    none.assert_failure(2).assert_stderr_contains("need an animation");
+    let stats = run_in(dir.path(), &["-q", "render", "path.toml", "-o", "x.png", "--stats", "x.json"]);
+    stats.assert_failure(2).assert_stderr_contains("single frame's");
+    assert!(!dir.path().join("x.png").exists() && !dir.path().join("x_0000.png").exists());
+}
+
+#[test]
+fn an_animation_to_mp4_is_encoded_or_left_as_frames_without_ffmpeg() {
+    let dir = temp_dir();
+    write_sphere(dir.path());
+    let args = ["-q", "render", "sphere.ply", "-o", "turn.mp4", "--turntable", "3", "--width", "33", "--height", "24"];
+    // Without ffmpeg: the frames, as PNGs beside the video's name.
+    let missing = run_in_with_env(dir.path(), &args[1..], &[("POINTRAY_FFMPEG", "/nonexistent/ffmpeg")]);
+    missing.assert_success().assert_stderr_contains("writing the frames as PNGs");
+    for k in 0..3 {
+        assert!(dir.path().join(format!("turn_{k:04}.png")).exists());
+    }
+    assert!(!dir.path().join("turn.mp4").exists());
+    let has_ffmpeg = std::process::Command::new("ffmpeg").arg("-version").output().is_ok_and(|o| o.status.success());
+    if !has_ffmpeg {
+        eprintln!("ffmpeg not installed: the MP4 itself is not checked");
+        return;
+    }
+    run_in(dir.path(), &args).assert_success();
+    let video = std::fs::read(dir.path().join("turn.mp4")).unwrap();
+    assert_eq!(&video[4..8], b"ftyp", "an MP4 file");
+    let mut probe = std::process::Command::new("ffmpeg");
+    let decoded = probe.args(["-v", "error", "-i", "turn.mp4", "-f", "null", "-"]).current_dir(dir.path()).output();
+    let decoded = decoded.unwrap();
+    assert!(decoded.status.success(), "{}", String::from_utf8_lossy(&decoded.stderr));
+    // No frame left behind: the scratch frames went with their directory.
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().filter_map(|e| e.ok()).collect();
+    assert_eq!(left.len(), 5, "{left:?}");
 }
 
 #[test]

@@ -4,6 +4,7 @@
 
 use std::path::{Path, PathBuf};
 
+use pointray::camera_path::{Animation, Keyframe};
 use pointray::film::{MAX_PIXELS, ToneCurve, ToneMap};
 use pointray::material::Phong;
 use pointray::render::{Filter, Integrator, Sampler};
@@ -61,6 +62,7 @@ impl SceneFile {
         for (i, light) in self.lights.iter().enumerate() {
             light.check().map_err(|e| format!("[[light]] {}: {e}", i + 1))?;
         }
+        self.animation()?;
         if let Some(g) = &self.ground {
             nonzero_direction("[ground] up", g.up)?;
             ensure((g.height as f32).is_finite(), "[ground] height: must be a finite 32-bit number")?;
@@ -180,6 +182,48 @@ pub struct SceneFile {
     pub ground: Option<GroundSpec>,
     #[serde(rename = "cloud")]
     pub clouds: Vec<CloudSpec>,
+    pub animation: Option<AnimationSpec>,
+}
+
+/// `[animation]`: `frames` views, round the camera's (`orbit = true`, the turntable about its
+/// look-at point) or along `[[animation.keyframe]]`s (two or more: eye, look_at, and fov,
+/// the camera's by default), as `pointray::camera_path` passes through them.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AnimationSpec {
+    pub frames: u32,
+    #[serde(default)]
+    pub orbit: bool,
+    #[serde(default)]
+    pub keyframe: Vec<KeyframeSpec>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KeyframeSpec {
+    pub eye: [f64; 3],
+    pub look_at: [f64; 3],
+    pub fov: Option<f32>,
+}
+
+impl SceneFile {
+    /// The animation `[animation]` says, checked (none without the table).
+    pub fn animation(&self) -> Result<Option<Animation>, String> {
+        let Some(a) = &self.animation else { return Ok(None) };
+        let animation = match (a.orbit, a.keyframe.is_empty()) {
+            (true, true) => Animation::orbit(a.frames),
+            (false, false) => {
+                let key = |k: &KeyframeSpec| Keyframe {
+                    eye: k.eye.into(),
+                    look_at: k.look_at.into(),
+                    fov: k.fov.unwrap_or(self.camera.fov),
+                };
+                Animation::path(a.keyframe.iter().map(key).collect(), a.frames)
+            }
+            _ => return Err("[animation]: give either orbit = true or [[animation.keyframe]]s, not both".into()),
+        };
+        animation.map(Some).map_err(|e| format!("[animation] {e}"))
+    }
 }
 
 #[derive(Debug, Deserialize)]

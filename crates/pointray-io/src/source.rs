@@ -30,6 +30,8 @@ pub struct Source {
     /// A scene file's camera and render settings (its `[camera]` and `[render]` tables); none
     /// for a lone cloud.
     pub settings: Option<Settings>,
+    /// A scene file's `[animation]`.
+    pub animation: Option<pointray::camera_path::Animation>,
     /// Points the readers returned, before preprocessing dropped any.
     pub points_read: usize,
     pub preprocess: PreprocessStats,
@@ -88,6 +90,7 @@ fn load_cloud(
     Ok(Source {
         parts,
         settings: None,
+        animation: None,
         points_read: p.points_read,
         preprocess: p.preprocess,
         load_seconds: p.read_seconds,
@@ -111,7 +114,14 @@ fn load_prs(path: &Path, stage: &dyn Fn(&str)) -> Result<Source, IoError> {
     let load_seconds = start.elapsed().as_secs_f64();
     tracing::info!("opened the scene file {} ({points_read} points) in {load_seconds:.3} s", path.display());
     let parts = SceneParts { stored: Some(stored), ..SceneParts::default() };
-    Ok(Source { parts, settings: None, points_read, preprocess: PreprocessStats::default(), load_seconds })
+    Ok(Source {
+        parts,
+        settings: None,
+        animation: None,
+        points_read,
+        preprocess: PreprocessStats::default(),
+        load_seconds,
+    })
 }
 
 /// The environment map `settings.env_map` names, read, for [`pointray::Scene::set_environment_map`];
@@ -195,7 +205,7 @@ pub fn demo(points: usize, seed: u64, config: &PreprocessConfig, stage: &dyn Fn(
     let points_read = cloud.len();
     let preprocess = prepare(&mut cloud, config, "demo", stage).map_err(|e| format!("demo: {e}"))?;
     let parts = pointray::demo::demo_scene_parts(cloud);
-    Ok(Source { parts, settings: None, points_read, preprocess, load_seconds: 0.0 })
+    Ok(Source { parts, settings: None, animation: None, points_read, preprocess, load_seconds: 0.0 })
 }
 
 /// Reads the scene at `path` and every cloud it names, preprocessed and placed.
@@ -258,7 +268,8 @@ fn load_scene(path: &Path, preprocess: &PreprocessConfig, stage: &dyn Fn(&str)) 
         ..SceneParts::default()
     };
     let load_seconds = start.elapsed().as_secs_f64() - stats.seconds.total();
-    Ok(Source { parts, settings: Some(settings), points_read, preprocess: stats, load_seconds })
+    let animation = spec.animation().map_err(|e| IoError::invalid(path, e))?;
+    Ok(Source { parts, settings: Some(settings), animation, points_read, preprocess: stats, load_seconds })
 }
 
 /// The settings a scene file's `[camera]` and `[render]` tables give; the rest default.

@@ -12,6 +12,7 @@ use glam::{DVec3, Vec3};
 use numpy::ndarray::{Array1, Array2, Array3};
 use numpy::{AllowTypeChange, IntoPyArray, PyArray1, PyArray2, PyArray3, PyArrayLike1, PyArrayLike2, PyArrayLike3};
 use pointray::PointCloud;
+use pointray::camera_path::Animation;
 use pointray::film::ToneMap;
 use pointray::frame::Aov;
 use pointray::preprocess::PreprocessConfig;
@@ -170,6 +171,8 @@ struct Scene {
     inner: pointray::Scene,
     /// The settings it was built with (and a scene file's own): the base of every render.
     settings: Settings,
+    /// A scene file's `[animation]`.
+    animation: Option<Animation>,
 }
 
 #[pymethods]
@@ -214,6 +217,46 @@ impl Scene {
         py.detach(|| pointray_io::prs::write_prs(&path, &self.inner)).map_err(io_error)
     }
 
+    /// A turntable's views, as `pointray render --turntable` turns them: for each of `frames`
+    /// frames, the camera options (`eye`, `view_dir`, `view`) of the view `options` give turned
+    /// about the up axis by 360°·k/frames (frame 0 is that view), to render with them.
+    #[pyo3(signature = (frames, **options))]
+    fn turntable<'py>(
+        &self,
+        py: Python<'py>,
+        frames: u32,
+        options: Option<&Bound<'py, PyDict>>,
+    ) -> PyResult<Vec<Bound<'py, PyDict>>> {
+        let settings = with_options(&self.settings, options)?;
+        self.inner.turntable(&settings, frames).iter().map(|view| camera_options(py, view)).collect()
+    }
+
+    /// The frames of the scene file's `[animation]` (0 without one).
+    #[getter]
+    fn frames(&self) -> u32 {
+        self.animation.as_ref().map_or(0, Animation::frames)
+    }
+
+    /// Frame `k` of the scene file's `[animation]` (a camera path through keyframes, or an
+    /// orbit): its camera options (`eye`, `look_at`, `fov`, `view_dir`, `view`) over those
+    /// `options` give, to render with them.
+    #[pyo3(signature = (k, **options))]
+    fn animation_frame<'py>(
+        &self,
+        py: Python<'py>,
+        k: u32,
+        options: Option<&Bound<'py, PyDict>>,
+    ) -> PyResult<Bound<'py, PyDict>> {
+        let Some(animation) = &self.animation else {
+            return Err(PyValueError::new_err("the scene has no [animation]"));
+        };
+        if k >= animation.frames() {
+            return Err(PyValueError::new_err(format!("frame {k}: the animation has {}", animation.frames())));
+        }
+        let settings = with_options(&self.settings, options)?;
+        camera_options(py, &animation.frame(&self.inner, &settings, k))
+    }
+
     /// The camera's rays through every pixel's centre, for `intersect`: origins (H×W×3,
     /// float64) and directions (H×W×3, float32, not normalised). Options as for `render`.
     #[pyo3(signature = (**options))]
@@ -234,6 +277,17 @@ impl Scene {
         let directions = Array3::from_shape_vec(shape, directions).expect("a ray a pixel");
         Ok((origins.into_pyarray(py), directions.into_pyarray(py)))
     }
+}
+
+/// The camera options of `view`, by `Settings`' names: what a frame of an animation changes.
+fn camera_options<'py>(py: Python<'py>, view: &Settings) -> PyResult<Bound<'py, PyDict>> {
+    let all = serde_json::to_value(view).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+    let camera = PyDict::new(py);
+    for key in ["eye", "look_at", "fov", "view_dir", "view"] {
+        let value = pythonize::pythonize(py, &all[key]).map_err(|e| PyRuntimeError::new_err(e.to_string()))?;
+        camera.set_item(key, value)?;
+    }
+    Ok(camera)
 }
 
 /// A rendered frame: the image, the AOVs asked for (`aovs=["depth", ...]`) and the statistics.
@@ -313,23 +367,23 @@ fn read_options(columns: Option<String>) -> PyResult<pointray_io::ReadOptions> {
 fn prepare(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Bound<'_, PyDict>>) -> PyResult<Scene> {
     let (pool, options) = RunOptions::pool_only(options, "prepare")?;
     let (preprocess, read, options) = split_preprocess(options.as_ref())?;
-    let (parts, base) = if let Ok(cloud) = source.cast::<Cloud>() {
+    let (parts, base, animation) = if let Ok(cloud) = source.cast::<Cloud>() {
         let mut cloud = cloud.get().inner.clone();
         py.detach(|| pool.install(|| pointray_io::source::prepare(&mut cloud, &preprocess, "cloud", &|_| {})))
             .map_err(|e| PyValueError::new_err(format!("cloud: {e}")))?;
-        (SceneParts::from(cloud), Settings::default())
+        (SceneParts::from(cloud), Settings::default(), None)
     } else {
         let paths = source_paths(source)?;
         let loaded = py
             .detach(|| pool.install(|| pointray_io::source::load_tiles(&paths, &preprocess, &read, &|_| {})))
             .map_err(io_error)?;
-        (loaded.parts, loaded.settings.unwrap_or_default())
+        (loaded.parts, loaded.settings.unwrap_or_default(), loaded.animation)
     };
     let settings = with_options(&base, options.as_ref())?;
     let env_map = pointray_io::source::environment_map(&settings).map_err(io_error)?;
     let mut inner = py.detach(|| pool.install(|| pointray::Scene::build(parts, &settings))).map_err(value_error)?;
     inner.set_environment_map(env_map);
-    Ok(Scene { inner, settings })
+    Ok(Scene { inner, settings, animation })
 }
 
 /// The files a source names: a path, or a list of them (a survey's tiles, read as one cloud).

@@ -12,6 +12,7 @@
 
 pub mod accel;
 pub mod camera;
+pub mod camera_path;
 pub mod clip;
 pub mod cloud;
 pub mod color;

@@ -564,22 +564,20 @@ impl Scene {
     /// 360°·k/frames, k = 0, 1, … (frame 0 is the settings' own view): an eye and look-at turn
     /// about the look-at point, a view direction about the model's centre.
     pub fn turntable(&self, settings: &Settings, frames: u32) -> Vec<Settings> {
+        (0..frames).map(|k| self.turned(settings, k, frames)).collect()
+    }
+
+    /// Frame `k` of [`Self::turntable`]'s `frames`.
+    pub fn turned(&self, settings: &Settings, k: u32, frames: u32) -> Settings {
         let up = self.up(settings).normalize().as_dvec3();
-        let (view, _) = self.default_view(settings);
-        let view = settings.view_dir.unwrap_or(view);
-        (0..frames)
-            .map(|k| {
-                let turn = glam::DQuat::from_axis_angle(up, std::f64::consts::TAU * f64::from(k) / f64::from(frames));
-                match (settings.eye, settings.look_at) {
-                    (Some(eye), Some(target)) => {
-                        Settings { eye: Some(target + turn * (eye - target)), ..settings.clone() }
-                    }
-                    _ => {
-                        Settings { view_dir: Some((turn * view.as_dvec3()).as_vec3()), view: None, ..settings.clone() }
-                    }
-                }
-            })
-            .collect()
+        let turn = glam::DQuat::from_axis_angle(up, std::f64::consts::TAU * f64::from(k) / f64::from(frames));
+        match (settings.eye, settings.look_at) {
+            (Some(eye), Some(target)) => Settings { eye: Some(target + turn * (eye - target)), ..settings.clone() },
+            _ => {
+                let view = settings.view_dir.unwrap_or(self.default_view(settings).0);
+                Settings { view_dir: Some((turn * view.as_dvec3()).as_vec3()), view: None, ..settings.clone() }
+            }
+        }
     }
 
     /// Positions the settings give are in the file's coordinates; the scene stores them

@@ -1,9 +1,9 @@
+pub mod animation;
 pub mod compare;
 pub mod info;
 pub mod prepare;
 pub mod render;
 pub mod sample;
-pub mod turntable;
 pub mod view;
 
 use std::path::Path;

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Context;
+use pointray::camera_path::Animation;
 use pointray::frame::{Frame, FrameReport};
 use pointray::scene::{RenderJob, Scene, SceneError, SceneParts};
 use pointray::settings::{Settings, SettingsError};
@@ -72,8 +73,8 @@ pub fn flag_error(e: SettingsError) -> anyhow::Error {
 /// Refuses, before any work, an output that cannot be written or whose format is unknown.
 fn check_outputs(a: &RenderArgs) -> anyhow::Result<()> {
     let format = a.output.extension().map(|e| e.to_ascii_lowercase());
-    if !format.is_some_and(|e| e == "png" || e == "exr") {
-        let e = anyhow::anyhow!("-o {}: the extension chooses the format, .png or .exr", a.output.display());
+    if !format.is_some_and(|e| e == "png" || e == "exr" || e == "mp4") {
+        let e = anyhow::anyhow!("-o {}: the extension chooses the format, .png, .exr or .mp4", a.output.display());
         return Err(failure::usage(e));
     }
     super::check_output_path(&a.output)?;
@@ -99,11 +100,22 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
         _ => a.settings(),
     };
     let (points_read, preprocess, load_seconds) = (source.points_read, source.preprocess.clone(), source.load_seconds);
+    let source_animation = source.animation.clone();
     let (mut scene, builds) = build(source.parts, &settings, a.bench_builds, quiet).context(input_name.clone())?;
     scene.set_environment_map(env_map);
     tracing::info!("built {} over {} splats in {:.3} s", scene.accel_name(), scene.points(), builds[0]);
-    if a.turntable > 0 {
-        return super::turntable::run(a, &scene, &settings, quiet).context(input_name);
+    let animation = match a.turntable {
+        0 => source_animation,
+        n => Some(Animation::orbit(n).map_err(|e| failure::usage(flag_error(e)))?),
+    };
+    match animation {
+        Some(animation) => return super::animation::run(a, &scene, &settings, &animation, quiet).context(input_name),
+        None if a.frames.is_some() || super::animation::is_mp4(&a.output) => {
+            let e =
+                anyhow::anyhow!("--frames and -o .mp4 need an animation: a scene file's [animation] or --turntable N");
+            return Err(failure::usage(e));
+        }
+        None => {}
     }
     let job = scene.job(&settings).map_err(|e| failure::usage(flag_error(e).context(input_name.clone())))?;
     let (frame, render_seconds, render_seconds_min) =

@@ -92,7 +92,14 @@ impl std::fmt::Display for Run {
 
 /// Runs `pointray args…` in `dir` and collects the output.
 pub fn run_in(dir: &Path, args: &[&str]) -> Run {
-    let output: Output = pointray().args(args).current_dir(dir).output().expect("spawn pointray");
+    run_in_with_env(dir, args, &[])
+}
+
+/// [`run_in`] with the environment variables `env` set.
+pub fn run_in_with_env(dir: &Path, args: &[&str], env: &[(&str, &str)]) -> Run {
+    let mut command = pointray();
+    command.envs(env.iter().copied());
+    let output: Output = command.args(args).current_dir(dir).output().expect("spawn pointray");
     Run {
         code: output.status.code(),
         stdout: String::from_utf8_lossy(&output.stdout).into_owned(),

@@ -58,6 +58,15 @@ class Scene:
         inf, -1 and NaN for a miss. ``threads`` (default all cores)."""
     def camera_rays(self, **options: Any) -> Tuple[npt.NDArray[np.float64], npt.NDArray[np.float32]]:
         """Origins and directions (H x W x 3) of the camera's rays through the pixel centres."""
+    def turntable(self, frames: int, **options: Any) -> list[Dict[str, Any]]:
+        """For each of ``frames`` frames, the camera options (eye, look_at, fov, view_dir, view) of
+        the view the options give turned about the up axis by 360 k / frames degrees, as
+        ``--turntable`` does."""
+    @property
+    def frames(self) -> int:
+        """The frames of the scene file's [animation] (0 without one)."""
+    def animation_frame(self, k: int, **options: Any) -> Dict[str, Any]:
+        """Frame ``k`` of the scene file's [animation] (keyframes or an orbit): its camera options."""
 
 class Frame:
     """A rendered frame: image, AOVs and statistics."""

@@ -1,0 +1,149 @@
+//! `pointray render` of an animation: a scene file's `[animation]` (a camera path through
+//! keyframes, or an orbit) or `--turntable N`, its frames (`--frames A..B`, all by default)
+//! written as OUT_0007.png, or into the #s of `-o out_####.png`; `-o out.mp4` encodes them with
+//! ffmpeg (`$POINTRAY_FFMPEG`, default `ffmpeg`), or writes them as PNGs beside it where
+//! ffmpeg is missing.
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use pointray::camera_path::Animation;
+use pointray::scene::Scene;
+use pointray::settings::Settings;
+
+use crate::args::RenderArgs;
+use crate::failure;
+
+/// Renders and writes the frames `a.frames` picks.
+pub fn run(
+    a: &RenderArgs,
+    scene: &Scene,
+    settings: &Settings,
+    animation: &Animation,
+    quiet: bool,
+) -> anyhow::Result<()> {
+    if a.stats.is_some() || !a.aov.is_empty() || a.bench_frames > 0 {
+        let e = anyhow::anyhow!("--stats, --aov and --bench-frames are a single frame's, not an animation's");
+        return Err(failure::usage(e));
+    }
+    let frames = picked(a.frames.clone(), animation.frames())?;
+    let video = is_mp4(&a.output);
+    let encoder = if video { ffmpeg(quiet) } else { None };
+    let scratch = encoder.as_ref().map(|_| tempfile::tempdir_in(parent(&a.output))).transpose()?;
+    let png_of = |k: u32| match &scratch {
+        Some(dir) => dir.path().join(format!("frame_{k:06}.png")),
+        None => frame_path(&a.output.with_extension(if video { "png" } else { ext(&a.output) }), k),
+    };
+    for k in frames.clone() {
+        let view = animation.frame(scene, settings, k);
+        let job = scene.job(&view).map_err(|e| failure::usage(super::render::flag_error(e)))?;
+        let bar = crate::progress::bar(job.config.region.pixel_count(), "render", quiet);
+        let frame = job.render(&|n| bar.inc(n))?;
+        bar.finish_and_clear();
+        super::render::write_images(a, &png_of(k), &view, &frame)?;
+    }
+    if let (Some(program), Some(dir)) = (&encoder, &scratch) {
+        encode(program, dir.path(), frames.start, a.fps, &a.output)?;
+    }
+    if !quiet {
+        let wrote = match &scratch {
+            Some(_) => a.output.display().to_string(),
+            None => format!("{} to {}", png_of(frames.start).display(), png_of(frames.end - 1).display()),
+        };
+        eprintln!("wrote {} frames, {wrote}", frames.len());
+    }
+    Ok(())
+}
+
+/// The frames `asked` names of an animation of `frames` (all without), or why not.
+fn picked(asked: Option<Range<u32>>, frames: u32) -> anyhow::Result<Range<u32>> {
+    let range = asked.unwrap_or(0..frames);
+    if range.is_empty() || range.end > frames {
+        let e = anyhow::anyhow!("--frames {}..{}: the animation has frames 0..{frames}", range.start, range.end);
+        return Err(failure::usage(e));
+    }
+    Ok(range)
+}
+
+/// `--frames A..B` (B exclusive) or `K`.
+pub fn parse_frames(text: &str) -> Result<Range<u32>, String> {
+    let number = |s: &str| s.trim().parse::<u32>().map_err(|_| format!("{s:?} is not a frame number"));
+    match text.split_once("..") {
+        Some((a, b)) => Ok(number(a)?..number(b)?),
+        None => number(text).map(|k| k..k.saturating_add(1)),
+    }
+}
+
+/// Whether `output` names a video.
+pub fn is_mp4(output: &Path) -> bool {
+    output.extension().is_some_and(|e| e.eq_ignore_ascii_case("mp4"))
+}
+
+fn ext(path: &Path) -> &str {
+    path.extension().and_then(|e| e.to_str()).unwrap_or("png")
+}
+
+fn parent(path: &Path) -> &Path {
+    path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."))
+}
+
+/// `OUT.png` → `OUT_0007.png` for frame 7; `out_####.png` → `out_0007.png` (as many digits as
+/// #s at least).
+pub fn frame_path(output: &Path, k: u32) -> PathBuf {
+    let name = output.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    if let Some(at) = name.find('#') {
+        let width = name[at..].chars().take_while(|&c| c == '#').count();
+        let name = format!("{}{k:0width$}{}", &name[..at], &name[at + width..]);
+        return output.with_file_name(name);
+    }
+    let stem = output.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    output.with_file_name(format!("{stem}_{k:04}.{}", ext(output)))
+}
+
+/// The ffmpeg to encode with, if it runs (a warning where it does not: the frames go beside
+/// the output as PNGs).
+fn ffmpeg(quiet: bool) -> Option<String> {
+    let program = std::env::var("POINTRAY_FFMPEG").unwrap_or_else(|_| "ffmpeg".into());
+    let runs = Command::new(&program).arg("-version").output().is_ok_and(|o| o.status.success());
+    if !runs && !quiet {
+        eprintln!("warning: {program} not found (Debian: apt-get install ffmpeg): writing the frames as PNGs");
+    }
+    runs.then_some(program)
+}
+
+/// Encodes `dir`'s frames from `first` on into `output` (H.264, `fps` a second), written whole
+/// or not at all.
+fn encode(program: &str, dir: &Path, first: u32, fps: f32, output: &Path) -> anyhow::Result<()> {
+    let partial = dir.join("video.mp4");
+    let result = Command::new(program)
+        .args(["-hide_banner", "-loglevel", "error", "-y", "-framerate", &fps.to_string()])
+        .args(["-start_number", &first.to_string(), "-i"])
+        .arg(dir.join("frame_%06d.png"))
+        // H.264 in 4:2:0 wants even sizes: an odd frame gets a last row or column.
+        .args(["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264", "-pix_fmt", "yuv420p"])
+        .arg(&partial)
+        .output()?;
+    if !result.status.success() {
+        let why = String::from_utf8_lossy(&result.stderr);
+        return Err(failure::output(anyhow::anyhow!("{}: {program} failed: {}", output.display(), why.trim())));
+    }
+    std::fs::rename(&partial, output).map_err(|e| failure::output(anyhow::anyhow!("{}: {e}", output.display())))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_are_named_by_number() {
+        assert_eq!(frame_path(Path::new("d/turn.png"), 7), Path::new("d/turn_0007.png"));
+        assert_eq!(frame_path(Path::new("d/out_##.exr"), 7), Path::new("d/out_07.exr"));
+        assert_eq!(frame_path(Path::new("out_##.png"), 123), Path::new("out_123.png"));
+        assert_eq!(parse_frames("3..10"), Ok(3..10));
+        assert_eq!(parse_frames("4"), Ok(4..5));
+        assert!(parse_frames("a..2").unwrap_err().contains("\"a\""));
+        assert!(picked(Some(3..12), 10).is_err() && picked(Some(5..5), 10).is_err());
+        assert_eq!(picked(None, 10).unwrap(), 0..10);
+    }
+}
