@@ -1561,7 +1561,7 @@ fn bad_flags_are_rejected_with_clear_messages() {
     // The extension of -o chooses the format: another one is not quietly written as PNG.
     for name in ["out.jpg", "out"] {
         let run = run_in(dir.path(), &["-q", "render", "sphere.ply", "-o", name, "--width", "48", "--height", "40"]);
-        run.assert_failure(2).assert_stderr_contains(name).assert_stderr_contains(".png or .exr");
+        run.assert_failure(2).assert_stderr_contains(name).assert_stderr_contains(".png, .exr or .mp4");
         assert_dir_contains_exactly(dir.path(), &["sphere.ply"]);
     }
 }
