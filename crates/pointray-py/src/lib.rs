@@ -6,6 +6,7 @@
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::mpsc::RecvTimeoutError;
 use std::time::Duration;
 
 use glam::{DVec3, Vec3};
@@ -544,9 +545,16 @@ fn cancellable<T: Send>(
     let cancel = AtomicBool::new(false);
     py.detach(|| {
         std::thread::scope(|s| {
-            let handle = s.spawn(|| work(&cancel));
-            while !handle.is_finished() {
-                std::thread::sleep(Duration::from_millis(20));
+            let (finished, done) = std::sync::mpsc::channel::<()>();
+            let cancel = &cancel;
+            let handle = s.spawn(move || {
+                let result = work(cancel);
+                let _ = finished.send(());
+                result
+            });
+            // Woken by the work's end, not only every 20 ms: a tile of a frame split among
+            // many renders (pointray.dask) waited 10 ms on average for the next poll.
+            while let Err(RecvTimeoutError::Timeout) = done.recv_timeout(Duration::from_millis(20)) {
                 if let Err(e) = Python::attach(|py| py.check_signals()).and_then(|()| report()) {
                     cancel.store(true, Ordering::Relaxed);
                     let _ = handle.join();
