@@ -610,12 +610,12 @@ fn bad_scene_files_are_refused_with_their_name_and_line() {
         (
             "animation.toml",
             format!("{}\n[animation]\nframes = 4\norbit = true\n{}", two_sphere_scene(1), keyframes(2)),
-            "[animation]: give either orbit = true or [[animation.keyframe]]s, not both",
+            "[animation]: give orbit = true or [[animation.keyframe]]s, not both",
         ),
         (
             "keyframe.toml",
             format!("{}\n[animation]\nframes = 4\n{}", two_sphere_scene(1), keyframes(1)),
-            "[animation] keyframes a camera path needs two keyframes or more, not 1",
+            "[animation] keyframe a camera path needs two keyframes or more, not 1",
         ),
     ];
     for (name, text, fragment) in &cases {
@@ -1177,9 +1177,13 @@ fn a_scene_files_animation_renders_its_frames_along_its_keyframes() {
     past.assert_failure(2).assert_stderr_contains("the animation has frames 0..5");
     let none = run_in(dir.path(), &["-q", "render", "sphere.ply", "-o", "x.png", "--frames", "0..2"]);
     none.assert_failure(2).assert_stderr_contains("need an animation");
-    let stats = run_in(dir.path(), &["-q", "render", "path.toml", "-o", "x.png", "--stats", "x.json"]);
+    let stats =
+        run_in(dir.path(), &["-q", "render", "path.toml", "-o", "x.png", "--frames", "0..2", "--stats", "x.json"]);
     stats.assert_failure(2).assert_stderr_contains("single frame's");
     assert!(!dir.path().join("x.png").exists() && !dir.path().join("x_0000.png").exists());
+    // Asked for no frames, the scene renders its camera's view.
+    run_in(dir.path(), &["-q", "render", "path.toml", "-o", "view.png", "--stats", "view.json"]).assert_success();
+    assert_eq!(read_png(&dir.path().join("view.png")).rgb, read_png(&dir.path().join("still.png")).rgb);
 }
 
 #[test]

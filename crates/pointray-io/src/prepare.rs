@@ -1357,10 +1357,11 @@ struct Sums {
     radii: f64,
 }
 
-/// Where a part lies: its first chunk among the whole cloud's, and its frame's offset.
+/// Where a part lies: its first chunk among the whole cloud's, and its frame (none for a lone
+/// part: the scene's frame, its positions as the cloud holds them, as a lone BVH in memory).
 struct PartAt {
     first_chunk: usize,
-    offset: Vec3,
+    offset: Option<Vec3>,
 }
 
 /// Every chunk of `build` (the part `at` of `whole`'s) built in turn from its buckets' points
@@ -1382,7 +1383,7 @@ fn build_chunks<'b>(
                 sums.bounds = sums.bounds.union(Aabb::new(center, center));
                 sums.radii += f64::from(r.radius);
                 let (normal, color) = (Vec3::from(r.normal), whole.style.color(r));
-                let center = moved_precisely(center, Vec3::from(r.residual), at.offset);
+                let center = at.offset.map_or(center, |o| moved_precisely(center, Vec3::from(r.residual), o));
                 splats.push(Splat { center, radius: r.radius, normal, color });
                 names.push(r.index);
             })?;
@@ -1405,21 +1406,21 @@ fn build_parts(
 ) -> Result<(Vec<PartRanges>, Vec<PartMeta>, StreamedCloud), IoError> {
     let parts = build.plan.parts(build.params.part_splats);
     // Cells every point was dropped from may lie outside every chunk: passed over.
-    let mut left = Vec::with_capacity(build.buckets.len());
+    let mut kept = Vec::with_capacity(build.buckets.len());
     for b in build.buckets {
         if std::fs::metadata(&b.path).map_err(|e| IoError::io(&b.path, e))?.len() > 0 {
-            left.push(b);
+            kept.push(b);
         }
     }
-    let mut left = left.into_iter().peekable();
+    let mut left = kept.iter().copied().peekable();
     let (mut ranges, mut metas, mut sums) = (Vec::new(), Vec::new(), Sums::default());
     let (lone, mut first_chunk, mut first_id) = (parts.len() == 1, 0, 0);
     for (cell, chunks) in parts {
         let count = chunks.chunks().len();
-        // A lone part stays in the scene's frame, as a lone BVH in memory.
+        let chunks_of_part = first_chunk..first_chunk + count;
         let offset = match lone {
-            true => Vec3::ZERO,
-            false => part_offset(part_bounds(build, first_chunk..first_chunk + count)?),
+            true => None,
+            false => Some(part_offset(part_bounds(build, &kept, chunks_of_part)?)),
         };
         let mut spill = Files::new(build.dir)?;
         let part = StreamedBvh::new(chunks, &build.params).starting_at(first_id);
@@ -1433,7 +1434,7 @@ fn build_parts(
         let mut bvh = finished.meta;
         let density = coverage_density(file, &placed, &bvh, &finished.coverage_samples);
         bvh.coverage_density = density.map_err(|e| IoError::io(&spill.dir, e))?;
-        metas.push(PartMeta { offset: offset.to_array(), bvh, ids_crc: finished.ids_crc });
+        metas.push(PartMeta { offset: offset.unwrap_or(Vec3::ZERO).to_array(), bvh, ids_crc: finished.ids_crc });
         ranges.push(placed);
         (first_chunk, first_id) = (first_chunk + count, first_id + cell.count);
     }
@@ -1442,12 +1443,12 @@ fn build_parts(
     Ok((ranges, metas, cloud))
 }
 
-/// The bounds of the points of `chunks` (their buckets'), found in a pass over them: a part's
-/// frame is centred on them, as in memory (`TwoLevel`). (The buckets' own bounds may hold
-/// points since dropped.)
-fn part_bounds(build: &Build<'_>, chunks: std::ops::Range<usize>) -> Result<Aabb, IoError> {
+/// The bounds of the points of `chunks` (those of their buckets in `kept`, the buckets some point
+/// is left in), found in a pass over them: a part's frame is centred on them, as in memory
+/// (`TwoLevel`). (The buckets' own bounds may hold points since dropped.)
+fn part_bounds(build: &Build<'_>, kept: &[&Bucket], chunks: std::ops::Range<usize>) -> Result<Aabb, IoError> {
     let mut bounds = Aabb::EMPTY;
-    for b in build.buckets.iter().filter(|b| chunks.contains(&build.plan.chunk_of(b.first_code))) {
+    for b in kept.iter().filter(|b| chunks.contains(&build.plan.chunk_of(b.first_code))) {
         for_each_record(b, |r| bounds = bounds.union(Aabb::new(r.position.into(), r.position.into())))?;
     }
     Ok(bounds)

@@ -212,6 +212,8 @@ impl SceneFile {
         let Some(a) = &self.animation else { return Ok(None) };
         let animation = match (a.orbit, a.keyframe.is_empty()) {
             (true, true) => Animation::orbit(a.frames),
+            (false, true) => return Err("[animation]: give orbit = true or two [[animation.keyframe]]s or more".into()),
+            (true, false) => return Err("[animation]: give orbit = true or [[animation.keyframe]]s, not both".into()),
             (false, false) => {
                 let key = |k: &KeyframeSpec| Keyframe {
                     eye: k.eye.into(),
@@ -220,7 +222,6 @@ impl SceneFile {
                 };
                 Animation::path(a.keyframe.iter().map(key).collect(), a.frames)
             }
-            _ => return Err("[animation]: give either orbit = true or [[animation.keyframe]]s, not both".into()),
         };
         animation.map(Some).map_err(|e| format!("[animation] {e}"))
     }

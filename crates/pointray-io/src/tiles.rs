@@ -1,7 +1,8 @@
 //! Tiled surveys: several cloud files (an airborne survey's tiles, a scan campaign's exports)
 //! read as one cloud. Each tile is read as it would be alone, then placed in the set's frame
-//! as a scan set's scans are (`builder::merge`): its points' world positions, the tile's origin
-//! plus their `f32` offsets, recentred on the set's bounds. Reading the tiles in passes
+//! as a scan set's scans are (`builder::merge`): its points' world positions as the tile's
+//! cloud holds them (its origin plus their `f32` offsets, and their residuals where it keeps
+//! them), recentred on the set's bounds. Reading the tiles in passes
 //! (`prepare`) places them the same way, so both give the same cloud.
 
 use std::path::{Path, PathBuf};

@@ -1179,6 +1179,10 @@ fn a_wide_survey_in_parts_keeps_its_precision_alike_out_of_core() {
     for input in [&whole[..], &tiles[..]] {
         let config = pointray::preprocess::PreprocessConfig::default();
         let source = pointray_io::source::load_tiles(input, &config, &Default::default(), &|_| {}).unwrap();
+        // Read in memory, the survey keeps what its offsets rounded off (which the parts'
+        // frames take, `two_level.rs`'s test), its tiles as well as one file.
+        let residuals = source.parts.cloud.residuals.as_ref().expect("a survey wider than f32 keeps");
+        assert!(residuals.iter().any(|r| r.length() > 1e-4), "the f32 offsets round by millimetres");
         let scene = pointray::Scene::build_with_limits(source.parts, &settings, limits).unwrap();
         assert!(scene.parts() >= 4, "{} parts", scene.parts());
         let (memory, streamed) = (dir.path().join("memory.prs"), dir.path().join("streamed.prs"));

@@ -219,8 +219,9 @@ impl Scene {
     }
 
     /// A turntable's views, as `pointray render --turntable` turns them: for each of `frames`
-    /// frames, the camera options (`eye`, `view_dir`, `view`) of the view `options` give turned
-    /// about the up axis by 360°·k/frames (frame 0 is that view), to render with them.
+    /// frames, the camera options (`eye`, `look_at`, `fov`, `view_dir`, `view`) of the view
+    /// `options` give turned about the up axis by 360°·k/frames (frame 0 is that view), to
+    /// render with them.
     #[pyo3(signature = (frames, **options))]
     fn turntable<'py>(
         &self,

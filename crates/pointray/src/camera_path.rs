@@ -32,16 +32,17 @@ impl Animation {
     /// A path through `keys` of `frames` frames, checked: two keys or more, each finite with its
     /// eye off its look-at point and a field of view between 0 and 180 degrees.
     pub fn path(keys: Vec<Keyframe>, frames: u32) -> Result<Self, SettingsError> {
-        let wrong = |problem: String| Err(SettingsError::new("keyframes", problem));
+        let wrong = |problem: String| Err(SettingsError::new("keyframe", problem));
         if keys.len() < 2 {
             return wrong(format!("a camera path needs two keyframes or more, not {}", keys.len()));
         }
-        for (i, k) in keys.iter().enumerate() {
+        // Counted from 1, as a file's tables are.
+        for (i, k) in (1..).zip(&keys) {
             if !(k.eye.is_finite() && k.look_at.is_finite()) || k.eye == k.look_at {
-                return wrong(format!("keyframe {i}: eye and look_at must be finite and apart"));
+                return wrong(format!("{i}: eye and look_at must be finite and apart"));
             }
             if !(k.fov > 0.0 && k.fov < 180.0) {
-                return wrong(format!("keyframe {i}: fov must be between 0 and 180 degrees"));
+                return wrong(format!("{i}: fov must be between 0 and 180 degrees"));
             }
         }
         Self::check_frames(frames)?;
@@ -201,11 +202,11 @@ mod tests {
     #[test]
     fn bad_paths_are_named() {
         let one = Animation::path(vec![key([1.0, 0.0, 0.0], 40.0)], 10).unwrap_err();
-        assert_eq!(one.to_string(), "keyframes a camera path needs two keyframes or more, not 1");
+        assert_eq!(one.to_string(), "keyframe a camera path needs two keyframes or more, not 1");
         let at_eye = Animation::path(vec![key([1.0, 0.0, 0.0], 40.0), key([0.0, 0.0, 0.0], 40.0)], 10);
-        assert!(at_eye.unwrap_err().problem.contains("keyframe 1: eye and look_at"));
+        assert_eq!(at_eye.unwrap_err().to_string(), "keyframe 2: eye and look_at must be finite and apart");
         let wide = Animation::path(vec![key([1.0, 0.0, 0.0], 40.0), key([2.0, 0.0, 0.0], 180.0)], 10);
-        assert!(wide.unwrap_err().problem.contains("keyframe 1: fov"));
+        assert!(wide.unwrap_err().problem.contains("2: fov"));
         assert_eq!(Animation::orbit(0).unwrap_err().option, "frames");
     }
 }

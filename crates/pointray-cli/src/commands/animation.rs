@@ -29,8 +29,10 @@ pub fn run(
     }
     let frames = picked(a.frames.clone(), animation.frames())?;
     let video = is_mp4(&a.output);
-    let encoder = if video { ffmpeg(quiet) } else { None };
-    let scratch = encoder.as_ref().map(|_| tempfile::tempdir_in(parent(&a.output))).transpose()?;
+    let encoder = if video { ffmpeg() } else { None };
+    let folder = parent(&a.output);
+    let scratch = encoder.as_ref().map(|_| tempfile::tempdir_in(folder)).transpose();
+    let scratch = scratch.map_err(|e| failure::output(anyhow::anyhow!("{}: {e}", folder.display())))?;
     let png_of = |k: u32| match &scratch {
         Some(dir) => dir.path().join(format!("frame_{k:06}.png")),
         None => frame_path(&a.output.with_extension(if video { "png" } else { ext(&a.output) }), k),
@@ -80,6 +82,18 @@ pub fn is_mp4(output: &Path) -> bool {
     output.extension().is_some_and(|e| e.eq_ignore_ascii_case("mp4"))
 }
 
+/// Whether the flags ask for an animation's frames: `--frames`, or an output of numbered
+/// frames (#s) or a video.
+pub fn asked(a: &RenderArgs) -> bool {
+    let numbered = a.output.file_name().is_some_and(|n| n.to_string_lossy().contains('#'));
+    a.frames.is_some() || numbered || is_mp4(&a.output)
+}
+
+/// The refusal of frames asked for without an animation.
+pub fn missing() -> anyhow::Error {
+    anyhow::anyhow!("--frames, -o with #s and -o .mp4 need an animation: a scene file's [animation] or --turntable N")
+}
+
 fn ext(path: &Path) -> &str {
     path.extension().and_then(|e| e.to_str()).unwrap_or("png")
 }
@@ -101,12 +115,12 @@ pub fn frame_path(output: &Path, k: u32) -> PathBuf {
     output.with_file_name(format!("{stem}_{k:04}.{}", ext(output)))
 }
 
-/// The ffmpeg to encode with, if it runs (a warning where it does not: the frames go beside
-/// the output as PNGs).
-fn ffmpeg(quiet: bool) -> Option<String> {
+/// The ffmpeg to encode with, if it runs (a warning where it does not, `-q` or not, since the
+/// video asked for is not made: the frames go beside the output as PNGs).
+fn ffmpeg() -> Option<String> {
     let program = std::env::var("POINTRAY_FFMPEG").unwrap_or_else(|_| "ffmpeg".into());
     let runs = Command::new(&program).arg("-version").output().is_ok_and(|o| o.status.success());
-    if !runs && !quiet {
+    if !runs {
         eprintln!("warning: {program} not found (Debian: apt-get install ffmpeg): writing the frames as PNGs");
     }
     runs.then_some(program)

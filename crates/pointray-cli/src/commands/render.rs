@@ -78,6 +78,11 @@ fn check_outputs(a: &RenderArgs) -> anyhow::Result<()> {
         return Err(failure::usage(e));
     }
     super::check_output_path(&a.output)?;
+    // Only a scene file can hold an animation: without one, frames asked for are refused now.
+    let scene_file = matches!(a.inputs.as_slice(), [path] if pointray_io::source::is_scene(path));
+    if super::animation::asked(a) && a.turntable == 0 && !scene_file {
+        return Err(failure::usage(super::animation::missing()));
+    }
     if a.bit_depth != 8 && is_exr(&a.output) {
         return Err(failure::usage(anyhow::anyhow!("--bit-depth is the PNG's; an EXR holds floats")));
     }
@@ -104,17 +109,14 @@ fn run_in_pool(a: &RenderArgs, quiet: bool, threads: usize) -> anyhow::Result<()
     let (mut scene, builds) = build(source.parts, &settings, a.bench_builds, quiet).context(input_name.clone())?;
     scene.set_environment_map(env_map);
     tracing::info!("built {} over {} splats in {:.3} s", scene.accel_name(), scene.points(), builds[0]);
+    // A scene file's animation is rendered where the flags ask for frames; else its camera's view.
     let animation = match a.turntable {
-        0 => source_animation,
+        0 => source_animation.filter(|_| super::animation::asked(a)),
         n => Some(Animation::orbit(n).map_err(|e| failure::usage(flag_error(e)))?),
     };
     match animation {
         Some(animation) => return super::animation::run(a, &scene, &settings, &animation, quiet).context(input_name),
-        None if a.frames.is_some() || super::animation::is_mp4(&a.output) => {
-            let e =
-                anyhow::anyhow!("--frames and -o .mp4 need an animation: a scene file's [animation] or --turntable N");
-            return Err(failure::usage(e));
-        }
+        None if super::animation::asked(a) => return Err(failure::usage(super::animation::missing())),
         None => {}
     }
     let job = scene.job(&settings).map_err(|e| failure::usage(flag_error(e).context(input_name.clone())))?;

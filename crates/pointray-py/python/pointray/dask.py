@@ -18,6 +18,7 @@ bit too, the disk tests doing the same arithmetic in the same order on each (no 
 from __future__ import annotations
 
 import functools
+import numbers
 import os
 from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 
@@ -108,7 +109,7 @@ def render_frames(
     if orbit is not None:
         shots = [({}, ("orbit", k, orbit)) for k in range(orbit)]
     else:
-        shots = [({}, ("animation", f, 0)) if isinstance(f, int) else (dict(f), None) for f in frames]
+        shots = [({}, ("animation", int(f), 0)) if isinstance(f, numbers.Integral) else (dict(f), None) for f in frames]
         changed = sorted({k for f, _ in shots for k in f} & PREPARE_OPTIONS)
         if changed:
             raise ValueError(f"frames: {', '.join(changed)} change the scene's build; give them once, for all frames")
@@ -193,7 +194,7 @@ def _thawed(value: Any) -> Any:
 
 @functools.lru_cache(maxsize=4)
 def _scene(key: Tuple[Any, ...]) -> "pointray.Scene":
-    """The scene `key` names, opened once on this process."""
+    """The scene `key` names, opened once on this process (the last four kept)."""
     global opened
     paths, prepare = key
     scene = pointray.prepare(list(paths) if len(paths) > 1 else paths[0], **_thawed(prepare))
@@ -232,8 +233,17 @@ def _render_frame(key: Tuple[Any, ...], options: Dict[str, Any], camera: Optiona
     view = {o: v for o, v in own.items() if o != "threads"}
     if camera is not None:
         kind, k, frames = camera
-        own.update(scene.turntable(frames, **view)[k] if kind == "orbit" else scene.animation_frame(k, **view))
+        if kind == "orbit":
+            own.update(_orbit(key, frames, _frozen(view))[k])
+        else:
+            own.update(scene.animation_frame(k, **view))
     return pointray.render(scene, **own)
+
+
+@functools.lru_cache(maxsize=4)
+def _orbit(key: Tuple[Any, ...], frames: int, view: Any) -> List[Dict[str, Any]]:
+    """The cameras of an orbit's `frames` frames, found once on this process for all its tasks."""
+    return _scene(key).turntable(frames, **_thawed(view))
 
 
 def _render_options(options: Dict[str, Any]) -> Dict[str, Any]:

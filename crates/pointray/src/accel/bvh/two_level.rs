@@ -113,13 +113,14 @@ impl TwoLevel {
         let cells = plan.parts(params.part_splats);
         let lone = cells.len() == 1;
         for (cell, chunks) in cells {
-            // A lone part (a cell that cannot split) stays in the scene's frame.
+            // A lone part (a cell that cannot split) stays in the scene's frame, its splats as
+            // given, as a lone BVH's.
             let range = first..first + cell.count;
-            let offset = match lone {
-                true => Vec3::ZERO,
-                false => part_offset(Aabb::from_points(input[range.clone()].iter().map(|s| s.center))),
+            let offset = part_offset(Aabb::from_points(input[range.clone()].iter().map(|s| s.center)));
+            let (splats, offset) = match lone {
+                true => (input[range].to_vec(), Vec3::ZERO),
+                false => (range.map(|at| moved(&input[at], residual(at), offset)).collect(), offset),
             };
-            let splats = range.map(|at| moved(&input[at], residual(at), offset)).collect();
             let (bvh, mut part_ids) = Bvh::try_build_planned(splats, &chunks, params)?;
             for id in part_ids.iter_mut().filter(|id| **id != u32::MAX) {
                 let at = first + *id as usize;
@@ -645,7 +646,7 @@ mod tests {
             .map(|i: usize| {
                 let site = DVec3::new(if i.is_multiple_of(2) { 400_000.0 } else { 600_000.0 }, 5_000_000.0, 30.0);
                 let (x, z) = ((i / 2 % 60) as f64 * 0.01, (i / 120) as f64 * 0.01);
-                site + DVec3::new(x, 0.0, z) + DVec3::splat(rng.random_range(0.0..1e-3)).round() * 1e-5
+                site + DVec3::new(x, 0.0, z) + DVec3::splat(rng.random_range(0.0..1e3)).round() * 1e-5
             })
             .collect();
         let cloud = crate::PointCloud::from_world_positions(&world);
