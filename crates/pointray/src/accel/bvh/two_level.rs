@@ -116,10 +116,11 @@ impl TwoLevel {
             // A lone part (a cell that cannot split) stays in the scene's frame, its splats as
             // given, as a lone BVH's.
             let range = first..first + cell.count;
-            let offset = part_offset(Aabb::from_points(input[range.clone()].iter().map(|s| s.center)));
-            let (splats, offset) = match lone {
-                true => (input[range].to_vec(), Vec3::ZERO),
-                false => (range.map(|at| moved(&input[at], residual(at), offset)).collect(), offset),
+            let (splats, offset) = if lone {
+                (input[range].to_vec(), Vec3::ZERO)
+            } else {
+                let offset = part_offset(Aabb::from_points(input[range.clone()].iter().map(|s| s.center)));
+                (range.map(|at| moved(&input[at], residual(at), offset)).collect(), offset)
             };
             let (bvh, mut part_ids) = Bvh::try_build_planned(splats, &chunks, params)?;
             for id in part_ids.iter_mut().filter(|id| **id != u32::MAX) {
