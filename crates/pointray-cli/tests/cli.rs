@@ -1210,7 +1210,7 @@ fn an_animation_to_mp4_is_encoded_or_left_as_frames_without_ffmpeg() {
     let decoded = probe.args(["-v", "error", "-i", "turn.mp4", "-f", "null", "-"]).current_dir(dir.path()).output();
     let decoded = decoded.unwrap();
     assert!(decoded.status.success(), "{}", String::from_utf8_lossy(&decoded.stderr));
-    // No frame left behind: the scratch frames went with their directory.
+    // Nothing left beside the video: the frames went to ffmpeg as they came, no partial file.
     let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().filter_map(|e| e.ok()).collect();
     assert_eq!(left.len(), 5, "{left:?}");
 }

@@ -19,10 +19,12 @@ mod scanset;
 pub mod scene;
 pub mod source;
 mod tiles;
+pub mod video;
 pub mod xyz;
 
 mod builder;
 mod e57;
+pub mod fetched;
 mod file;
 mod text;
 

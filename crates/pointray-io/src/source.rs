@@ -107,12 +107,31 @@ pub(crate) fn lone_cloud_parts(up: Option<Vec3>, sun: Option<Vec3>) -> ScenePart
 
 /// A prepared scene file, opened: built already, nothing to preprocess.
 fn load_prs(path: &Path, stage: &dyn Fn(&str)) -> Result<Source, IoError> {
+    stored_source(&path.display().to_string(), || crate::prs::open_prs(path), stage)
+}
+
+/// The prepared scene file `name` (a URL, say) of `len` bytes that `reader` reads by ranges,
+/// opened: fetched as it is read (`crate::fetched`).
+pub fn open_fetched(
+    name: &str,
+    len: u64,
+    reader: Box<dyn crate::fetched::RangeReader>,
+    stage: &dyn Fn(&str),
+) -> Result<Source, IoError> {
+    stored_source(name, || crate::prs::open_prs_fetched(name, len, reader), stage)
+}
+
+fn stored_source(
+    name: &str,
+    open: impl FnOnce() -> Result<pointray::scene::StoredScene, IoError>,
+    stage: &dyn Fn(&str),
+) -> Result<Source, IoError> {
     let start = Instant::now();
     stage("open");
-    let stored = crate::prs::open_prs(path)?;
+    let stored = open()?;
     let points_read = stored.meta().points;
     let load_seconds = start.elapsed().as_secs_f64();
-    tracing::info!("opened the scene file {} ({points_read} points) in {load_seconds:.3} s", path.display());
+    tracing::info!("opened the scene file {name} ({points_read} points) in {load_seconds:.3} s");
     let parts = SceneParts { stored: Some(stored), ..SceneParts::default() };
     Ok(Source {
         parts,

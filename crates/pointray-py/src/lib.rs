@@ -20,9 +20,11 @@ use pointray::preprocess::PreprocessConfig;
 use pointray::scene::SceneParts;
 use pointray::settings::Settings;
 use pointray_io::IoError;
+use pointray_io::fetched::RangeReader;
+use pointray_io::video::Mp4Writer;
 use pyo3::exceptions::{PyFileNotFoundError, PyKeyboardInterrupt, PyOSError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyBytes, PyDict};
 
 /// A point cloud: positions (N×3, float64, in the file's coordinates), and where known the
 /// normals (N×3), colours (N×3, sRGB-encoded as files store them, 0 to 1) and splat radii (N), float32; and the scan
@@ -374,6 +376,9 @@ fn prepare(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Bound<'_,
         py.detach(|| pool.install(|| pointray_io::source::prepare(&mut cloud, &preprocess, "cloud", &|_| {})))
             .map_err(|e| PyValueError::new_err(format!("cloud: {e}")))?;
         (SceneParts::from(cloud), Settings::default(), None)
+    } else if let Some(AtUrl { url, len, reader }) = at_url(source)? {
+        let loaded = py.detach(|| pointray_io::source::open_fetched(&url, len, reader, &|_| {})).map_err(io_error)?;
+        (loaded.parts, Settings::default(), None)
     } else {
         let paths = source_paths(source)?;
         let loaded = py
@@ -386,6 +391,41 @@ fn prepare(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Bound<'_,
     let mut inner = py.detach(|| pool.install(|| pointray::Scene::build(parts, &settings))).map_err(value_error)?;
     inner.set_environment_map(env_map);
     Ok(Scene { inner, settings, animation })
+}
+
+/// A scene file at a URL (`pointray._remote.is_url`): its length and its reader by ranges
+/// (fsspec's, made by `pointray._remote.reader`).
+struct AtUrl {
+    url: String,
+    len: u64,
+    reader: Box<dyn RangeReader>,
+}
+
+/// The scene file a source names, where it is a URL.
+fn at_url(source: &Bound<'_, PyAny>) -> PyResult<Option<AtUrl>> {
+    let remote = source.py().import("pointray._remote")?;
+    if !remote.call_method1("is_url", (source,))?.is_truthy()? {
+        return Ok(None);
+    }
+    let (len, read): (u64, Py<PyAny>) = remote.call_method1("reader", (source,))?.extract()?;
+    Ok(Some(AtUrl { url: source.extract()?, len, reader: Box::new(Ranges { read }) }))
+}
+
+/// Ranges of a file read through a Python callable given [(start, end), ...] and returning
+/// the bytes of each (`pointray._remote.reader`), from whichever thread needs them.
+struct Ranges {
+    read: Py<PyAny>,
+}
+
+impl RangeReader for Ranges {
+    fn read(&self, ranges: &[std::ops::Range<u64>]) -> Result<Vec<Vec<u8>>, String> {
+        let pairs: Vec<(u64, u64)> = ranges.iter().map(|r| (r.start, r.end)).collect();
+        Python::attach(|py| {
+            let read: Vec<Bound<'_, PyBytes>> = self.read.call1(py, (pairs,))?.extract(py)?;
+            Ok(read.iter().map(|b| b.as_bytes().to_vec()).collect())
+        })
+        .map_err(|e: PyErr| e.to_string())
+    }
 }
 
 /// The files a source names: a path, or a list of them (a survey's tiles, read as one cloud).
@@ -522,17 +562,98 @@ fn to_srgb8<'py>(
     tonemap: &str,
     exposure: f32,
 ) -> PyResult<Bound<'py, PyArray3<u8>>> {
-    let curve = serde_json::from_value(serde_json::Value::String(tonemap.to_string()))
-        .map_err(|_| PyValueError::new_err(format!("tonemap {tonemap:?}: expected \"clamp\" or \"filmic\"")))?;
-    let tone = ToneMap { exposure, curve };
-    let probe = Settings { exposure, ..Settings::default() };
-    probe.check().map_err(value_error)?;
-    let encode = tone.encoder();
+    let encode = tone_map(tonemap, exposure)?.encoder();
     let image = image.as_array();
     if image.dim().2 != 3 {
         return Err(PyValueError::new_err("image: expected an HxWx3 array"));
     }
     Ok(image.mapv(encode).into_pyarray(py))
+}
+
+/// The tone map `tonemap` ("clamp" or "filmic") and `exposure` (stops) name.
+fn tone_map(tonemap: &str, exposure: f32) -> PyResult<ToneMap> {
+    let curve = serde_json::from_value(serde_json::Value::String(tonemap.to_string()))
+        .map_err(|_| PyValueError::new_err(format!("tonemap {tonemap:?}: expected \"clamp\" or \"filmic\"")))?;
+    let probe = Settings { exposure, ..Settings::default() };
+    probe.check().map_err(value_error)?;
+    Ok(ToneMap { exposure, curve })
+}
+
+/// An MP4 video (H.264) written a frame at a time through ffmpeg (Debian's package;
+/// `POINTRAY_FFMPEG` names another): ``with pointray.VideoWriter("fly.mp4", fps=30) as video:
+/// video.write(image)`` for each linear H×W×3 image, 8-bit sRGB through the tone map as
+/// `to_srgb8`. The file appears, whole, when the writer closes after no error; else none.
+#[pyclass(module = "pointray", name = "VideoWriter")]
+struct VideoWriter {
+    path: PathBuf,
+    program: String,
+    fps: f32,
+    tone: ToneMap,
+    /// Started by the first frame, which sets the size.
+    writer: Option<Mp4Writer>,
+    size: Option<(usize, usize)>,
+}
+
+#[pymethods]
+impl VideoWriter {
+    #[new]
+    #[pyo3(signature = (path, *, fps=30.0, tonemap="clamp", exposure=0.0))]
+    fn new(path: PathBuf, fps: f32, tonemap: &str, exposure: f32) -> PyResult<Self> {
+        if !(fps.is_finite() && fps > 0.0) {
+            return Err(PyValueError::new_err(format!("fps: expected a positive number, got {fps}")));
+        }
+        let tone = tone_map(tonemap, exposure)?;
+        let program = pointray_io::video::ffmpeg()
+            .ok_or_else(|| PyOSError::new_err(format!("{}: {}", path.display(), pointray_io::video::NO_FFMPEG)))?;
+        Ok(Self { path, program, fps, tone, writer: None, size: None })
+    }
+
+    /// Adds a frame: linear RGB, H×W×3, every frame the first's size.
+    fn write(&mut self, py: Python<'_>, image: PyArrayLike3<'_, f32, AllowTypeChange>) -> PyResult<()> {
+        let image = image.as_array();
+        let (h, w, c) = image.dim();
+        if c != 3 || self.size.is_some_and(|size| size != (w, h)) {
+            let first = self.size.map_or(String::new(), |(w, h)| format!(" ({h}x{w}x3, as the first frame)"));
+            return Err(PyValueError::new_err(format!("image: expected an HxWx3 array{first}, got {:?}", image.dim())));
+        }
+        let encode = self.tone.encoder();
+        let srgb8: Vec<u8> = image.iter().map(|&v| encode(v)).collect();
+        if self.writer.is_none() {
+            let (path, program, fps) = (&self.path, &self.program, self.fps);
+            let writer = py.detach(|| Mp4Writer::create(program, path, w as u32, h as u32, fps)).map_err(io_error)?;
+            (self.writer, self.size) = (Some(writer), Some((w, h)));
+        }
+        let writer = self.writer.as_mut().ok_or_else(|| PyValueError::new_err("the video is closed"))?;
+        py.detach(|| writer.push(&srgb8)).map_err(io_error)
+    }
+
+    /// Ends the video and puts it in place (no frames: no video, an error).
+    fn close(&mut self, py: Python<'_>) -> PyResult<()> {
+        match self.writer.take() {
+            Some(writer) => py.detach(|| writer.finish()).map_err(io_error),
+            None if self.size.is_some() => Ok(()),
+            None => Err(PyValueError::new_err(format!("{}: no frames written", self.path.display()))),
+        }
+    }
+
+    fn __enter__(slf: Py<Self>) -> Py<Self> {
+        slf
+    }
+
+    /// Closes the video, or on an exception drops it (no file).
+    fn __exit__(
+        &mut self,
+        py: Python<'_>,
+        error: Option<Bound<'_, PyAny>>,
+        _value: Option<Bound<'_, PyAny>>,
+        _traceback: Option<Bound<'_, PyAny>>,
+    ) -> PyResult<bool> {
+        if error.is_some_and(|e| !e.is_none()) {
+            self.writer = None;
+            return Ok(false);
+        }
+        self.close(py).map(|()| false)
+    }
 }
 
 /// Runs `work` on another thread with the GIL released, checking for Ctrl-C and calling
@@ -685,6 +806,7 @@ fn _pointray(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<Cloud>()?;
     m.add_class::<Scene>()?;
     m.add_class::<Frame>()?;
+    m.add_class::<VideoWriter>()?;
     m.add_function(wrap_pyfunction!(read_cloud, m)?)?;
     m.add_function(wrap_pyfunction!(prepare, m)?)?;
     m.add_function(wrap_pyfunction!(prepare_file, m)?)?;

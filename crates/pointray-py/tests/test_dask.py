@@ -12,7 +12,7 @@ import pointray
 distributed = pytest.importorskip("dask.distributed")
 import pointray.dask  # noqa: E402 - after the skip: it needs dask
 
-from test_pointray import sphere_points  # noqa: E402
+from test_pointray import needs_ffmpeg, sphere_points, video_frames  # noqa: E402
 
 
 def cluster(workers=2):
@@ -85,6 +85,27 @@ def test_an_orbit_turns_the_view_and_frames_are_their_renders(client, sphere_fil
     for shot, eye in zip(shots, eyes):
         assert np.array_equal(shot, pointray.render(scene, width=64, height=48, **eye))
     assert done[-1] == (2, 2)
+
+
+@needs_ffmpeg
+def test_frames_arriving_in_any_order_go_into_a_video_in_theirs(client, sphere_file, tmp_path):
+    video = tmp_path / "orbit.mp4"
+    assert pointray.dask.render_frames(client, sphere_file, orbit=5, width=64, height=48, output=video, fps=10) is None
+    assert video_frames(video) == (5, (64, 48))
+    # In order whatever the order of arrival: frames given out of turn wait for theirs.
+    written = []
+    take = pointray.dask._in_order(written.append, {"a": 0, "b": 1, "c": 2})
+
+    class Done:
+        def __init__(self, key):
+            self.key = key
+
+        def release(self):
+            pass
+
+    for key, frame in (("c", 2), ("a", 0), ("b", 1)):
+        take(Done(key), frame)
+    assert written == [0, 1, 2]
 
 
 def test_a_scene_files_animation_renders_frame_by_frame(client, sphere_file, tmp_path):
@@ -163,6 +184,22 @@ def test_a_source_a_worker_cannot_read_is_named_with_the_worker(client, tmp_path
         pointray.dask.render_frames(client, missing)
     with pytest.raises(ValueError, match="surface change the scene's build"):
         pointray.dask.render_frames(client, missing, frames=[{"surface": "sj"}])
+
+
+def test_workers_read_a_scene_file_at_a_url_by_ranges(client, sphere_file, tmp_path):
+    pytest.importorskip("fsspec")
+    from ranged_http import RangedServer
+
+    pointray.prepare_file(str(sphere_file), str(tmp_path / "sphere.prs"))
+    options = {"width": 160, "height": 120, "spp": 2}
+    expected = pointray.render(str(tmp_path / "sphere.prs"), **options)
+    with RangedServer(tmp_path) as server:
+        image = pointray.dask.render(client, server.url("sphere.prs"), tile=48, **options)
+        assert np.array_equal(image, expected)
+        # Each worker fetched what its tiles read, once: at most the file each.
+        assert 0 < server.sent <= 2 * (tmp_path / "sphere.prs").stat().st_size
+        with pytest.raises(OSError, match=r"2 of the workers: worker tcp://.*nowhere\.prs"):
+            pointray.dask.render(client, server.url("nowhere.prs"), width=32, height=32)
 
 
 def test_workers_on_either_kernel_path_render_the_same_pixels(sphere_file, monkeypatch):

@@ -2,6 +2,7 @@
 $POINTRAY_BIN (CI sets it to the one the Rust tests built); tests that need it skip without."""
 
 import os
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -306,3 +307,39 @@ def test_an_environment_map_renders_as_on_the_command_line(tmp_path, sphere_file
         pointray.render(scene, env_map=str(hdr))
     with pytest.raises(OSError, match="missing.hdr"):
         pointray.render(str(sphere_file), env_map=str(tmp_path / "missing.hdr"))
+
+
+def video_frames(path):
+    """The number of frames ffprobe counts in the video at `path`."""
+    probe = ["ffprobe", "-v", "error", "-count_frames", "-select_streams", "v:0"]
+    probe += ["-show_entries", "stream=nb_read_frames,width,height", "-of", "csv=p=0", str(path)]
+    width, height, frames = subprocess.run(probe, check=True, capture_output=True, text=True).stdout.strip().split(",")
+    return int(frames), (int(width), int(height))
+
+
+needs_ffmpeg = pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg not installed")
+
+
+@needs_ffmpeg
+def test_frames_become_a_video_whole_or_not_at_all(tmp_path, sphere_file, monkeypatch):
+    scene = pointray.prepare(str(sphere_file))
+    out = tmp_path / "videos"
+    out.mkdir()
+    views = scene.turntable(3, width=33, height=24)
+    with pointray.VideoWriter(out / "turn.mp4", fps=12) as video:
+        for view in views:
+            video.write(pointray.render(scene, width=33, height=24, **view))
+    assert video_frames(out / "turn.mp4") == (3, (34, 24)), "odd sizes padded to even"
+    # An error inside the writer's block, or a frame of another size: no video.
+    with pytest.raises(ZeroDivisionError), pointray.VideoWriter(out / "broken.mp4") as video:
+        video.write(np.zeros((24, 33, 3), dtype=np.float32))
+        1 / 0
+    with pytest.raises(ValueError, match="as the first frame"), pointray.VideoWriter(out / "sizes.mp4") as video:
+        video.write(np.zeros((24, 33, 3), dtype=np.float32))
+        video.write(np.zeros((24, 32, 3), dtype=np.float32))
+    assert sorted(p.name for p in out.iterdir()) == ["turn.mp4"]
+    with pytest.raises(ValueError, match="no frames"), pointray.VideoWriter(out / "empty.mp4"):
+        pass
+    monkeypatch.setenv("POINTRAY_FFMPEG", "/nonexistent/ffmpeg")
+    with pytest.raises(OSError, match="ffmpeg not found"):
+        pointray.VideoWriter(out / "none.mp4")

@@ -456,7 +456,7 @@ impl Scene {
             Accelerator::TwoLevel(scene) => scene.damage(),
             _ => None,
         };
-        damage.map_or(Ok(()), |d| Err(RenderError::Damaged(d.to_string())))
+        damage.map_or(Ok(()), |d| Err(RenderError::Stored(d.to_string())))
     }
 
     /// The settings resolved against this scene: the camera, the pixels and the render
@@ -916,9 +916,9 @@ pub fn render(scene: &Scene, settings: &Settings) -> Result<Frame, RenderError> 
 pub enum RenderError {
     #[error(transparent)]
     Settings(#[from] SettingsError),
-    /// A stored scene's part failed its check when first read.
-    #[error("the scene file is damaged: {0}")]
-    Damaged(String),
+    /// A stored scene's part failed its check, or could not be fetched, when first read.
+    #[error("the scene file: {0}")]
+    Stored(String),
 }
 
 #[cfg(test)]

@@ -1,16 +1,14 @@
 //! `pointray render` of an animation: a scene file's `[animation]` (a camera path through
 //! keyframes, or an orbit) or `--turntable N`, its frames (`--frames A..B`, all by default)
-//! written as OUT_0007.png, or into the #s of `-o out_####.png`; `-o out.mp4` encodes them with
-//! ffmpeg (`$POINTRAY_FFMPEG`, default `ffmpeg`), or writes them as PNGs beside it where
-//! ffmpeg is missing.
-
-use std::ops::Range;
-use std::path::{Path, PathBuf};
-use std::process::Command;
+//! written as OUT_0007.png, or into the #s of `-o out_####.png`; `-o out.mp4` encodes them as
+//! they come (`pointray_io::video`), or writes them as PNGs beside it where ffmpeg is missing.
 
 use pointray::camera_path::Animation;
 use pointray::scene::Scene;
 use pointray::settings::Settings;
+use pointray_io::video::{self, Mp4Writer};
+use std::ops::Range;
+use std::path::{Path, PathBuf};
 
 use crate::args::RenderArgs;
 use crate::failure;
@@ -29,27 +27,31 @@ pub fn run(
     }
     let frames = picked(a.frames.clone(), animation.frames())?;
     let video = is_mp4(&a.output);
-    let encoder = if video { ffmpeg() } else { None };
-    let folder = parent(&a.output);
-    let scratch = encoder.as_ref().map(|_| tempfile::tempdir_in(folder)).transpose();
-    let scratch = scratch.map_err(|e| failure::output(anyhow::anyhow!("{}: {e}", folder.display())))?;
-    let png_of = |k: u32| match &scratch {
-        Some(dir) => dir.path().join(format!("frame_{k:06}.png")),
-        None => frame_path(&a.output.with_extension(if video { "png" } else { ext(&a.output) }), k),
-    };
+    let program = if video { ffmpeg() } else { None };
+    let png_of = |k: u32| frame_path(&a.output.with_extension(if video { "png" } else { ext(&a.output) }), k);
+    let mut encoder = None;
     for k in frames.clone() {
         let view = animation.frame(scene, settings, k);
         let job = scene.job(&view).map_err(|e| failure::usage(super::render::flag_error(e)))?;
         let bar = crate::progress::bar(job.config.region.pixel_count(), "render", quiet);
         let frame = job.render(&|n| bar.inc(n))?;
         bar.finish_and_clear();
-        super::render::write_images(a, &png_of(k), &view, &frame)?;
+        let Some(program) = &program else {
+            super::render::write_images(a, &png_of(k), &view, &frame)?;
+            continue;
+        };
+        if encoder.is_none() {
+            let writer = Mp4Writer::create(program, &a.output, frame.width, frame.height, a.fps);
+            encoder = Some(writer.map_err(failure::output)?);
+        }
+        let writer = encoder.as_mut().expect("made above");
+        writer.push(&frame.srgb8(view.tone_map())).map_err(failure::output)?;
     }
-    if let (Some(program), Some(dir)) = (&encoder, &scratch) {
-        encode(program, dir.path(), frames.start, a.fps, &a.output)?;
+    if let Some(writer) = encoder {
+        writer.finish().map_err(failure::output)?;
     }
     if !quiet {
-        let wrote = match &scratch {
+        let wrote = match &program {
             Some(_) => a.output.display().to_string(),
             None => format!("{} to {}", png_of(frames.start).display(), png_of(frames.end - 1).display()),
         };
@@ -98,10 +100,6 @@ fn ext(path: &Path) -> &str {
     path.extension().and_then(|e| e.to_str()).unwrap_or("png")
 }
 
-fn parent(path: &Path) -> &Path {
-    path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."))
-}
-
 /// `OUT.png` → `OUT_0007.png` for frame 7; `out_####.png` → `out_0007.png` (as many digits as
 /// #s at least).
 pub fn frame_path(output: &Path, k: u32) -> PathBuf {
@@ -118,31 +116,11 @@ pub fn frame_path(output: &Path, k: u32) -> PathBuf {
 /// The ffmpeg to encode with, if it runs (a warning where it does not, `-q` or not, since the
 /// video asked for is not made: the frames go beside the output as PNGs).
 fn ffmpeg() -> Option<String> {
-    let program = std::env::var("POINTRAY_FFMPEG").unwrap_or_else(|_| "ffmpeg".into());
-    let runs = Command::new(&program).arg("-version").output().is_ok_and(|o| o.status.success());
-    if !runs {
-        eprintln!("warning: {program} not found (Debian: apt-get install ffmpeg): writing the frames as PNGs");
+    let program = video::ffmpeg();
+    if program.is_none() {
+        eprintln!("warning: {}: writing the frames as PNGs", video::NO_FFMPEG);
     }
-    runs.then_some(program)
-}
-
-/// Encodes `dir`'s frames from `first` on into `output` (H.264, `fps` a second), written whole
-/// or not at all.
-fn encode(program: &str, dir: &Path, first: u32, fps: f32, output: &Path) -> anyhow::Result<()> {
-    let partial = dir.join("video.mp4");
-    let result = Command::new(program)
-        .args(["-hide_banner", "-loglevel", "error", "-y", "-framerate", &fps.to_string()])
-        .args(["-start_number", &first.to_string(), "-i"])
-        .arg(dir.join("frame_%06d.png"))
-        // H.264 in 4:2:0 wants even sizes: an odd frame gets a last row or column.
-        .args(["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264", "-pix_fmt", "yuv420p"])
-        .arg(&partial)
-        .output()?;
-    if !result.status.success() {
-        let why = String::from_utf8_lossy(&result.stderr);
-        return Err(failure::output(anyhow::anyhow!("{}: {program} failed: {}", output.display(), why.trim())));
-    }
-    std::fs::rename(&partial, output).map_err(|e| failure::output(anyhow::anyhow!("{}: {e}", output.display())))
+    program
 }
 
 #[cfg(test)]

@@ -77,12 +77,26 @@ class Frame:
     @property
     def stats(self) -> dict[str, Any]: ...
 
+class VideoWriter:
+    """An MP4 (H.264) written a frame at a time through ffmpeg (``POINTRAY_FFMPEG`` names
+    another): ``with VideoWriter("fly.mp4", fps=30) as video: video.write(image)``, each image
+    linear H x W x 3 as ``render`` gives, through the tone map as ``to_srgb8``. The file
+    appears whole when the writer closes after no error; else none. OSError without ffmpeg."""
+
+    def __init__(self, path: Path, *, fps: float = 30.0, tonemap: str = "clamp", exposure: float = 0.0) -> None: ...
+    def write(self, image: npt.ArrayLike) -> None: ...
+    def close(self) -> None: ...
+    def __enter__(self) -> "VideoWriter": ...
+    def __exit__(self, *exc: Any) -> bool: ...
+
 def read_cloud(path: Union[str, "os.PathLike[str]"], *, columns: Optional[str] = None) -> Cloud:
     """Reads PLY, LAS/LAZ, E57, PCD, XYZ/PTS, OFF or OBJ vertices, or a Stanford scan set (by
     content); ``columns`` ("x,y,z,r,g,b,i") names a text file's columns, as ``--columns`` does."""
 
 def prepare(source: Source, **options: Any) -> Scene:
-    """Normals, orientation and radii where missing (k_normals, k_radius, radius_scale,
+    """A source is a cloud or scene file's path (or a survey's tiles), a Cloud, or a scene
+    file's URL (``https://``, ``s3://``, ...; read by ranges through fsspec as renders need it,
+    ``pip install "pointray[remote]"``). Normals, orientation and radii where missing (k_normals, k_radius, radius_scale,
     recompute, strays, outlier_std; a text file's columns), the points drawn (classes,
     exclude_classes, clip_box, clip_planes) and their colours (color_by), then the accelerator
     (accel, sphere_from_level, surface); ``threads`` (default all cores)."""

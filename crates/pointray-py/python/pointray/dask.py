@@ -7,7 +7,9 @@
 >>> frames = pointray.dask.render_frames(client, "survey.prs", orbit=120, width=1280, height=720)
 
 Every worker opens the source once (a ``.prs`` scene file is memory-mapped, a cloud file
-prepared) from a path every worker can read, and keeps it for the tasks it is given. A pixel
+prepared) from a path every worker can read, or a scene file's URL (an object store, an HTTP
+server: each worker fetches the parts of the file its tiles' rays enter, by range requests,
+``pointray._remote``), and keeps it for the tasks it is given. A pixel
 does not depend on the worker that renders it (each pixel seeds its own samples), so the image
 is ``pointray.render``'s for the same options, bit for bit, and a task run again after its
 worker died changes nothing. Workers on the same kernel path (AVX2, or the baseline SSE/NEON
@@ -25,6 +27,7 @@ from typing import Any, Callable, Dict, List, Optional, Sequence, Tuple, Union
 import numpy as np
 
 import pointray
+from pointray._remote import is_url
 
 Path = Union[str, "os.PathLike[str]"]
 Progress = Union[bool, Callable[[int, int], Any], None]
@@ -57,7 +60,8 @@ def render(
     **options)`` gives, rendered as tiles of ``tile`` pixels (a side, or (width, height)) on the
     workers of ``client`` (a ``dask.distributed.Client``).
 
-    ``source``: a path (or a survey's tiles) every worker can read at the same place. ``progress``:
+    ``source``: a path (or a survey's tiles) every worker can read at the same place, or the
+    URL of a scene file (``https://``, ``s3://``, ...; fsspec's credentials on the workers). ``progress``:
     True for a tqdm bar, or a callable given (pixels done, pixels in all) as tiles arrive.
     Interrupting the call (Ctrl-C) cancels the tiles not yet rendered. ``threads`` (a task's
     render threads) defaults to all the cores of the worker's machine: start one worker a
@@ -92,15 +96,22 @@ def render_frames(
     width: int = 800,
     height: int = 600,
     progress: Progress = None,
+    output: Optional[Path] = None,
+    fps: float = 30.0,
     **options: Any,
-) -> List[np.ndarray]:
+) -> Optional[List[np.ndarray]]:
     """Frames of one scene, each a task on the workers of ``client``: ``orbit=N``, a turntable of
     N frames (the camera turned about the up axis by 360/N degrees a frame, as ``pointray
     render --turntable N`` turns it; frame 0 is the view ``options`` give); or ``frames``, each
     a frame number of the scene file's ``[animation]`` (``range(scene.frames)`` for them all),
     or a dict of the frame's own options (``eye``, ``look_at``, ``fov``, ...) over ``options``.
     Each frame is ``pointray.render``'s for its options, bit for bit. ``progress`` counts
-    frames; the rest as for `render`."""
+    frames; the rest as for `render`.
+
+    ``output``: an MP4 to write the frames into, ``fps`` a second, in order as they arrive
+    (``pointray.VideoWriter``, through the options' ``tonemap`` and ``exposure``); the frames
+    are then let go once written, not returned (None), so that thousands of frames take the
+    memory of those that arrive before their turn. No file where the render fails."""
     if (frames is None) == (orbit is None):
         raise ValueError("render_frames: give either frames (frame numbers or option dicts) or orbit (a frame count)")
     if orbit is not None and (not isinstance(orbit, int) or orbit < 1):
@@ -121,8 +132,13 @@ def render_frames(
         client.submit(_render_frame, key, {**options, **size, **own}, camera, key=f"pointray-frame-{token}-{i}")
         for i, (own, camera) in enumerate(shots)
     ]
-    done: List[Optional[np.ndarray]] = [None] * len(futures)
     index = {f.key: i for i, f in enumerate(futures)}
+    if output is not None:
+        tone = {k: options[k] for k in ("tonemap", "exposure") if k in options}
+        with pointray.VideoWriter(output, fps=fps, **tone) as video:
+            _gather(client, futures, _in_order(video.write, index), progress, len(futures), "frames")
+        return None
+    done: List[Optional[np.ndarray]] = [None] * len(futures)
 
     def keep(future: Any, frame: np.ndarray) -> int:
         done[index[future.key]] = frame
@@ -130,6 +146,24 @@ def render_frames(
 
     _gather(client, futures, keep, progress, len(futures), "frames")
     return done  # type: ignore[return-value]
+
+
+def _in_order(write: Callable[[np.ndarray], Any], index: Dict[str, int]) -> Callable[[Any, np.ndarray], int]:
+    """A `take` for `_gather` handing frames to `write` in their order (those that arrive early
+    kept until their turn), each task's result let go on the cluster once taken."""
+    early: Dict[int, np.ndarray] = {}
+    turn = 0
+
+    def take(future: Any, frame: np.ndarray) -> int:
+        nonlocal turn
+        early[index[future.key]] = frame
+        future.release()
+        while turn in early:
+            write(early.pop(turn))
+            turn += 1
+        return 1
+
+    return take
 
 
 def _gather(
@@ -163,15 +197,17 @@ def _regions(width: int, height: int, tile: Union[int, Tuple[int, int]]) -> List
 
 
 def _scene_key(source: Union[Path, Sequence[Path]], options: Dict[str, Any]) -> Tuple[Any, ...]:
-    """What names a scene on a worker: its files' absolute paths and its prepare options
-    (hashable)."""
+    """What names a scene on a worker: its files' absolute paths (or its URL) and its prepare
+    options (hashable)."""
     if isinstance(source, (pointray.Cloud, pointray.Scene)):
         raise TypeError("source: a Dask render opens its source on the workers; give a path every worker can read")
+    prepare = _frozen({k: v for k, v in options.items() if k in PREPARE_OPTIONS})
+    if is_url(source):
+        return ((source,), prepare)
     paths = [source] if isinstance(source, (str, os.PathLike)) else list(source)
     if not paths or not all(isinstance(p, (str, os.PathLike)) for p in paths):
         raise TypeError("source: expected a path or a list of paths")
-    prepare = {k: v for k, v in options.items() if k in PREPARE_OPTIONS}
-    return (tuple(os.path.abspath(os.fspath(p)) for p in paths), _frozen(prepare))
+    return (tuple(os.path.abspath(os.fspath(p)) for p in paths), prepare)
 
 
 def _frozen(value: Any) -> Any:

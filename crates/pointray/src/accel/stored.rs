@@ -16,14 +16,25 @@ use std::sync::Arc;
 use bytemuck::{AnyBitPattern, NoUninit};
 
 /// Bytes that stay where they are, unchanged, as long as their owner lives: a memory map, a
-/// buffer never resized.
+/// buffer never resized; or a file fetched by ranges as it is read (a scene file on an object
+/// store or HTTP server), whose bytes arrive where [`StableBytes::fetch`] is asked for them.
 ///
 /// # Safety
 /// Every call of [`StableBytes::bytes`] on one value returns the same slice (address and
-/// length), valid for as long as the value lives, and nothing writes to those bytes meanwhile.
+/// length), valid for as long as the value lives, and nothing writes to those bytes meanwhile,
+/// but `fetch`: it may fill bytes not fetched before, each once, from zero to their value, and
+/// returns once they hold it. Readers of fetched bytes ask for them first (`Bvh::from_stored`
+/// for the top, `Bvh::enter` for a treelet, the ids' check), each range once, behind a
+/// `OnceLock` that orders the fetch before every read.
 #[allow(unsafe_code)]
 pub unsafe trait StableBytes: Send + Sync {
     fn bytes(&self) -> &[u8];
+
+    /// Makes `ranges` of the bytes present before their first read; the problem where they
+    /// cannot be had. Bytes at hand (a map, a buffer) need nothing.
+    fn fetch(&self, _ranges: &[Range<usize>]) -> Result<(), String> {
+        Ok(())
+    }
 }
 
 /// An array of `T` that an accelerator reads: its own, or a range of shared bytes.
@@ -64,6 +75,24 @@ impl<T: AnyBitPattern> Stored<T> {
         })?;
         let (ptr, len) = (NonNull::from(elements).cast(), elements.len());
         Ok(Self { ptr, len, owner: Owner::Bytes(owner) })
+    }
+}
+
+impl<T> Stored<T> {
+    /// Where `elements` of this array lie in the bytes it borrows (none for its own), for
+    /// [`StableBytes::fetch`].
+    pub(crate) fn byte_range(&self, elements: Range<usize>) -> Option<Range<usize>> {
+        let Owner::Bytes(owner) = &self.owner else { return None };
+        let start = self.ptr.as_ptr() as usize - owner.bytes().as_ptr() as usize;
+        Some(start + elements.start * size_of::<T>()..start + elements.end * size_of::<T>())
+    }
+
+    /// The bytes this array borrows, if any.
+    pub(crate) fn owner(&self) -> Option<&Arc<dyn StableBytes>> {
+        match &self.owner {
+            Owner::Bytes(owner) => Some(owner),
+            Owner::Vec(_) => None,
+        }
     }
 }
 

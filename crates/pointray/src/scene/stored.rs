@@ -129,19 +129,28 @@ pub enum StoredSceneError {
     Meta(String),
 }
 
-/// The ids' CRCs (a part's each), checked once, when a query first names a point.
+/// The ids' CRCs (a part's each), checked once, when a query first names a point (the ids
+/// fetched first where the file's bytes arrive as read).
 pub(super) struct IdsCheck {
     crcs: Vec<u32>,
-    whole: OnceLock<bool>,
+    whole: OnceLock<Result<(), String>>,
 }
 
 impl IdsCheck {
     pub(super) fn check(&self, ids: &[Stored<u32>]) -> Result<(), super::RenderError> {
-        let whole = *self.whole.get_or_init(|| {
-            ids.len() == self.crcs.len()
-                && ids.iter().zip(&self.crcs).all(|(ids, &crc)| crc32fast::hash(ids.as_bytes()) == crc)
+        let whole = self.whole.get_or_init(|| {
+            for ids in ids {
+                if let (Some(bytes), Some(range)) = (ids.owner(), ids.byte_range(0..ids.len())) {
+                    bytes
+                        .fetch(std::slice::from_ref(&range))
+                        .map_err(|e| format!("the ids array could not be read: {e}"))?;
+                }
+            }
+            let crcs_hold = ids.len() == self.crcs.len()
+                && ids.iter().zip(&self.crcs).all(|(ids, &crc)| crc32fast::hash(ids.as_bytes()) == crc);
+            if crcs_hold { Ok(()) } else { Err("the ids array is damaged (CRC mismatch)".into()) }
         });
-        if whole { Ok(()) } else { Err(super::RenderError::Damaged("the ids array (CRC mismatch)".into())) }
+        whole.clone().map_err(super::RenderError::Stored)
     }
 }
 

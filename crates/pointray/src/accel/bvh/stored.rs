@@ -115,6 +115,7 @@ impl Bvh {
         ranges: [Range<usize>; 6],
     ) -> Result<Bvh, BvhStoredError> {
         let [nodes, lod, blocks, representatives, aggregates, treelets] = ranges;
+        fetch_top(&*bytes, &meta, [&nodes, &lod, &representatives, &aggregates], &treelets)?;
         let array = |i: usize, e: StoredError| BvhStoredError::Array { array: ARRAYS[i], source: e };
         let nodes = Stored::<Node>::from_bytes(Arc::clone(&bytes), nodes).map_err(|e| array(0, e))?;
         let lod = Stored::<NodeLod>::from_bytes(Arc::clone(&bytes), lod).map_err(|e| array(1, e))?;
@@ -149,6 +150,23 @@ impl Bvh {
         bvh.lazy = Some(Arc::new(bvh.lazy_checks().map_err(BvhStoredError::Structure)?));
         Ok(bvh)
     }
+}
+
+/// Has `bytes` fetch what opening reads (`StableBytes::fetch`): the treelet table and the
+/// top's nodes, spheres, representatives and aggregates, the first `top_nodes` of each array.
+fn fetch_top(
+    bytes: &dyn StableBytes,
+    meta: &BvhMeta,
+    node_arrays: [&Range<usize>; 4],
+    treelets: &Range<usize>,
+) -> Result<(), BvhStoredError> {
+    let sizes = [size_of::<Node>(), size_of::<NodeLod>(), size_of::<SplatBlock>(), size_of::<NodeAggregate>()];
+    let top = |(range, size): (&Range<usize>, usize)| {
+        range.start..range.end.min(range.start.saturating_add(meta.top_nodes.saturating_mul(size)))
+    };
+    let mut ranges: Vec<Range<usize>> = node_arrays.into_iter().zip(sizes).map(top).collect();
+    ranges.push(treelets.clone());
+    bytes.fetch(&ranges).map_err(|e| BvhStoredError::Structure(format!("its top could not be read: {e}")))
 }
 
 fn node_bytes(nodes: Cow<'_, [Node]>) -> Cow<'_, [u8]> {

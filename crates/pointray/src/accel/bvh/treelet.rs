@@ -236,6 +236,7 @@ impl Bvh {
     /// A treelet's CRC and structure: its nodes' children lie after them within it, its leaves
     /// within its blocks, no deeper than the walks' stacks allow from `depth`, its root's.
     fn check_treelet(&self, t: &Treelet, depth: u8) -> Result<(), String> {
+        self.fetch_treelet(t).map_err(|e| format!("could not be read: {e}"))?;
         if self.treelet_crc(t) != t.crc {
             return Err("damaged (CRC mismatch)".into());
         }
@@ -275,6 +276,21 @@ impl Bvh {
             }
         }
         Ok(())
+    }
+
+    /// Has the bytes under the tree fetch treelet `t`'s ranges, where they arrive as read
+    /// (`StableBytes::fetch`): one request for its five runs.
+    fn fetch_treelet(&self, t: &Treelet) -> Result<(), String> {
+        let Some(bytes) = self.nodes.owner() else { return Ok(()) };
+        let (nodes, blocks) = (t.node_range(), t.block_range());
+        let ranges = [
+            self.nodes.byte_range(nodes.clone()),
+            self.lod.byte_range(nodes.clone()),
+            self.representatives.byte_range(nodes.clone()),
+            self.aggregates.byte_range(nodes),
+            self.blocks.byte_range(blocks),
+        ];
+        bytes.fetch(&ranges.into_iter().flatten().collect::<Vec<_>>())
     }
 
     /// The CRC a scene file keeps of treelet `t`.
