@@ -2,8 +2,9 @@
 //! package's fsspec reader), fetched by ranges as the scene reads it: opening fetches the
 //! header, index, metadata and the tree's top, a view the treelets it enters, a query the ids
 //! (`StableBytes::fetch`; `docs/prs.md`). What arrives is written into a sparse temporary file
-//! as long as the source, mapped as a local scene file is, so that the traversal reads it as it
-//! reads any (the kernel may drop its pages and read them back from the temporary file).
+//! (in `TMPDIR`) as long as the source, mapped as a local scene file is, so that the traversal
+//! reads it as it reads any: on a disk the kernel may drop its pages and read them back; on a
+//! tmpfs they stay in memory.
 
 use std::fs::File;
 use std::ops::Range;
@@ -80,8 +81,10 @@ impl FetchedFile {
 // truncated (the file is this value's own, unnamed). The one writer is `fetch`, which writes
 // only bytes it claimed under the lock, which no fetch claimed before (each byte is written
 // once, from the zero of the file's hole to the source's value), and returns once every byte
-// asked for is present; the readers ask for bytes before reading them, each range once, behind
-// the `OnceLock` of a treelet or of the ids (`StableBytes`), so no read meets a write.
+// asked for is present. Readers ask for bytes before they read them and read them only once
+// the fetch returned: the top at open (`Bvh::from_stored`), a treelet behind the `OnceLock` of
+// its check, which runs after its fetch (`Bvh::enter`), the ids behind theirs, a scene stored
+// again after every treelet's and the ids' checks (`Scene::stored`); so no read meets a write.
 #[allow(unsafe_code)]
 unsafe impl StableBytes for FetchedFile {
     fn bytes(&self) -> &[u8] {
@@ -113,7 +116,9 @@ unsafe impl StableBytes for FetchedFile {
             };
             mine.iter().for_each(|r| state.claimed.insert(r.clone()));
             drop(state);
-            let result = self.read_into(&mine);
+            // A reader that panics must not leave its claim for others to wait on forever.
+            let read = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| self.read_into(&mine)));
+            let result = read.unwrap_or_else(|_| Err("the reader panicked".into()));
             let mut state = self.lock();
             for r in &mine {
                 match result {
@@ -158,6 +163,9 @@ impl RangeSet {
     }
 
     fn remove(&mut self, r: Range<u64>) {
+        if r.is_empty() {
+            return;
+        }
         let first = self.0.partition_point(|s| s.end <= r.start);
         let last = self.0.partition_point(|s| s.start < r.end);
         if first >= last {

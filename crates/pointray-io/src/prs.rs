@@ -342,49 +342,53 @@ mod tests {
         assert!(err.is_err_and(|e| e.to_string().contains("ids")));
     }
 
-    /// A scene file's bytes read by ranges from memory, as a remote store would serve them,
-    /// counting what is asked for; `fail_after` requests fail past that many.
+    /// A scene file's bytes served by ranges from memory, as a remote store would serve them:
+    /// the ranges asked for recorded, and every request failing while `down`.
+    #[derive(Clone, Default)]
     struct Served {
         bytes: Arc<Vec<u8>>,
-        asked: Arc<std::sync::atomic::AtomicU64>,
-        requests: Arc<std::sync::atomic::AtomicUsize>,
-        fail_after: usize,
+        asked: Arc<std::sync::Mutex<Vec<std::ops::Range<u64>>>>,
+        down: Arc<std::sync::atomic::AtomicBool>,
     }
 
     impl RangeReader for Served {
         fn read(&self, ranges: &[std::ops::Range<u64>]) -> Result<Vec<Vec<u8>>, String> {
-            use std::sync::atomic::Ordering::Relaxed;
-            if self.requests.fetch_add(1, Relaxed) >= self.fail_after {
+            if self.down.load(std::sync::atomic::Ordering::Relaxed) {
                 return Err("503 Service Unavailable".into());
             }
-            let bytes = ranges.iter().map(|r| self.bytes[r.start as usize..r.end as usize].to_vec());
-            self.asked.fetch_add(ranges.iter().map(|r| r.end - r.start).sum(), Relaxed);
-            Ok(bytes.collect())
+            self.asked.lock().unwrap().extend_from_slice(ranges);
+            Ok(ranges.iter().map(|r| self.bytes[r.start as usize..r.end as usize].to_vec()).collect())
         }
     }
 
-    type Counter<T> = Arc<T>;
+    impl Served {
+        fn set_down(&self, down: bool) {
+            self.down.store(down, std::sync::atomic::Ordering::Relaxed);
+        }
 
-    /// The scene file `bytes` opened through a [`Served`] reader; the bytes and requests it asked for.
-    fn fetched(
-        bytes: &Arc<Vec<u8>>,
-        fail_after: usize,
-    ) -> (Result<Scene, IoError>, Counter<std::sync::atomic::AtomicU64>, Counter<std::sync::atomic::AtomicUsize>) {
-        let (asked, requests) = (Counter::default(), Counter::default());
-        let reader =
-            Served { bytes: Arc::clone(bytes), asked: Arc::clone(&asked), requests: Arc::clone(&requests), fail_after };
-        // Fetched a page at a time: the file is small beside a 64 kB grain.
-        let stored = open_in_grains("https://example.org/parts.prs", bytes.len() as u64, Box::new(reader), PAGE as u64);
-        let parts = stored.map(|stored| pointray::SceneParts { stored: Some(stored), ..Default::default() });
-        (parts.map(|parts| Scene::build(parts, &Settings::default()).expect("a checked scene builds")), asked, requests)
+        /// The bytes asked for so far, checking that no byte was asked for twice.
+        fn asked_once(&self) -> u64 {
+            let mut asked = self.asked.lock().unwrap().clone();
+            asked.sort_by_key(|r| r.start);
+            assert!(asked.windows(2).all(|w| w[0].end <= w[1].start), "a byte fetched twice");
+            asked.iter().map(|r| r.end - r.start).sum()
+        }
+
+        /// The scene this file is, fetched a page at a time (small beside a 64 kB grain).
+        fn open(&self) -> Result<Scene, IoError> {
+            let name = "https://example.org/parts.prs";
+            let stored = open_in_grains(name, self.bytes.len() as u64, Box::new(self.clone()), PAGE as u64)?;
+            let parts = pointray::SceneParts { stored: Some(stored), ..Default::default() };
+            Ok(Scene::build(parts, &Settings::default()).expect("a checked scene builds"))
+        }
     }
 
     /// Fetched by ranges (an object store, an HTTP server), a scene file opens with its top
     /// alone, a distant view reads a few treelets, and every render and query is the mapped
-    /// file's; what cannot be fetched fails the render or the open, naming the file.
+    /// file's, no byte fetched twice; what cannot be fetched fails the open, or the render, which
+    /// is whole again once the source answers.
     #[test]
     fn a_scene_file_fetched_by_ranges_is_the_mapped_one_read_as_needed() {
-        use std::sync::atomic::Ordering::Relaxed;
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("parts.prs");
         let mut cloud = pointray::demo::demo_cloud(40_000, 9);
@@ -392,34 +396,41 @@ mod tests {
         let limits = pointray::scene::BuildLimits { chunk_splats: 5_000, part_splats: 20_000 };
         let scene = Scene::build_with_limits(pointray::demo::demo_scene_parts(cloud), &Settings::default(), limits);
         write_prs(&path, &scene.unwrap()).unwrap();
-        let bytes = Arc::new(std::fs::read(&path).unwrap());
-        let (mapped, (remote, asked, requests)) = (opened(&path).unwrap(), fetched(&bytes, usize::MAX));
-        let (remote, opening) = (remote.unwrap(), requests.load(Relaxed));
-        let (file, at_open) = (bytes.len() as u64, asked.load(Relaxed));
+        let served = Served { bytes: Arc::new(std::fs::read(&path).unwrap()), ..Served::default() };
+        let (mapped, remote) = (opened(&path).unwrap(), served.open().unwrap());
+        let (file, at_open) = (served.bytes.len() as u64, served.asked_once());
         assert!(at_open < file / 4, "opening fetched {at_open} of {file} bytes");
         let far = Settings { width: 24, height: 24, distance: Some(5.0), ..Settings::default() };
         assert_eq!(image_with(&remote, &far), image_with(&mapped, &far));
-        let after_far = asked.load(Relaxed);
+        let after_far = served.asked_once();
         // Some treelets, not all (here 173 kB at open, 497 kB of 1.6 MB after the view).
         assert!(after_far > at_open && after_far < file / 2, "a far view fetched {after_far} of {file}");
+        // The source down midway: the render fails, naming what it could not read; back up,
+        // the next render fetches what failed.
         let close = Settings { width: 48, height: 40, lod_threshold: 0.0, ..Settings::default() };
+        served.set_down(true);
+        let err = render(&remote, &close).unwrap_err().to_string();
+        assert!(err.contains("could not be read: 503"), "{err}");
+        served.set_down(false);
         assert_eq!(image_with(&remote, &close), image_with(&mapped, &close));
         let center = mapped.origin() + mapped.bounds().center().as_dvec3();
         let rays = [(center + glam::DVec3::Y * 10.0, -glam::Vec3::Y), (center + glam::DVec3::X * 10.0, -glam::Vec3::X)];
         let hits = remote.intersect(&rays, &Settings::default()).unwrap();
         assert!(hits.iter().flatten().count() == 2);
         assert_eq!(hits, mapped.intersect(&rays, &Settings::default()).unwrap());
-        assert!(asked.load(Relaxed) <= file, "no byte fetched twice");
-
-        // The source failing: at open, and below the top when a render first reads there.
-        let (scene, ..) = fetched(&bytes, 0);
-        let err = scene.err().expect("refused").to_string();
+        assert!(served.asked_once() > after_far);
+        // Stored again straight after its open, it is fetched whole first: the same file.
+        let again = Served { bytes: Arc::clone(&served.bytes), ..Served::default() };
+        write_prs(&dir.path().join("again.prs"), &again.open().unwrap()).unwrap();
+        assert!(std::fs::read(dir.path().join("again.prs")).unwrap() == *served.bytes, "the file, byte for byte");
+        assert_eq!(again.asked_once(), file);
+        // Down at open; not a scene file.
+        let down = Served { bytes: Arc::clone(&served.bytes), ..Served::default() };
+        down.set_down(true);
+        let err = down.open().err().expect("refused").to_string();
         assert!(err.contains("https://example.org/parts.prs") && err.contains("503"), "{err}");
-        let (scene, ..) = fetched(&bytes, opening);
-        let err = render(&scene.expect("the top fetched"), &close).unwrap_err().to_string();
-        assert!(err.contains("could not be read: 503"), "{err}");
-        let (scene, ..) = fetched(&Arc::new(b"ply\nformat ascii 1.0\n".repeat(8)), usize::MAX);
-        let err = scene.err().expect("refused").to_string();
+        let foreign = Served { bytes: Arc::new(b"ply\nformat ascii 1.0\n".repeat(8)), ..Served::default() };
+        let err = foreign.open().err().expect("refused").to_string();
         assert!(err.contains("not a pointray scene file"), "{err}");
     }
 

@@ -1,6 +1,7 @@
 //! MP4 video (H.264) from rendered frames, through ffmpeg (Debian's package; `$POINTRAY_FFMPEG`
 //! names another): fed 8-bit sRGB frames on its standard input as they come, and written whole
-//! or not at all (into a temporary file beside the output, renamed when ffmpeg succeeds).
+//! or not at all (into a scratch directory beside the output, which an error, a drop or an
+//! interrupt removes, renamed into place when ffmpeg succeeds).
 
 use std::io::{Read, Seek, Write};
 use std::path::{Path, PathBuf};
@@ -27,8 +28,8 @@ pub struct Mp4Writer {
     stdin: Option<ChildStdin>,
     /// ffmpeg's messages (a file, not a pipe: a full pipe would stall it while we write).
     messages: std::fs::File,
-    /// Where ffmpeg writes, renamed to `output` at the end (removed if dropped before).
-    partial: Option<tempfile::TempPath>,
+    /// Where ffmpeg writes (`video.mp4` in it), renamed to `output` at the end.
+    scratch: crate::ScratchDir,
 }
 
 impl Mp4Writer {
@@ -39,24 +40,23 @@ impl Mp4Writer {
         if !(fps.is_finite() && fps > 0.0) || width == 0 || height == 0 {
             return Err(IoError::invalid(output, format!("a video of {width}×{height} at {fps} frames a second")));
         }
-        let folder = output.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        let partial = tempfile::Builder::new().suffix(".mp4").tempfile_in(folder).map_err(fail)?.into_temp_path();
+        let scratch = crate::ScratchDir::beside(output)?;
         let messages = tempfile::tempfile().map_err(fail)?;
         let mut child = Command::new(program)
             .args(["-hide_banner", "-loglevel", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb24"])
             .args(["-s", &format!("{width}x{height}"), "-framerate", &fps.to_string(), "-i", "-"])
             // H.264 in 4:2:0 wants even sizes: an odd frame gets a last row or column.
             .args(["-vf", "pad=ceil(iw/2)*2:ceil(ih/2)*2", "-c:v", "libx264", "-pix_fmt", "yuv420p", "-f", "mp4"])
-            .arg(&partial)
+            .arg(scratch.path().join("video.mp4"))
             .stdin(Stdio::piped())
             .stdout(Stdio::null())
             .stderr(messages.try_clone().map_err(fail)?)
             .spawn()
-            .map_err(|e| IoError::invalid(output, format!("{program}: {e}")))?;
+            .map_err(|e| IoError::io(output, std::io::Error::new(e.kind(), format!("{program}: {e}"))))?;
         let stdin = child.stdin.take();
         let (output, program) = (output.to_path_buf(), program.to_string());
         let frame_bytes = width as usize * height as usize * 3;
-        Ok(Self { output, program, frame_bytes, child, stdin, messages, partial: Some(partial) })
+        Ok(Self { output, program, frame_bytes, child, stdin, messages, scratch })
     }
 
     /// Adds a frame: 8-bit sRGB, row-major, top row first (`Frame::srgb8`).
@@ -68,7 +68,9 @@ impl Mp4Writer {
                 format!("a frame of {len} bytes where the video's take {want}"),
             ));
         }
-        let stdin = self.stdin.as_mut().expect("open until finish");
+        let Some(stdin) = self.stdin.as_mut() else {
+            return Err(IoError::invalid(&self.output, format!("{} stopped before", self.program)));
+        };
         match stdin.write_all(srgb8) {
             Ok(()) => Ok(()),
             // ffmpeg stopped: its own words say why.
@@ -83,8 +85,9 @@ impl Mp4Writer {
         if !status.success() {
             return Err(self.failure());
         }
-        let partial = self.partial.take().expect("kept until finish");
-        partial.persist(&self.output).map_err(|e| IoError::io(&self.output, e.error))
+        let video = self.scratch.path().join("video.mp4");
+        let synced = std::fs::File::open(&video).and_then(|f| f.sync_all());
+        synced.and_then(|()| std::fs::rename(&video, &self.output)).map_err(|e| IoError::io(&self.output, e))
     }
 
     /// Why ffmpeg failed, once it has ended.
@@ -119,11 +122,15 @@ mod tests {
         let out = dir.path().join("v.mp4");
         let refused = Mp4Writer::create("false", &out, 4, 4, 0.0).err().expect("refused").to_string();
         assert!(refused.contains("frames a second"), "{refused}");
+        let missing = Mp4Writer::create("/nonexistent/ffmpeg", &out, 4, 4, 24.0).err().expect("refused");
+        assert!(matches!(&missing, IoError::Io { io, .. } if io.kind() == std::io::ErrorKind::NotFound), "{missing}");
         let mut failing = Mp4Writer::create("false", &out, 5, 3, 24.0).unwrap();
         let frame = vec![128; 5 * 3 * 3];
         let err = match (0..64).try_for_each(|_| failing.push(&frame)) {
             Ok(()) => failing.finish().unwrap_err(),
             Err(e) => {
+                let again = failing.push(&frame).unwrap_err().to_string();
+                assert!(again.contains("stopped before"), "{again}");
                 drop(failing);
                 e
             }

@@ -266,7 +266,9 @@ impl Scene {
     #[pyo3(signature = (**options))]
     fn camera_rays<'py>(&self, py: Python<'py>, options: Option<&Bound<'py, PyDict>>) -> PyResult<Rays<'py>> {
         let settings = with_options(&self.settings, options)?;
-        let job = self.inner.job(&settings).map_err(value_error)?;
+        // Without the GIL: the job's probes may fetch parts of a scene file at a URL, through
+        // Python on another thread.
+        let job = py.detach(|| self.inner.job(&settings)).map_err(value_error)?;
         let (w, h) = (settings.width as usize, settings.height as usize);
         let (mut origins, mut directions) = (Vec::with_capacity(w * h * 3), Vec::with_capacity(w * h * 3));
         for y in 0..settings.height {
@@ -536,7 +538,8 @@ fn render_frame(py: Python<'_>, source: &Bound<'_, PyAny>, options: Option<&Boun
             (&prepared, prepared.settings.clone())
         }
     };
-    let job = scene.inner.job(&settings).map_err(value_error)?;
+    // Without the GIL, as `camera_rays`.
+    let job = py.detach(|| scene.inner.job(&settings)).map_err(value_error)?;
     let pool = run.pool()?;
     let (done, total) = (AtomicU64::new(0), job.config.region.pixel_count());
     let count = |n: u64| {
@@ -592,6 +595,8 @@ struct VideoWriter {
     /// Started by the first frame, which sets the size.
     writer: Option<Mp4Writer>,
     size: Option<(usize, usize)>,
+    /// Closed (the video in place, or dropped after an error): no more frames.
+    closed: bool,
 }
 
 #[pymethods]
@@ -605,11 +610,14 @@ impl VideoWriter {
         let tone = tone_map(tonemap, exposure)?;
         let program = pointray_io::video::ffmpeg()
             .ok_or_else(|| PyOSError::new_err(format!("{}: {}", path.display(), pointray_io::video::NO_FFMPEG)))?;
-        Ok(Self { path, program, fps, tone, writer: None, size: None })
+        Ok(Self { path, program, fps, tone, writer: None, size: None, closed: false })
     }
 
     /// Adds a frame: linear RGB, H×W×3, every frame the first's size.
     fn write(&mut self, py: Python<'_>, image: PyArrayLike3<'_, f32, AllowTypeChange>) -> PyResult<()> {
+        if self.closed {
+            return Err(PyValueError::new_err(format!("{}: the video is closed", self.path.display())));
+        }
         let image = image.as_array();
         let (h, w, c) = image.dim();
         if c != 3 || self.size.is_some_and(|size| size != (w, h)) {
@@ -623,15 +631,19 @@ impl VideoWriter {
             let writer = py.detach(|| Mp4Writer::create(program, path, w as u32, h as u32, fps)).map_err(io_error)?;
             (self.writer, self.size) = (Some(writer), Some((w, h)));
         }
-        let writer = self.writer.as_mut().ok_or_else(|| PyValueError::new_err("the video is closed"))?;
+        let writer = self.writer.as_mut().expect("started above");
         py.detach(|| writer.push(&srgb8)).map_err(io_error)
     }
 
-    /// Ends the video and puts it in place (no frames: no video, an error).
+    /// Ends the video and puts it in place (no frames: no video, an error). Closing again
+    /// does nothing.
     fn close(&mut self, py: Python<'_>) -> PyResult<()> {
-        match self.writer.take() {
+        let writer = self.writer.take();
+        if std::mem::replace(&mut self.closed, true) {
+            return Ok(());
+        }
+        match writer {
             Some(writer) => py.detach(|| writer.finish()).map_err(io_error),
-            None if self.size.is_some() => Ok(()),
             None => Err(PyValueError::new_err(format!("{}: no frames written", self.path.display()))),
         }
     }
@@ -649,7 +661,7 @@ impl VideoWriter {
         _traceback: Option<Bound<'_, PyAny>>,
     ) -> PyResult<bool> {
         if error.is_some_and(|e| !e.is_none()) {
-            self.writer = None;
+            (self.writer, self.closed) = (None, true);
             return Ok(false);
         }
         self.close(py).map(|()| false)

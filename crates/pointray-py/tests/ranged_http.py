@@ -1,5 +1,6 @@
 """A local HTTP server for the tests of scene files at URLs: it serves a directory, answers
-range requests (as object stores and web servers do) and counts the bytes it sent."""
+range requests (as object stores and web servers do), records the ranges it sent, and can
+answer 503 to everything for a while."""
 
 import http.server
 import os
@@ -17,6 +18,9 @@ class _Handler(http.server.SimpleHTTPRequestHandler):
         pass
 
     def send_head(self):
+        if self.server.down:
+            self.send_error(503, "down")
+            return None
         path = self.translate_path(self.path)
         if not os.path.isfile(path):
             self.send_error(404, "not found")
@@ -36,7 +40,8 @@ class _Handler(http.server.SimpleHTTPRequestHandler):
         with open(path, "rb") as f:
             f.seek(start)
             body = f.read(end - start)
-        self.server.sent += len(body)
+        with self.server.lock:
+            self.server.ranges.append((start, start + len(body)))
         return _Body(body)
 
 
@@ -62,18 +67,31 @@ class _Server(http.server.ThreadingHTTPServer):
 
 
 class RangedServer:
-    """``with RangedServer(directory) as server``: ``server.url(name)``, ``server.sent``."""
+    """``with RangedServer(directory) as server``: ``server.url(name)``, ``server.sent``, ..."""
 
     def __init__(self, directory):
         self.httpd = _Server(("127.0.0.1", 0), partial(_Handler, directory=str(directory)))
-        self.httpd.sent = 0
+        self.httpd.ranges, self.httpd.lock, self.httpd.down = [], threading.Lock(), False
 
     def url(self, name):
         return f"http://127.0.0.1:{self.httpd.server_address[1]}/{name}"
 
     @property
     def sent(self):
-        return self.httpd.sent
+        """Bytes sent so far."""
+        with self.httpd.lock:
+            return sum(end - start for start, end in self.httpd.ranges)
+
+    def sent_once(self):
+        """Bytes sent so far, checking that no byte of the file was sent twice."""
+        with self.httpd.lock:
+            ranges = sorted(self.httpd.ranges)
+        assert all(a[1] <= b[0] for a, b in zip(ranges, ranges[1:])), "a byte sent twice"
+        return self.sent
+
+    def set_down(self, down):
+        """Every request answered 503 while down."""
+        self.httpd.down = down
 
     def __enter__(self):
         threading.Thread(target=self.httpd.serve_forever, daemon=True).start()

@@ -196,7 +196,7 @@ def test_workers_read_a_scene_file_at_a_url_by_ranges(client, sphere_file, tmp_p
     with RangedServer(tmp_path) as server:
         image = pointray.dask.render(client, server.url("sphere.prs"), tile=48, **options)
         assert np.array_equal(image, expected)
-        # Each worker fetched what its tiles read, once: at most the file each.
+        # Each worker fetched what its tiles read: at most the file each.
         assert 0 < server.sent <= 2 * (tmp_path / "sphere.prs").stat().st_size
         with pytest.raises(OSError, match=r"2 of the workers: worker tcp://.*nowhere\.prs"):
             pointray.dask.render(client, server.url("nowhere.prs"), width=32, height=32)

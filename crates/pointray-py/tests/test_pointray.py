@@ -330,6 +330,9 @@ def test_frames_become_a_video_whole_or_not_at_all(tmp_path, sphere_file, monkey
         for view in views:
             video.write(pointray.render(scene, width=33, height=24, **view))
     assert video_frames(out / "turn.mp4") == (3, (34, 24)), "odd sizes padded to even"
+    with pytest.raises(ValueError, match="closed"):
+        video.write(np.zeros((24, 33, 3), dtype=np.float32))
+    video.close()
     # An error inside the writer's block, or a frame of another size: no video.
     with pytest.raises(ZeroDivisionError), pointray.VideoWriter(out / "broken.mp4") as video:
         video.write(np.zeros((24, 33, 3), dtype=np.float32))

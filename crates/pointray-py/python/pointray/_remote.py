@@ -1,7 +1,9 @@
 """Scene files at URLs: an object store (``s3://``, ``gs://``, ``az://``, with fsspec's
 packages for them: s3fs, gcsfs, adlfs) or an HTTP server (``https://``; it must answer range
-requests), read by ranges as a render reads them. ``pointray.prepare(url)`` and every function
-taking a source take one; credentials are fsspec's, from the environment.
+requests), read by ranges as a render reads them; fsspec's chained URLs
+(``simplecache::s3://...``) too. ``pointray.prepare(url)``, the renders and ``pointray.dask``
+take one as their source (a scene file's, not a cloud file's); credentials are fsspec's, from
+the environment.
 """
 
 from __future__ import annotations
@@ -9,7 +11,8 @@ from __future__ import annotations
 import re
 from typing import Any, Callable, List, Sequence, Tuple
 
-_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]+://")
+# Two letters at least: "C://" is a Windows path.
+_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]+(://|::)")
 
 
 def is_url(source: Any) -> bool:

@@ -126,6 +126,9 @@ def render_frames(
             raise ValueError(f"frames: {', '.join(changed)} change the scene's build; give them once, for all frames")
     key = _scene_key(source, options)
     _open_everywhere(client, key)
+    # The video before the tasks: without ffmpeg, nothing is rendered for nothing.
+    tone = {k: options[k] for k in ("tonemap", "exposure") if k in options}
+    video = None if output is None else pointray.VideoWriter(output, fps=fps, **tone)
     token = os.urandom(6).hex()
     size = {"width": width, "height": height}
     futures = [
@@ -133,9 +136,8 @@ def render_frames(
         for i, (own, camera) in enumerate(shots)
     ]
     index = {f.key: i for i, f in enumerate(futures)}
-    if output is not None:
-        tone = {k: options[k] for k in ("tonemap", "exposure") if k in options}
-        with pointray.VideoWriter(output, fps=fps, **tone) as video:
+    if video is not None:
+        with video:
             _gather(client, futures, _in_order(video.write, index), progress, len(futures), "frames")
         return None
     done: List[Optional[np.ndarray]] = [None] * len(futures)
@@ -200,7 +202,9 @@ def _scene_key(source: Union[Path, Sequence[Path]], options: Dict[str, Any]) -> 
     """What names a scene on a worker: its files' absolute paths (or its URL) and its prepare
     options (hashable)."""
     if isinstance(source, (pointray.Cloud, pointray.Scene)):
-        raise TypeError("source: a Dask render opens its source on the workers; give a path every worker can read")
+        raise TypeError(
+            "source: a Dask render opens its source on the workers; give a path every worker can read, or a URL"
+        )
     prepare = _frozen({k: v for k, v in options.items() if k in PREPARE_OPTIONS})
     if is_url(source):
         return ((source,), prepare)

@@ -24,8 +24,8 @@ use bytemuck::{AnyBitPattern, NoUninit};
 /// length), valid for as long as the value lives, and nothing writes to those bytes meanwhile,
 /// but `fetch`: it may fill bytes not fetched before, each once, from zero to their value, and
 /// returns once they hold it. Readers of fetched bytes ask for them first (`Bvh::from_stored`
-/// for the top, `Bvh::enter` for a treelet, the ids' check), each range once, behind a
-/// `OnceLock` that orders the fetch before every read.
+/// for the top, `Bvh::enter` for a treelet, the ids' check, `Scene::stored` for everything),
+/// behind a `OnceLock` that orders the fetch before every read.
 #[allow(unsafe_code)]
 pub unsafe trait StableBytes: Send + Sync {
     fn bytes(&self) -> &[u8];

@@ -127,31 +127,43 @@ pub enum StoredSceneError {
     TooLarge(#[from] crate::accel::bvh::TooLarge),
     #[error("{0}")]
     Meta(String),
+    /// A stored scene stored again, read whole: a part of it failed its check or its fetch.
+    #[error("the scene file it was opened from: {0}")]
+    Unread(String),
 }
 
 /// The ids' CRCs (a part's each), checked once, when a query first names a point (the ids
-/// fetched first where the file's bytes arrive as read).
+/// fetched first where the file's bytes arrive as read: a failed fetch fails that query alone).
 pub(super) struct IdsCheck {
     crcs: Vec<u32>,
-    whole: OnceLock<Result<(), String>>,
+    whole: OnceLock<bool>,
 }
+
+/// The most bytes of ids asked for at once, where they are fetched.
+const IDS_FETCH: usize = 64 << 20;
 
 impl IdsCheck {
     pub(super) fn check(&self, ids: &[Stored<u32>]) -> Result<(), super::RenderError> {
-        let whole = self.whole.get_or_init(|| {
-            for ids in ids {
-                if let (Some(bytes), Some(range)) = (ids.owner(), ids.byte_range(0..ids.len())) {
-                    bytes
-                        .fetch(std::slice::from_ref(&range))
-                        .map_err(|e| format!("the ids array could not be read: {e}"))?;
-                }
-            }
-            let crcs_hold = ids.len() == self.crcs.len()
-                && ids.iter().zip(&self.crcs).all(|(ids, &crc)| crc32fast::hash(ids.as_bytes()) == crc);
-            if crcs_hold { Ok(()) } else { Err("the ids array is damaged (CRC mismatch)".into()) }
+        if self.whole.get().is_none() {
+            ids.iter()
+                .try_for_each(fetch_ids)
+                .map_err(|e| super::RenderError::Stored(format!("the ids array could not be read: {e}")))?;
+        }
+        let whole = *self.whole.get_or_init(|| {
+            ids.len() == self.crcs.len()
+                && ids.iter().zip(&self.crcs).all(|(ids, &crc)| crc32fast::hash(ids.as_bytes()) == crc)
         });
-        whole.clone().map_err(super::RenderError::Stored)
+        let damaged = || super::RenderError::Stored("the ids array is damaged (CRC mismatch)".into());
+        whole.then_some(()).ok_or_else(damaged)
     }
+}
+
+/// A part's ids fetched, where its file's bytes are, a few megabytes at a time.
+fn fetch_ids(ids: &Stored<u32>) -> Result<(), String> {
+    let (Some(bytes), Some(all)) = (ids.owner(), ids.byte_range(0..ids.len())) else { return Ok(()) };
+    (all.start..all.end)
+        .step_by(IDS_FETCH)
+        .try_for_each(|at| bytes.fetch(std::slice::from_ref(&(at..(at + IDS_FETCH).min(all.end)))))
 }
 
 /// A stored scene, checked as far as opening checks it (see [`Scene::from_stored`]): what
@@ -277,6 +289,14 @@ impl Scene {
         }
         if matches!(self.environment, Some(Environment::Map { .. })) {
             return Err(StoredSceneError::EnvironmentMap);
+        }
+        // Stored again, a stored scene is read whole: every treelet and the ids checked first, and
+        // fetched where its file is fetched by ranges (which holds only what was read so far).
+        for (bvh, _) in &bvhs {
+            bvh.check_all().map_err(StoredSceneError::Unread)?;
+        }
+        if let Some(check) = &self.stored {
+            check.check(&self.ids).map_err(|e| StoredSceneError::Unread(e.to_string()))?;
         }
         let (mut arrays, mut parts) = (Vec::new(), Vec::new());
         for ((bvh, offset), ids) in bvhs.into_iter().zip(&self.ids) {
