@@ -79,10 +79,11 @@ impl FetchedFile {
 
 // SAFETY: `bytes` is the map of `file` made in `new`, which is never remapped, resized or
 // truncated (the file is this value's own, unnamed). The one writer is `fetch`, which writes
-// only bytes it claimed under the lock, which no fetch claimed before (each byte is written
-// once, from the zero of the file's hole to the source's value), and returns once every byte
-// asked for is present. Readers ask for bytes before they read them and read them only once
-// the fetch returned: the top at open (`Bvh::from_stored`), a treelet behind the `OnceLock` of
+// only bytes it holds the claim on (claims, taken under the lock, never overlap), marks them
+// present once written and never writes a present byte again; a failed fetch lets its claim
+// go, and the next writes those bytes anew, still unread. `fetch` returns once every byte asked
+// for is present. Readers ask for bytes before they read them and read them only once the
+// fetch returned: the top at open (`Bvh::from_stored`), a treelet behind the `OnceLock` of
 // its check, which runs after its fetch (`Bvh::enter`), the ids behind theirs, a scene stored
 // again after every treelet's and the ids' checks (`Scene::stored`); so no read meets a write.
 #[allow(unsafe_code)]

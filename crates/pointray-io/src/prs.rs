@@ -385,8 +385,8 @@ mod tests {
 
     /// Fetched by ranges (an object store, an HTTP server), a scene file opens with its top
     /// alone, a distant view reads a few treelets, and every render and query is the mapped
-    /// file's, no byte fetched twice; what cannot be fetched fails the open, or the render, which
-    /// is whole again once the source answers.
+    /// file's, no byte fetched twice; what cannot be fetched fails the open, or the render and
+    /// the scene's later renders, as damage does, until the file is opened again.
     #[test]
     fn a_scene_file_fetched_by_ranges_is_the_mapped_one_read_as_needed() {
         let dir = tempfile::tempdir().unwrap();
@@ -405,13 +405,7 @@ mod tests {
         let after_far = served.asked_once();
         // Some treelets, not all (here 173 kB at open, 497 kB of 1.6 MB after the view).
         assert!(after_far > at_open && after_far < file / 2, "a far view fetched {after_far} of {file}");
-        // The source down midway: the render fails, naming what it could not read; back up,
-        // the next render fetches what failed.
         let close = Settings { width: 48, height: 40, lod_threshold: 0.0, ..Settings::default() };
-        served.set_down(true);
-        let err = render(&remote, &close).unwrap_err().to_string();
-        assert!(err.contains("could not be read: 503"), "{err}");
-        served.set_down(false);
         assert_eq!(image_with(&remote, &close), image_with(&mapped, &close));
         let center = mapped.origin() + mapped.bounds().center().as_dvec3();
         let rays = [(center + glam::DVec3::Y * 10.0, -glam::Vec3::Y), (center + glam::DVec3::X * 10.0, -glam::Vec3::X)];
@@ -424,6 +418,17 @@ mod tests {
         write_prs(&dir.path().join("again.prs"), &again.open().unwrap()).unwrap();
         assert!(std::fs::read(dir.path().join("again.prs")).unwrap() == *served.bytes, "the file, byte for byte");
         assert_eq!(again.asked_once(), file);
+        // The source down midway: the render fails, naming what it could not read, and so does
+        // every later render of that scene (kept as damage); opened again, it is whole.
+        let midway = Served { bytes: Arc::clone(&served.bytes), ..Served::default() };
+        let scene = midway.open().unwrap();
+        midway.set_down(true);
+        let err = render(&scene, &close).unwrap_err().to_string();
+        assert!(err.contains("could not be read: 503"), "{err}");
+        midway.set_down(false);
+        let again = render(&scene, &close).unwrap_err().to_string();
+        assert!(again.contains("could not be read: 503"), "{again}");
+        assert_eq!(image_with(&midway.open().unwrap(), &close), image_with(&mapped, &close));
         // Down at open; not a scene file.
         let down = Served { bytes: Arc::clone(&served.bytes), ..Served::default() };
         down.set_down(true);

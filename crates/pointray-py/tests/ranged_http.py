@@ -1,6 +1,6 @@
 """A local HTTP server for the tests of scene files at URLs: it serves a directory, answers
 range requests (as object stores and web servers do), records the ranges it sent, and can
-answer 503 to everything for a while."""
+answer 503 for a while."""
 
 import http.server
 import os
@@ -18,7 +18,11 @@ class _Handler(http.server.SimpleHTTPRequestHandler):
         pass
 
     def send_head(self):
-        if self.server.down:
+        with self.server.lock:
+            failing = self.server.down or (self.command == "GET" and self.server.failures > 0)
+            if self.command == "GET" and self.server.failures > 0:
+                self.server.failures -= 1
+        if failing:
             self.send_error(503, "down")
             return None
         path = self.translate_path(self.path)
@@ -71,7 +75,7 @@ class RangedServer:
 
     def __init__(self, directory):
         self.httpd = _Server(("127.0.0.1", 0), partial(_Handler, directory=str(directory)))
-        self.httpd.ranges, self.httpd.lock, self.httpd.down = [], threading.Lock(), False
+        self.httpd.ranges, self.httpd.lock, self.httpd.down, self.httpd.failures = [], threading.Lock(), False, 0
 
     def url(self, name):
         return f"http://127.0.0.1:{self.httpd.server_address[1]}/{name}"
@@ -92,6 +96,16 @@ class RangedServer:
     def set_down(self, down):
         """Every request answered 503 while down."""
         self.httpd.down = down
+
+    def fail_next(self, requests):
+        """The next `requests` GET requests answered 503."""
+        with self.httpd.lock:
+            self.httpd.failures = requests
+
+    def forget(self):
+        """Forgets the ranges sent so far."""
+        with self.httpd.lock:
+            self.httpd.ranges.clear()
 
     def __enter__(self):
         threading.Thread(target=self.httpd.serve_forever, daemon=True).start()

@@ -186,11 +186,13 @@ def test_a_source_a_worker_cannot_read_is_named_with_the_worker(client, tmp_path
         pointray.dask.render_frames(client, missing, frames=[{"surface": "sj"}])
 
 
-def test_workers_read_a_scene_file_at_a_url_by_ranges(client, sphere_file, tmp_path):
+def test_workers_read_a_scene_file_at_a_url_by_ranges(client, tmp_path):
     pytest.importorskip("fsspec")
     from ranged_http import RangedServer
 
-    pointray.prepare_file(str(sphere_file), str(tmp_path / "sphere.prs"))
+    # Large enough that opening it leaves treelets for the tiles to fetch.
+    np.savetxt(tmp_path / "sphere.xyz", sphere_points(n=100_000), fmt="%.9f")
+    pointray.prepare_file(str(tmp_path / "sphere.xyz"), str(tmp_path / "sphere.prs"))
     options = {"width": 160, "height": 120, "spp": 2}
     expected = pointray.render(str(tmp_path / "sphere.prs"), **options)
     with RangedServer(tmp_path) as server:
@@ -200,6 +202,15 @@ def test_workers_read_a_scene_file_at_a_url_by_ranges(client, sphere_file, tmp_p
         assert 0 < server.sent <= 2 * (tmp_path / "sphere.prs").stat().st_size
         with pytest.raises(OSError, match=r"2 of the workers: worker tcp://.*nowhere\.prs"):
             pointray.dask.render(client, server.url("nowhere.prs"), width=32, height=32)
+        # A fetch failing midway: the task that met it is run again on the scene opened anew.
+        again = {**options, "spp": 1}
+        expected = pointray.render(str(tmp_path / "sphere.prs"), **again)
+        client.run(lambda: pointray.dask._scene.cache_clear())
+        pointray.dask._open_everywhere(client, pointray.dask._scene_key(server.url("sphere.prs"), again))
+        server.fail_next(1)
+        image = pointray.dask.render(client, server.url("sphere.prs"), tile=48, **again)
+        assert server.httpd.failures == 0, "a tile's fetch failed"
+        assert np.array_equal(image, expected)
 
 
 def test_workers_on_either_kernel_path_render_the_same_pixels(sphere_file, monkeypatch):

@@ -29,6 +29,7 @@ def test_a_scene_file_at_a_url_is_the_local_one_fetched_as_read(served):
     directory, server = served
     local = pointray.prepare(str(directory / "sphere.prs"))
     size = (directory / "sphere.prs").stat().st_size
+    server.forget()
     sent = server.sent
     remote = pointray.prepare(server.url("sphere.prs"))
     opening = server.sent - sent
@@ -48,14 +49,15 @@ def test_a_scene_file_at_a_url_is_the_local_one_fetched_as_read(served):
     assert np.array_equal(pointray.render(server.url("sphere.prs"), **far), pointray.render(local, **far))
 
 
-def test_what_cannot_be_read_at_a_url_is_named_and_read_again_later(served):
+def test_what_cannot_be_read_at_a_url_is_named_until_opened_again(served):
     directory, server = served
     with pytest.raises(FileNotFoundError, match="missing.prs"):
         pointray.prepare(server.url("missing.prs"))
     with pytest.raises(ValueError, match="cloud.ply.*not a pointray scene file"):
         pointray.prepare(server.url("cloud.ply"))
     # The server down after the open: the render that needs more of the file fails, naming
-    # what it could not read; back up, the same scene renders whole.
+    # what it could not read, and so do the scene's later ones (as for damage); the scene
+    # opened again, with the server back, renders whole.
     scene = pointray.prepare(server.url("sphere.prs"))
     close = {"width": 32, "height": 32, "lod_threshold": 0.0}
     server.set_down(True)
@@ -64,7 +66,10 @@ def test_what_cannot_be_read_at_a_url_is_named_and_read_again_later(served):
             pointray.render(scene, **close)
     finally:
         server.set_down(False)
-    assert np.array_equal(pointray.render(scene, **close), pointray.render(str(directory / "sphere.prs"), **close))
+    with pytest.raises(ValueError, match="could not be read"):
+        pointray.render(scene, **close)
+    again = pointray.prepare(server.url("sphere.prs"))
+    assert np.array_equal(pointray.render(again, **close), pointray.render(str(directory / "sphere.prs"), **close))
 
 
 def test_threads_rendering_a_scene_at_a_url_at_once_each_get_their_image(served):

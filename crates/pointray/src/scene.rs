@@ -18,7 +18,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, OnceLock};
 
 use glam::{DVec3, Vec3};
@@ -421,7 +421,6 @@ impl Scene {
         if let Some(check) = &self.stored {
             check.check(&self.ids)?;
         }
-        let unread_at = UnreadAt(AtomicU64::new(self.retried_unread()));
         let scheme = settings.scheme();
         let cone = crate::math::RayCone { width0: 0.0, spread: 0.0 };
         let query = |&(origin, direction): &(DVec3, Vec3)| {
@@ -433,7 +432,7 @@ impl Scene {
             Some(RayHit { t: hit.t, position: self.origin + hit.position.as_dvec3(), normal: hit.normal, splat })
         };
         let hits = rays.par_iter().map(query).collect();
-        self.check_whole(&unread_at)?;
+        self.check_whole()?;
         Ok(hits)
     }
 
@@ -449,39 +448,15 @@ impl Scene {
         }
     }
 
-    /// An error if a walk found part of a stored scene damaged (see [`Bvh::damage`]), or could
-    /// not fetch part of it since `unread_at` counted the failed fetches ([`Bvh::unread`]): what
-    /// it drew or met is then incomplete. The count is taken anew, the failed parts to be
-    /// fetched again by the next walk.
-    fn check_whole(&self, unread_at: &UnreadAt) -> Result<(), RenderError> {
-        let (damage, (unread, why)) = match &self.accel {
-            Accelerator::Bvh(bvh) => (bvh.damage(), bvh.unread()),
-            Accelerator::TwoLevel(scene) => (scene.damage(), scene.unread()),
-            _ => (None, (0, None)),
+    /// An error if a walk found part of a stored scene damaged (see [`Bvh::damage`]): what it
+    /// drew or met is then incomplete.
+    fn check_whole(&self) -> Result<(), RenderError> {
+        let damage = match &self.accel {
+            Accelerator::Bvh(bvh) => bvh.damage(),
+            Accelerator::TwoLevel(scene) => scene.damage(),
+            _ => None,
         };
-        if let Some(damage) = damage {
-            return Err(RenderError::Stored(damage.to_string()));
-        }
-        if unread_at.0.swap(unread, Ordering::Relaxed) != unread {
-            self.retried_unread();
-            return Err(RenderError::Stored(why.unwrap_or_default()));
-        }
-        Ok(())
-    }
-
-    /// Lets the parts of a stored scene whose fetch failed be fetched again; the count of
-    /// failed fetches so far.
-    fn retried_unread(&self) -> u64 {
-        match &self.accel {
-            Accelerator::Bvh(bvh) => bvh.retry_unread(),
-            Accelerator::TwoLevel(scene) => scene.retry_unread(),
-            _ => {}
-        }
-        match &self.accel {
-            Accelerator::Bvh(bvh) => bvh.unread().0,
-            Accelerator::TwoLevel(scene) => scene.unread().0,
-            _ => 0,
-        }
+        damage.map_or(Ok(()), |d| Err(RenderError::Stored(d.to_string())))
     }
 
     /// The settings resolved against this scene: the camera, the pixels and the render
@@ -489,8 +464,6 @@ impl Scene {
     pub fn job(&self, settings: &Settings) -> Result<RenderJob<'_>, SettingsError> {
         settings.check()?;
         self.check_build(settings)?;
-        // The probes below walk the scene: a part they could not fetch fails the job's renders.
-        let unread_at = UnreadAt(AtomicU64::new(self.retried_unread()));
         let camera = self.camera(settings);
         let region = self.region(settings, &camera)?;
         let scheme = settings.scheme();
@@ -546,11 +519,7 @@ impl Scene {
             count_work: settings.count_work || settings.aovs.contains(&Aov::Nodes),
             first_hit_aovs: settings.aovs.iter().any(|aov| *aov != Aov::Nodes),
         };
-        let probes_unread = match self.check_whole(&unread_at) {
-            Err(RenderError::Stored(why)) => Some(why),
-            _ => None,
-        };
-        Ok(RenderJob { scene: self, settings: settings.clone(), camera, config, backfacing, unread_at, probes_unread })
+        Ok(RenderJob { scene: self, settings: settings.clone(), camera, config, backfacing })
     }
 
     /// Whether the scene was built as `settings` ask (accelerator, disks, colours, classes,
@@ -765,22 +734,6 @@ pub struct RenderJob<'s> {
     pub config: RenderConfig,
     /// The `Cull::Auto` probe's fraction of back faces met first, if it ran.
     backfacing: Option<f64>,
-    /// The stored scene's failed fetches counted so far ([`Scene::check_whole`]).
-    unread_at: UnreadAt,
-    /// Why the probes (`job`) met a part of the scene they could not fetch or a damaged one:
-    /// their choices may be wrong, so every render of the job fails.
-    probes_unread: Option<String>,
-}
-
-/// A count of a stored scene's failed fetches, as a render saw it last (a job's own: a clone
-/// takes the value).
-#[derive(Debug)]
-struct UnreadAt(AtomicU64);
-
-impl Clone for UnreadAt {
-    fn clone(&self) -> Self {
-        Self(AtomicU64::new(self.0.load(Ordering::Relaxed)))
-    }
 }
 
 impl RenderJob<'_> {
@@ -797,9 +750,6 @@ impl RenderJob<'_> {
         progress: &(dyn Fn(u64) + Sync),
         cancel: &AtomicBool,
     ) -> Result<Option<Frame>, RenderError> {
-        if let Some(why) = &self.probes_unread {
-            return Err(RenderError::Stored(why.clone()));
-        }
         let mut film = self.film();
         let (camera, config) = (&self.camera, &self.config);
         let stats = on_accel!(&self.scene.accel, a => crate::render::render_into_until(a, camera, config, &mut film, progress, cancel));
@@ -807,7 +757,7 @@ impl RenderJob<'_> {
             return Ok(None);
         }
         self.shade_eye_dome(&mut film);
-        self.scene.check_whole(&self.unread_at)?;
+        self.scene.check_whole()?;
         let (width, height) = (self.settings.width, self.settings.height);
         Ok(Some(Frame { film, stats, width, height, background: self.background() }))
     }

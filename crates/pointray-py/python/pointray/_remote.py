@@ -11,8 +11,8 @@ from __future__ import annotations
 import re
 from typing import Any, Callable, List, Sequence, Tuple
 
-# Two letters at least: "C://" is a Windows path.
-_SCHEME = re.compile(r"^[A-Za-z][A-Za-z0-9+.\-]+(://|::)")
+# A scheme of two letters at least ("C://" is a Windows path), fsspec's chains before it.
+_SCHEME = re.compile(r"^([A-Za-z][A-Za-z0-9+.\-]+::)*[A-Za-z][A-Za-z0-9+.\-]+://")
 
 
 def is_url(source: Any) -> bool:

@@ -44,6 +44,9 @@ PREPARE_OPTIONS = PREPROCESS_OPTIONS | {
 
 #: Scenes this process opened (a worker's count, for the tests: one a source and build).
 opened = 0
+#: How often a task is run again after it raised (a scene file at a URL that could not be
+#: fetched is opened again for the retry); a worker's death is Dask's to reschedule.
+RETRIES = 2
 
 
 def render(
@@ -72,7 +75,9 @@ def render(
     regions = _regions(width, height, tile)
     token = os.urandom(6).hex()
     futures = [
-        client.submit(_render_tile, key, region, width, height, options, key=f"pointray-tile-{token}-{i}")
+        client.submit(
+            _render_tile, key, region, width, height, options, key=f"pointray-tile-{token}-{i}", retries=RETRIES
+        )
         for i, region in enumerate(regions)
     ]
     image = np.zeros((height, width, 3), dtype=np.float32)
@@ -132,7 +137,9 @@ def render_frames(
     token = os.urandom(6).hex()
     size = {"width": width, "height": height}
     futures = [
-        client.submit(_render_frame, key, {**options, **size, **own}, camera, key=f"pointray-frame-{token}-{i}")
+        client.submit(
+            _render_frame, key, {**options, **size, **own}, camera, key=f"pointray-frame-{token}-{i}", retries=RETRIES
+        )
         for i, (own, camera) in enumerate(shots)
     ]
     index = {f.key: i for i, f in enumerate(futures)}
@@ -260,6 +267,25 @@ def _open_everywhere(client: Any, key: Tuple[Any, ...]) -> None:
         raise OSError(f"the source cannot be opened on {len(failures)} of the workers: {lines}")
 
 
+def _reopened_after_failed_fetches(task: Callable[..., np.ndarray]) -> Callable[..., np.ndarray]:
+    """`task`, after which a scene that could not fetch part of its file (a scene file at a
+    URL: the failure stays with the scene, as damage does) is let go, so that the task's retry
+    (`RETRIES`) opens it again and fetches anew."""
+
+    @functools.wraps(task)
+    def run(*args: Any) -> np.ndarray:
+        try:
+            return task(*args)
+        except ValueError as e:
+            if "could not be read" in str(e):
+                _scene.cache_clear()
+                _orbit.cache_clear()
+            raise
+
+    return run
+
+
+@_reopened_after_failed_fetches
 def _render_tile(
     key: Tuple[Any, ...], region: Tuple[int, int, int, int], width: int, height: int, options: Dict[str, Any]
 ) -> np.ndarray:
@@ -267,6 +293,7 @@ def _render_tile(
     return pointray.render_region(_scene(key), region, width=width, height=height, **own)
 
 
+@_reopened_after_failed_fetches
 def _render_frame(key: Tuple[Any, ...], options: Dict[str, Any], camera: Optional[Tuple[str, int, int]]) -> np.ndarray:
     """A frame: `options`, with the camera of an orbit's frame or the animation's, if named."""
     scene, own = _scene(key), _render_options(options)

@@ -296,7 +296,10 @@ impl Scene {
             bvh.check_all().map_err(StoredSceneError::Unread)?;
         }
         if let Some(check) = &self.stored {
-            check.check(&self.ids).map_err(|e| StoredSceneError::Unread(e.to_string()))?;
+            check.check(&self.ids).map_err(|e| match e {
+                super::RenderError::Stored(why) => StoredSceneError::Unread(why),
+                e => StoredSceneError::Unread(e.to_string()),
+            })?;
         }
         let (mut arrays, mut parts) = (Vec::new(), Vec::new());
         for ((bvh, offset), ids) in bvhs.into_iter().zip(&self.ids) {

@@ -9,8 +9,7 @@
 //! `nodes[k]` in the level-of-detail loop, which stored trees always take, so that the
 //! full-detail loop, which only trees in memory take, is what it was.
 
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Mutex, OnceLock, PoisonError};
+use std::sync::OnceLock;
 
 use super::lod::{Lod, NodeAggregate, NodeLod, node_ranges};
 use super::{Bvh, LEAF, MAX_DEPTH, Node, SLOTS, WIDTH, leaf_blocks, leaf_size};
@@ -182,23 +181,11 @@ pub(crate) struct Lazy {
     depth: Box<[u8]>,
     /// The first damage found.
     damage: OnceLock<String>,
-    /// Entries that found their treelet unreadable (a fetch that failed: see `enter`), and the
-    /// last one's reason.
-    unread: AtomicU64,
-    unread_why: Mutex<Option<String>>,
-    /// The treelets whose fetch failed, not asked for again until [`Bvh::retry_unread`] (each
-    /// ray that meets one would ask again).
-    failed: Box<[AtomicBool]>,
 }
 
 impl Lazy {
     pub(crate) fn damage(&self) -> Option<&str> {
         self.damage.get().map(String::as_str)
-    }
-
-    fn unreadable(&self, why: String) {
-        *self.unread_why.lock().unwrap_or_else(PoisonError::into_inner) = Some(why);
-        self.unread.fetch_add(1, Ordering::Release);
     }
 
     /// How many treelets were checked so far.
@@ -209,25 +196,16 @@ impl Lazy {
 }
 
 impl Bvh {
-    /// The root of treelet reference `child` (see the module), fetched and checked the first
-    /// time; `None` where it is no treelet, is damaged (the damage kept, see [`Bvh::damage`])
-    /// or could not be fetched (counted, see [`Bvh::unread`]; fetched again at the next entry):
-    /// the walk then treats it as empty.
+    /// The root of treelet reference `child` (see the module), fetched (`StableBytes::fetch`)
+    /// and checked the first time; `None` where it is no treelet, is damaged or could not be
+    /// fetched (kept as damage, see [`Bvh::damage`]: every later render fails as the one that
+    /// met it, as for a damaged file, rather than some renders meeting holes unseen; the file
+    /// opened again fetches anew): the walk then treats it as empty.
     #[cold]
     #[inline(never)]
     pub(crate) fn enter(&self, child: u32) -> Option<u32> {
         let t = child.checked_sub(TREELET_BASE).filter(|_| child & LEAF == 0)? as usize;
         let (lazy, treelet) = (self.lazy.as_deref()?, self.treelets.get(t)?);
-        if lazy.whole[t].get().is_none() {
-            if lazy.failed[t].load(Ordering::Relaxed) {
-                return None;
-            }
-            if let Err(e) = self.fetch_treelet(treelet) {
-                lazy.failed[t].store(true, Ordering::Relaxed);
-                lazy.unreadable(format!("treelet {t} could not be read: {e}"));
-                return None;
-            }
-        }
         let whole = *lazy.whole[t].get_or_init(|| match self.check_treelet(treelet, lazy.depth[t]) {
             Ok(()) => true,
             Err(problem) => {
@@ -249,42 +227,18 @@ impl Bvh {
         self.lazy.as_deref().and_then(Lazy::damage)
     }
 
-    /// How many times so far a walk found a treelet it could not fetch (a scene file read by
-    /// ranges, `StableBytes::fetch`), and the last reason: a render compares the count before
-    /// and after, since what failed once may be fetched the next time.
-    pub fn unread(&self) -> (u64, Option<String>) {
-        let Some(lazy) = self.lazy.as_deref() else { return (0, None) };
-        let count = lazy.unread.load(Ordering::Acquire);
-        (count, lazy.unread_why.lock().unwrap_or_else(PoisonError::into_inner).clone())
-    }
-
-    /// Lets the treelets whose fetch failed be fetched again (a render's or a query's start).
-    pub fn retry_unread(&self) {
-        if let Some(lazy) = self.lazy.as_deref().filter(|l| l.unread.load(Ordering::Acquire) > 0) {
-            lazy.failed.iter().for_each(|f| f.store(false, Ordering::Relaxed));
-        }
-    }
-
-    /// Every treelet fetched and checked now (for what reads all the splats); the first damage
-    /// or failed fetch.
+    /// Every treelet checked now (for what reads all the splats); the first damage.
     pub fn check_all(&self) -> Result<(), String> {
-        self.retry_unread();
-        let (before, _) = self.unread();
         for t in 0..self.treelets.len() {
             self.enter(treelet_ref(t));
         }
-        if let Some(damage) = self.damage() {
-            return Err(damage.to_string());
-        }
-        match self.unread() {
-            (after, Some(why)) if after != before => Err(why),
-            _ => Ok(()),
-        }
+        self.damage().map_or(Ok(()), |d| Err(d.to_string()))
     }
 
     /// A treelet's CRC and structure: its nodes' children lie after them within it, its leaves
     /// within its blocks, no deeper than the walks' stacks allow from `depth`, its root's.
     fn check_treelet(&self, t: &Treelet, depth: u8) -> Result<(), String> {
+        self.fetch_treelet(t).map_err(|e| format!("could not be read: {e}"))?;
         if self.treelet_crc(t) != t.crc {
             return Err("damaged (CRC mismatch)".into());
         }
@@ -327,7 +281,7 @@ impl Bvh {
     }
 
     /// Has the bytes under the tree fetch treelet `t`'s ranges, where they arrive as read
-    /// (`StableBytes::fetch`): one request for its five runs.
+    /// (`StableBytes::fetch`): its five runs in one call.
     fn fetch_treelet(&self, t: &Treelet) -> Result<(), String> {
         let Some(bytes) = self.nodes.owner() else { return Ok(()) };
         let (nodes, blocks) = (t.node_range(), t.block_range());
@@ -395,8 +349,6 @@ impl Bvh {
             }
         }
         let whole = (0..self.treelets.len()).map(|_| OnceLock::new()).collect();
-        let (unread, unread_why) = (AtomicU64::new(0), Mutex::new(None));
-        let failed = (0..self.treelets.len()).map(|_| AtomicBool::new(false)).collect();
-        Ok(Lazy { whole, depth: treelet_depth.into(), damage: OnceLock::new(), unread, unread_why, failed })
+        Ok(Lazy { whole, depth: treelet_depth.into(), damage: OnceLock::new() })
     }
 }

@@ -213,17 +213,6 @@ impl TwoLevel {
         self.parts.iter().find_map(|p| p.bvh.damage())
     }
 
-    /// [`Bvh::retry_unread`] on every part.
-    pub fn retry_unread(&self) {
-        self.parts.iter().for_each(|p| p.bvh.retry_unread());
-    }
-
-    /// The parts' [`Bvh::unread`]: their counts summed, a reason.
-    pub fn unread(&self) -> (u64, Option<String>) {
-        let each = self.parts.iter().map(|p| p.bvh.unread());
-        each.fold((0, None), |(n, why), (m, w)| (n + m, why.or(w)))
-    }
-
     pub fn node_count(&self) -> usize {
         self.parts.iter().map(|p| p.bvh.node_count()).sum()
     }
