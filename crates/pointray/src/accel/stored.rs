@@ -22,8 +22,8 @@ use bytemuck::{AnyBitPattern, NoUninit};
 /// # Safety
 /// Every call of [`StableBytes::bytes`] on one value returns the same slice (address and
 /// length), valid for as long as the value lives, and nothing writes to those bytes meanwhile,
-/// but `fetch`: it may fill bytes not fetched before, each once, from zero to their value, and
-/// returns once they hold it. Readers of fetched bytes ask for them first (`Bvh::from_stored`
+/// but `fetch`: it may write bytes it has not yet made present (from zero to their value),
+/// never a present one, and returns once those asked for are present. Readers of fetched bytes ask for them first (`Bvh::from_stored`
 /// for the top, `Bvh::enter` for a treelet, the ids' check, `Scene::stored` for everything),
 /// behind a `OnceLock` that orders the fetch before every read.
 #[allow(unsafe_code)]
