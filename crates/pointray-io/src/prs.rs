@@ -247,6 +247,16 @@ mod tests {
         render(scene, &settings).unwrap().srgb8(settings.tone_map())
     }
 
+    /// The demo cloud of `points` as a two-level scene of parts and chunks of at most
+    /// `part_splats` and `chunk_splats`.
+    fn scene_in_parts(points: usize, chunk_splats: usize, part_splats: usize) -> Scene {
+        let mut cloud = pointray::demo::demo_cloud(points, 9);
+        preprocess(&mut cloud, &PreprocessConfig::standard()).unwrap();
+        let limits = pointray::scene::BuildLimits { chunk_splats, part_splats };
+        let parts = pointray::demo::demo_scene_parts(cloud);
+        Scene::build_with_limits(parts, &Settings::default(), limits).unwrap()
+    }
+
     fn opened(path: &Path) -> Result<Scene, IoError> {
         let parts = pointray::SceneParts { stored: Some(open_prs(path)?), ..Default::default() };
         Ok(Scene::build(parts, &Settings::default()).expect("a checked scene builds"))
@@ -270,11 +280,7 @@ mod tests {
     fn a_scene_in_parts_is_stored_part_by_part() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("parts.prs");
-        let mut cloud = pointray::demo::demo_cloud(6_000, 9);
-        preprocess(&mut cloud, &PreprocessConfig::standard()).unwrap();
-        let limits = pointray::scene::BuildLimits { chunk_splats: 500, part_splats: 1_000 };
-        let parts = pointray::demo::demo_scene_parts(cloud);
-        let scene = Scene::build_with_limits(parts, &Settings::default(), limits).unwrap();
+        let scene = scene_in_parts(6_000, 500, 1_000);
         write_prs(&path, &scene).unwrap();
         let meta = open_prs(&path).unwrap().meta().clone();
         assert!(meta.parts.len() >= 4, "{} parts", meta.parts.len());
@@ -391,11 +397,7 @@ mod tests {
     fn a_scene_file_fetched_by_ranges_is_the_mapped_one_read_as_needed() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("parts.prs");
-        let mut cloud = pointray::demo::demo_cloud(40_000, 9);
-        preprocess(&mut cloud, &PreprocessConfig::standard()).unwrap();
-        let limits = pointray::scene::BuildLimits { chunk_splats: 5_000, part_splats: 20_000 };
-        let scene = Scene::build_with_limits(pointray::demo::demo_scene_parts(cloud), &Settings::default(), limits);
-        write_prs(&path, &scene.unwrap()).unwrap();
+        write_prs(&path, &scene_in_parts(40_000, 5_000, 20_000)).unwrap();
         let served = Served { bytes: Arc::new(std::fs::read(&path).unwrap()), ..Served::default() };
         let (mapped, remote) = (opened(&path).unwrap(), served.open().unwrap());
         let (file, at_open) = (served.bytes.len() as u64, served.asked_once());
