@@ -3,12 +3,13 @@
 //! written as OUT_0007.png, or into the #s of `-o out_####.png`; `-o out.mp4` encodes them as
 //! they come (`pointray_io::video`), or writes them as PNGs beside it where ffmpeg is missing.
 
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
 use pointray::camera_path::Animation;
 use pointray::scene::Scene;
 use pointray::settings::Settings;
 use pointray_io::video::{self, Mp4Writer};
-use std::ops::Range;
-use std::path::{Path, PathBuf};
 
 use crate::args::RenderArgs;
 use crate::failure;
